@@ -1,0 +1,189 @@
+"""Body parameters of the cylinder model: segment lengths, cross-section radii, hip width.
+
+A body is what skeleton calibration (Wei section 6) and personalization (Helten section III)
+estimate, and what ``runtime-track --body`` loads. The geometry of segment k is an elliptic
+cylinder along the segment axis from ``-extent[k, 0]`` to ``length[k] + extent[k, 1]``, with
+semi-axes ``radii[k]`` along the two cross-section directions of ``cross_section_axes``.
+
+Defaults describe an average adult of about 1.75 m (rounded anthropometric figures):
+stature = ankle height + shank + thigh + pelvis + abdomen + chest + neck + head.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .skeleton import NUM_SEGMENTS, SEGMENT_AXIS, SEGMENT_NAMES
+
+__all__ = ["BodyShape", "DEFAULT_LENGTHS", "DEFAULT_RADII", "DEFAULT_EXTENTS",
+           "DEFAULT_HIP_HALF_WIDTH", "cross_section_axes", "BODY_FORMAT", "BODY_VERSION"]
+
+BODY_FORMAT = "depthmocap-body"
+BODY_VERSION = 1
+
+# Joint-to-joint lengths in metres, in SEGMENT_NAMES order.
+DEFAULT_LENGTHS = np.array(
+    [0.10, 0.20, 0.22, 0.10, 0.22, 0.18, 0.18, 0.29, 0.29, 0.26, 0.26, 0.43, 0.43, 0.42, 0.42]
+)
+# Semi-axes (first, second cross-section direction); for vertical segments (x = lateral,
+# z = depth). Pelvis, abdomen and chest are the elliptic torso.
+DEFAULT_RADII = np.array(
+    [
+        [0.16, 0.11], [0.14, 0.10], [0.17, 0.11], [0.055, 0.055], [0.08, 0.095],
+        [0.05, 0.05], [0.05, 0.05], [0.05, 0.05], [0.05, 0.05], [0.04, 0.04], [0.04, 0.04],
+        [0.08, 0.08], [0.08, 0.08], [0.055, 0.055], [0.055, 0.055],
+    ]
+)
+# Geometry beyond the joints: (before the origin, beyond the end). The pelvis reaches below
+# the hip joints, forearms cover the hand, shanks reach the sole.
+DEFAULT_EXTENTS = np.array(
+    [
+        [0.08, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.02],
+        [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.10], [0.0, 0.10],
+        [0.0, 0.0], [0.0, 0.0], [0.0, 0.07], [0.0, 0.07],
+    ]
+)
+DEFAULT_HIP_HALF_WIDTH = 0.09
+
+
+def cross_section_axes() -> np.ndarray:
+    """Unit directions of the two semi-axes of each segment, in its frame: (15, 2, 3).
+
+    Vertical segments use (x, z); the horizontal clavicles use (y, z).
+    """
+    axes = np.zeros((NUM_SEGMENTS, 2, 3))
+    vertical = np.abs(SEGMENT_AXIS[:, 1]) > 0.5
+    axes[vertical, 0] = (1.0, 0.0, 0.0)
+    axes[~vertical, 0] = (0.0, 1.0, 0.0)
+    axes[:, 1] = (0.0, 0.0, 1.0)
+    return axes
+
+
+@dataclass
+class BodyShape:
+    """Parameters of one or many bodies, batch-first and broadcastable.
+
+    Attributes:
+        lengths: (..., 15) joint-to-joint length of each segment, metres.
+        radii: (..., 15, 2) cross-section semi-axes of each segment, metres.
+        extents: (..., 15, 2) geometry before the origin / beyond the end, metres.
+        hip_half_width: (...) lateral distance of each hip joint from the hip centre, metres.
+    """
+
+    lengths: torch.Tensor
+    radii: torch.Tensor
+    extents: torch.Tensor
+    hip_half_width: torch.Tensor
+
+    @classmethod
+    def default(
+        cls, dtype: torch.dtype = torch.float32, device: torch.device | str | None = None
+    ) -> BodyShape:
+        """The average adult of the module docstring, unbatched."""
+
+        def t(a):
+            return torch.as_tensor(a, dtype=dtype, device=device)
+
+        return cls(t(DEFAULT_LENGTHS), t(DEFAULT_RADII), t(DEFAULT_EXTENTS),
+                   t(DEFAULT_HIP_HALF_WIDTH))
+
+    def to(self, dtype: torch.dtype | None = None, device=None) -> BodyShape:
+        """Same body with tensors on ``device`` / in ``dtype``."""
+        return BodyShape(*(x.to(device=device, dtype=dtype) for x in self._fields()))
+
+    def _fields(self) -> tuple[torch.Tensor, ...]:
+        return (self.lengths, self.radii, self.extents, self.hip_half_width)
+
+    def scaled(self, factor: float | torch.Tensor) -> BodyShape:
+        """Uniformly scaled body (every length and radius times ``factor``)."""
+        f = torch.as_tensor(factor, dtype=self.lengths.dtype, device=self.lengths.device)
+        return BodyShape(self.lengths * f[..., None], self.radii * f[..., None, None],
+                         self.extents * f[..., None, None], self.hip_half_width * f)
+
+    def stature(self) -> torch.Tensor:
+        """Standing height (...,): sole to top of head with all joint angles zero."""
+        L, E = self.lengths, self.extents
+        legs = L[..., 11] + L[..., 13] + E[..., 13, 1]
+        trunk = L[..., 0] + L[..., 1] + L[..., 2] + L[..., 3] + L[..., 4] + E[..., 4, 1]
+        return legs + trunk
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` on wrong shapes or non-positive / non-finite sizes."""
+        if self.lengths.shape[-1] != NUM_SEGMENTS:
+            raise ValueError(f"body lengths must end in {NUM_SEGMENTS}, got {tuple(self.lengths.shape)}")
+        for name, x in (("radii", self.radii), ("extents", self.extents)):
+            if tuple(x.shape[-2:]) != (NUM_SEGMENTS, 2):
+                raise ValueError(f"body {name} must end in ({NUM_SEGMENTS}, 2), got {tuple(x.shape)}")
+        for name, x in zip(("lengths", "radii", "extents", "hip_half_width"), self._fields()):
+            if not bool(torch.isfinite(x).all()):
+                raise ValueError(f"body {name} has non-finite values")
+        if bool((self.lengths <= 0).any()) or bool((self.radii <= 0).any()):
+            raise ValueError("body lengths and radii must be positive")
+        if bool((self.extents < 0).any()) or bool((self.hip_half_width <= 0).any()):
+            raise ValueError("body extents must be >= 0 and hip_half_width > 0")
+
+    # -- body file (JSON): what calibration and personalization write --------------------
+    def to_json_dict(self) -> dict:
+        """A single body as a JSON-ready dict with per-segment named entries."""
+        if self.lengths.dim() != 1:
+            raise ValueError("only a single (unbatched) body can be written to a body file")
+        segs = {
+            name: {
+                "length": float(self.lengths[k]),
+                "radii": [float(r) for r in self.radii[k]],
+                "extents": [float(e) for e in self.extents[k]],
+            }
+            for k, name in enumerate(SEGMENT_NAMES)
+        }
+        return {"format": BODY_FORMAT, "version": BODY_VERSION, "units": "m",
+                "hip_half_width": float(self.hip_half_width), "segments": segs}
+
+    @classmethod
+    def from_json_dict(cls, data: dict, dtype: torch.dtype = torch.float32) -> BodyShape:
+        """Parse and validate a body-file dict; clear ``ValueError`` on anything off."""
+        if not isinstance(data, dict) or data.get("format") != BODY_FORMAT:
+            raise ValueError(f"not a body file (expected format '{BODY_FORMAT}')")
+        version = data.get("version")
+        if not isinstance(version, int) or version > BODY_VERSION or version < 1:
+            raise ValueError(f"body file version {version!r} is not supported (<= {BODY_VERSION})")
+        segs = data.get("segments")
+        if not isinstance(segs, dict):
+            raise ValueError("body file has no 'segments' table")
+        missing = [n for n in SEGMENT_NAMES if n not in segs]
+        if missing:
+            raise ValueError(f"body file lacks segments: {', '.join(missing)}")
+        try:
+            lengths = [float(segs[n]["length"]) for n in SEGMENT_NAMES]
+            radii = [[float(r) for r in segs[n]["radii"]] for n in SEGMENT_NAMES]
+            extents = [[float(e) for e in segs[n].get("extents", (0.0, 0.0))] for n in SEGMENT_NAMES]
+            hw = float(data["hip_half_width"])
+        except (KeyError, TypeError, ValueError) as err:
+            raise ValueError(f"body file is malformed: {err}") from None
+        t = lambda a: torch.tensor(a, dtype=dtype)  # noqa: E731
+        body = cls(t(lengths), t(radii), t(extents), t(hw))
+        body.validate()
+        return body
+
+    def save(self, path: str | Path) -> None:
+        """Write the body file (JSON)."""
+        Path(path).write_text(json.dumps(self.to_json_dict(), indent=2))
+
+    @classmethod
+    def load(cls, path: str | Path, dtype: torch.dtype = torch.float32) -> BodyShape:
+        """Read a body file; ``ValueError`` with the path on malformed content."""
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise FileNotFoundError(f"body file not found: {path}") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as err:
+            raise ValueError(f"{path}: not valid JSON ({err})") from None
+        try:
+            return cls.from_json_dict(data, dtype)
+        except ValueError as err:
+            raise ValueError(f"{path}: {err}") from None
