@@ -1,0 +1,114 @@
+"""``make bench``: speed figures of the runtime's hot paths, printed, never asserted.
+
+Each figure is the median over repeats after a warm-up; ratios compare against a baseline
+measured in the same run, because these machines are noisy.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from collections.abc import Callable
+
+import torch
+
+from shared.body import BodyShape
+from shared.kinematics import (
+    forward_kinematics,
+    named_joint_positions,
+    point_jacobian,
+    pose_update,
+    rest_pose,
+)
+from shared.skeleton import DOF_LIMITS, JOINT_FRACTION, JOINT_SEGMENT
+
+__all__ = ["time_call", "bench_kinematics", "main"]
+
+
+def time_call(fn: Callable[[], object], repeats: int = 20, warmup: int = 3) -> float:
+    """Median wall time of ``fn()`` in milliseconds (CUDA synchronized)."""
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        if torch.cuda.is_available():
+            torch.cuda.synchronize()
+        t0 = time.perf_counter()
+        fn()
+        if torch.cuda.is_available():
+            torch.cuda.synchronize()
+        times.append((time.perf_counter() - t0) * 1e3)
+    return statistics.median(times)
+
+
+def _random_poses(batch: int, dtype, device) -> torch.Tensor:
+    g = torch.Generator().manual_seed(0)
+    q = rest_pose(batch, dtype=dtype)
+    lim = torch.as_tensor(DOF_LIMITS[6:], dtype=dtype)
+    q[:, 6:] = 0.5 * (lim[:, 0] + torch.rand(batch, 28, generator=g, dtype=dtype) * (lim[:, 1] - lim[:, 0]))
+    return q.to(device)
+
+
+def bench_kinematics(batch: int, device: str, dtype=torch.float32) -> list[tuple[str, float, str]]:
+    """FK and Jacobian timings for ``batch`` poses; rows of (what, ms, note)."""
+    body = BodyShape.default(dtype, device)
+    q = _random_poses(batch, dtype, device)
+    seg = torch.as_tensor(JOINT_SEGMENT, device=device)
+
+    def fk():
+        return forward_kinematics(q, body)
+
+    def fk_jac():
+        kin = forward_kinematics(q, body)
+        p = named_joint_positions(kin)
+        return point_jacobian(kin, p, seg)
+
+    # Baseline: the same Jacobian by reverse-mode autograd through FK (what a naive
+    # implementation would do), on a smaller batch and scaled up.
+    small = max(1, batch // 10)
+    qs = q[:small]
+
+    def autograd_jac():
+        def f(dq):
+            return named_joint_positions(forward_kinematics(pose_update(qs, dq), body)).sum(0)
+
+        return torch.autograd.functional.jacobian(f, torch.zeros_like(qs), vectorize=True)
+
+    t_fk = time_call(fk)
+    t_jac = time_call(fk_jac)
+    t_auto = time_call(autograd_jac, repeats=5) * batch / small
+    # One tracker-sized call: a single pose and 5,000 surface points.
+    kin1 = forward_kinematics(q[:1], body)
+    pts = torch.randn(1, 5000, 3, dtype=dtype, device=device) * 0.1 + q[:1, None, :3]
+    pseg = torch.randint(0, 15, (5000,), device=device)
+    t_track = time_call(lambda: point_jacobian(kin1, pts, pseg))
+    _ = JOINT_FRACTION
+    return [
+        (f"FK, {batch} poses", t_fk, "target < 5 ms on 2 CPU cores"),
+        (f"FK + 16-joint Jacobian, {batch} poses", t_jac, ""),
+        (f"autograd Jacobian baseline, {batch} poses", t_auto,
+         f"analytic is {t_auto / t_jac:.1f}x faster"),
+        ("Jacobian of 5,000 surface points, 1 pose", t_track, "per tracker iteration"),
+    ]
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--batch", type=int, default=1000, help="poses per FK call")
+    parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    parser.add_argument("--device", default="cpu", choices=["cpu", "cuda", "all"])
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    devices = ["cpu", "cuda"] if args.device == "all" else [args.device]
+    devices = [d for d in devices if d == "cpu" or torch.cuda.is_available()]
+    print(f"torch {torch.__version__}, {args.threads} CPU threads")
+    for dev in devices:
+        name = torch.cuda.get_device_name() if dev == "cuda" else "CPU"
+        print(f"\n== kinematics on {name} ==")
+        for what, ms, note in bench_kinematics(args.batch, dev):
+            print(f"  {what:<45s} {ms:9.3f} ms  {note}")
+
+
+if __name__ == "__main__":
+    main()
