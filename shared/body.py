@@ -20,8 +20,16 @@ import torch
 
 from .skeleton import NUM_SEGMENTS, SEGMENT_AXIS, SEGMENT_NAMES
 
-__all__ = ["BodyShape", "DEFAULT_LENGTHS", "DEFAULT_RADII", "DEFAULT_EXTENTS",
-           "DEFAULT_HIP_HALF_WIDTH", "cross_section_axes", "BODY_FORMAT", "BODY_VERSION"]
+__all__ = [
+    "BodyShape",
+    "DEFAULT_LENGTHS",
+    "DEFAULT_RADII",
+    "DEFAULT_EXTENTS",
+    "DEFAULT_HIP_HALF_WIDTH",
+    "cross_section_axes",
+    "BODY_FORMAT",
+    "BODY_VERSION",
+]
 
 BODY_FORMAT = "depthmocap-body"
 BODY_VERSION = 1
@@ -34,18 +42,42 @@ DEFAULT_LENGTHS = np.array(
 # z = depth). Pelvis, abdomen and chest are the elliptic torso.
 DEFAULT_RADII = np.array(
     [
-        [0.16, 0.11], [0.14, 0.10], [0.17, 0.11], [0.055, 0.055], [0.08, 0.095],
-        [0.05, 0.05], [0.05, 0.05], [0.05, 0.05], [0.05, 0.05], [0.04, 0.04], [0.04, 0.04],
-        [0.08, 0.08], [0.08, 0.08], [0.055, 0.055], [0.055, 0.055],
+        [0.16, 0.11],
+        [0.14, 0.10],
+        [0.17, 0.11],
+        [0.055, 0.055],
+        [0.08, 0.095],
+        [0.05, 0.05],
+        [0.05, 0.05],
+        [0.05, 0.05],
+        [0.05, 0.05],
+        [0.04, 0.04],
+        [0.04, 0.04],
+        [0.08, 0.08],
+        [0.08, 0.08],
+        [0.055, 0.055],
+        [0.055, 0.055],
     ]
 )
 # Geometry beyond the joints: (before the origin, beyond the end). The pelvis reaches below
 # the hip joints, forearms cover the hand, shanks reach the sole.
 DEFAULT_EXTENTS = np.array(
     [
-        [0.08, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.02],
-        [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.10], [0.0, 0.10],
-        [0.0, 0.0], [0.0, 0.0], [0.0, 0.07], [0.0, 0.07],
+        [0.08, 0.0],
+        [0.0, 0.0],
+        [0.0, 0.0],
+        [0.0, 0.0],
+        [0.0, 0.02],
+        [0.0, 0.0],
+        [0.0, 0.0],
+        [0.0, 0.0],
+        [0.0, 0.0],
+        [0.0, 0.10],
+        [0.0, 0.10],
+        [0.0, 0.0],
+        [0.0, 0.0],
+        [0.0, 0.07],
+        [0.0, 0.07],
     ]
 )
 DEFAULT_HIP_HALF_WIDTH = 0.09
@@ -89,8 +121,9 @@ class BodyShape:
         def t(a):
             return torch.as_tensor(a, dtype=dtype, device=device)
 
-        return cls(t(DEFAULT_LENGTHS), t(DEFAULT_RADII), t(DEFAULT_EXTENTS),
-                   t(DEFAULT_HIP_HALF_WIDTH))
+        return cls(
+            t(DEFAULT_LENGTHS), t(DEFAULT_RADII), t(DEFAULT_EXTENTS), t(DEFAULT_HIP_HALF_WIDTH)
+        )
 
     def to(self, dtype: torch.dtype | None = None, device=None) -> BodyShape:
         """Same body with tensors on ``device`` / in ``dtype``."""
@@ -102,8 +135,12 @@ class BodyShape:
     def scaled(self, factor: float | torch.Tensor) -> BodyShape:
         """Uniformly scaled body (every length and radius times ``factor``)."""
         f = torch.as_tensor(factor, dtype=self.lengths.dtype, device=self.lengths.device)
-        return BodyShape(self.lengths * f[..., None], self.radii * f[..., None, None],
-                         self.extents * f[..., None, None], self.hip_half_width * f)
+        return BodyShape(
+            self.lengths * f[..., None],
+            self.radii * f[..., None, None],
+            self.extents * f[..., None, None],
+            self.hip_half_width * f,
+        )
 
     def stature(self) -> torch.Tensor:
         """Standing height (...,): sole to top of head with all joint angles zero."""
@@ -115,10 +152,14 @@ class BodyShape:
     def validate(self) -> None:
         """Raise ``ValueError`` on wrong shapes or non-positive / non-finite sizes."""
         if self.lengths.shape[-1] != NUM_SEGMENTS:
-            raise ValueError(f"body lengths must end in {NUM_SEGMENTS}, got {tuple(self.lengths.shape)}")
+            raise ValueError(
+                f"body lengths must end in {NUM_SEGMENTS}, got {tuple(self.lengths.shape)}"
+            )
         for name, x in (("radii", self.radii), ("extents", self.extents)):
             if tuple(x.shape[-2:]) != (NUM_SEGMENTS, 2):
-                raise ValueError(f"body {name} must end in ({NUM_SEGMENTS}, 2), got {tuple(x.shape)}")
+                raise ValueError(
+                    f"body {name} must end in ({NUM_SEGMENTS}, 2), got {tuple(x.shape)}"
+                )
         for name, x in zip(("lengths", "radii", "extents", "hip_half_width"), self._fields()):
             if not bool(torch.isfinite(x).all()):
                 raise ValueError(f"body {name} has non-finite values")
@@ -140,8 +181,13 @@ class BodyShape:
             }
             for k, name in enumerate(SEGMENT_NAMES)
         }
-        return {"format": BODY_FORMAT, "version": BODY_VERSION, "units": "m",
-                "hip_half_width": float(self.hip_half_width), "segments": segs}
+        return {
+            "format": BODY_FORMAT,
+            "version": BODY_VERSION,
+            "units": "m",
+            "hip_half_width": float(self.hip_half_width),
+            "segments": segs,
+        }
 
     @classmethod
     def from_json_dict(cls, data: dict, dtype: torch.dtype = torch.float32) -> BodyShape:
@@ -160,7 +206,9 @@ class BodyShape:
         try:
             lengths = [float(segs[n]["length"]) for n in SEGMENT_NAMES]
             radii = [[float(r) for r in segs[n]["radii"]] for n in SEGMENT_NAMES]
-            extents = [[float(e) for e in segs[n].get("extents", (0.0, 0.0))] for n in SEGMENT_NAMES]
+            extents = [
+                [float(e) for e in segs[n].get("extents", (0.0, 0.0))] for n in SEGMENT_NAMES
+            ]
             hw = float(data["hip_half_width"])
         except (KeyError, TypeError, ValueError) as err:
             raise ValueError(f"body file is malformed: {err}") from None

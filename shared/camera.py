@@ -47,8 +47,14 @@ class Intrinsics:
         Pixel centres stay consistent: a pixel edge at 0 maps to 0, so ``c' = (c + 0.5) s - 0.5``.
         """
         sx, sy = width / self.width, height / self.height
-        return Intrinsics(width, height, self.fx * sx, self.fy * sy,
-                          (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5)
+        return Intrinsics(
+            width,
+            height,
+            self.fx * sx,
+            self.fy * sy,
+            (self.cx + 0.5) * sx - 0.5,
+            (self.cy + 0.5) * sy - 0.5,
+        )
 
     def validate(self) -> None:
         """Raise ``ValueError`` unless sizes and focal lengths are positive and finite."""
@@ -65,14 +71,20 @@ class Intrinsics:
 
     def matrix(self, dtype: torch.dtype = torch.float32, device=None) -> torch.Tensor:
         """3x3 camera matrix K."""
-        return torch.tensor([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]],
-                            dtype=dtype, device=device)
+        return torch.tensor(
+            [[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]],
+            dtype=dtype,
+            device=device,
+        )
 
 
 def pixel_grid(height: int, width: int, dtype: torch.dtype = torch.float32, device=None):
     """Pixel coordinates ``(u, v)``, each (H, W): column and row indices."""
-    v, u = torch.meshgrid(torch.arange(height, dtype=dtype, device=device),
-                          torch.arange(width, dtype=dtype, device=device), indexing="ij")
+    v, u = torch.meshgrid(
+        torch.arange(height, dtype=dtype, device=device),
+        torch.arange(width, dtype=dtype, device=device),
+        indexing="ij",
+    )
     return u, v
 
 
@@ -86,8 +98,10 @@ def depth_to_points(depth: torch.Tensor, intr: Intrinsics) -> torch.Tensor:
         (B, H, W, 3); pixels without a reading give (0, 0, 0).
     """
     if depth.shape[-2:] != (intr.height, intr.width):
-        raise ValueError(f"depth is {tuple(depth.shape[-2:])} (H, W) but intrinsics are for "
-                         f"{intr.height}x{intr.width}")
+        raise ValueError(
+            f"depth is {tuple(depth.shape[-2:])} (H, W) but intrinsics are for "
+            f"{intr.height}x{intr.width}"
+        )
     u, v = pixel_grid(intr.height, intr.width, depth.dtype, depth.device)
     x = (u - intr.cx) / intr.fx * depth
     y = (v - intr.cy) / intr.fy * depth

@@ -73,7 +73,9 @@ def _check_value(tp: Any, value: Any, where: str) -> Any:
         if origin is tuple and args and args[-1] is not Ellipsis:
             if len(args) != len(value):
                 raise ConfigError(f"{where}: expected {len(args)} items, got {len(value)}")
-            return tuple(_check_value(a, v, f"{where}[{i}]") for i, (a, v) in enumerate(zip(args, value)))
+            return tuple(
+                _check_value(a, v, f"{where}[{i}]") for i, (a, v) in enumerate(zip(args, value))
+            )
         out = [_check_value(item, v, f"{where}[{i}]") for i, v in enumerate(value)]
         return tuple(out) if origin is tuple else out
     if origin is dict:
@@ -113,8 +115,9 @@ def config_from_dict(cls: type[C], data: dict, where: str = "config") -> C:
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - set(fields))
     if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {', '.join(map(str, unknown))}; "
-                          f"known: {', '.join(fields)}")
+        raise ConfigError(
+            f"{where}: unknown key(s) {', '.join(map(str, unknown))}; known: {', '.join(fields)}"
+        )
     kwargs = {k: _check_value(hints[k], v, f"{where}.{k}") for k, v in data.items()}
     return cls(**kwargs)
 
@@ -177,18 +180,35 @@ def add_cli_args(parser: argparse.ArgumentParser, cls: type) -> None:
             default = f.default_factory()  # type: ignore[misc]
         help_ = f"{help_} (default: {default})"
         if tp is bool:
-            parser.add_argument(_flag(f.name), dest=f.name, default=None,
-                                action=argparse.BooleanOptionalAction, help=help_)
+            parser.add_argument(
+                _flag(f.name),
+                dest=f.name,
+                default=None,
+                action=argparse.BooleanOptionalAction,
+                help=help_,
+            )
         elif origin in (list, tuple):
             item = args[0] if args else str
-            parser.add_argument(_flag(f.name), dest=f.name, default=None, nargs="+",
-                                type=item if item in (int, float, str) else str, help=help_)
+            parser.add_argument(
+                _flag(f.name),
+                dest=f.name,
+                default=None,
+                nargs="+",
+                type=item if item in (int, float, str) else str,
+                help=help_,
+            )
         elif origin is typing.Literal:
-            parser.add_argument(_flag(f.name), dest=f.name, default=None, choices=list(args),
-                                help=help_)
+            parser.add_argument(
+                _flag(f.name), dest=f.name, default=None, choices=list(args), help=help_
+            )
         else:
-            parser.add_argument(_flag(f.name), dest=f.name, default=None,
-                                type=tp if tp in (int, float, str) else str, help=help_)
+            parser.add_argument(
+                _flag(f.name),
+                dest=f.name,
+                default=None,
+                type=tp if tp in (int, float, str) else str,
+                help=help_,
+            )
 
 
 def config_from_args(cls: type[C], args: argparse.Namespace, base: C | None = None) -> C:

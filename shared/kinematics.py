@@ -60,8 +60,8 @@ def _index(array, like: torch.Tensor) -> torch.Tensor:
 
 
 # Internally, 3x3 matrices are stored batch-last as (3, 3, n, B): a product is then 15
-# contiguous vector multiply-adds and gathers over n copy whole rows, several times faster on the CPU than bmm on millions of
-# tiny matrices, and it runs unchanged on CUDA.
+# contiguous vector multiply-adds and a gather over n copies whole rows. On the CPU that is
+# several times faster than bmm on millions of tiny matrices; it runs unchanged on CUDA.
 def _mm(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """(3, 3, *) @ (3, 3, *) -> (3, 3, *)."""
     return torch.stack([a[i, 0] * b[0] + a[i, 1] * b[1] + a[i, 2] * b[2] for i in range(3)])

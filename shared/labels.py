@@ -39,8 +39,10 @@ SPLIT_SEGMENTS: tuple[int, ...] = tuple(
 
 # Segment each part lies on (background: -1).
 PART_SEGMENT = np.array(
-    [-1] + [SEGMENT_NAMES.index(n.removesuffix("_upper").removesuffix("_lower"))
-            for n in PART_NAMES[1:]],
+    [-1]
+    + [
+        SEGMENT_NAMES.index(n.removesuffix("_upper").removesuffix("_lower")) for n in PART_NAMES[1:]
+    ],
     dtype=np.int64,
 )
 

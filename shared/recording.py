@@ -25,14 +25,32 @@ import numpy as np
 
 from .camera import Intrinsics
 
-__all__ = ["RecordingError", "RecordingWriter", "Recording", "RECORDING_FORMAT",
-           "RECORDING_VERSION", "write_png16", "read_png"]
+__all__ = [
+    "RecordingError",
+    "RecordingWriter",
+    "Recording",
+    "RECORDING_FORMAT",
+    "RECORDING_VERSION",
+    "write_png16",
+    "read_png",
+]
 
 RECORDING_FORMAT = "depthmocap-recording"
 RECORDING_VERSION = 1
-_REQUIRED = {"format": str, "version": int, "width": int, "height": int, "fx": (int, float),
-             "fy": (int, float), "cx": (int, float), "cy": (int, float), "fps": (int, float),
-             "depth_unit": (int, float), "frame_count": int, "source": str}
+_REQUIRED = {
+    "format": str,
+    "version": int,
+    "width": int,
+    "height": int,
+    "fx": (int, float),
+    "fy": (int, float),
+    "cx": (int, float),
+    "cy": (int, float),
+    "fps": (int, float),
+    "depth_unit": (int, float),
+    "frame_count": int,
+    "source": str,
+}
 
 
 class RecordingError(ValueError):
@@ -62,8 +80,10 @@ def read_png(path: Path, dtype: np.dtype) -> np.ndarray:
     if image is None:
         raise RecordingError(f"{path}: not a readable PNG image")
     if image.ndim != 2 or image.dtype != dtype:
-        raise RecordingError(f"{path}: expected a single-channel {np.dtype(dtype).name} image, "
-                             f"got {image.dtype.name} with shape {image.shape}")
+        raise RecordingError(
+            f"{path}: expected a single-channel {np.dtype(dtype).name} image, "
+            f"got {image.dtype.name} with shape {image.shape}"
+        )
     return image
 
 
@@ -84,17 +104,29 @@ class RecordingWriter:
         overwrite: replace an existing recording.
     """
 
-    def __init__(self, path: str | Path, intrinsics: Intrinsics, fps: float = 30.0,
-                 source: str = "unknown", overwrite: bool = False) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        intrinsics: Intrinsics,
+        fps: float = 30.0,
+        source: str = "unknown",
+        overwrite: bool = False,
+    ) -> None:
         intrinsics.validate()
         self.path = Path(path)
         if (self.path / "meta.json").exists() and not overwrite:
             raise FileExistsError(f"{self.path} already holds a recording")
         (self.path / "depth").mkdir(parents=True, exist_ok=True)
         self.intrinsics = intrinsics
-        self.meta = {"format": RECORDING_FORMAT, "version": RECORDING_VERSION,
-                     **intrinsics.as_dict(), "fps": float(fps), "depth_unit": 0.001,
-                     "frame_count": 0, "source": source}
+        self.meta = {
+            "format": RECORDING_FORMAT,
+            "version": RECORDING_VERSION,
+            **intrinsics.as_dict(),
+            "fps": float(fps),
+            "depth_unit": 0.001,
+            "frame_count": 0,
+            "source": source,
+        }
         self._has_labels = False
         _atomic_write_json(self.path / "meta.json", self.meta)
 
@@ -111,12 +143,15 @@ class RecordingWriter:
         """
         h, w = self.intrinsics.height, self.intrinsics.width
         if depth_mm.shape != (h, w) or depth_mm.dtype != np.uint16:
-            raise ValueError(f"depth frame must be uint16 {(h, w)}, got {depth_mm.dtype} "
-                             f"{depth_mm.shape}")
+            raise ValueError(
+                f"depth frame must be uint16 {(h, w)}, got {depth_mm.dtype} {depth_mm.shape}"
+            )
         i = self.frame_count
         if labels is not None:
             if labels.shape != (h, w) or labels.dtype != np.uint8:
-                raise ValueError(f"labels must be uint8 {(h, w)}, got {labels.dtype} {labels.shape}")
+                raise ValueError(
+                    f"labels must be uint8 {(h, w)}, got {labels.dtype} {labels.shape}"
+                )
             if i > 0 and not self._has_labels:
                 raise ValueError("labels must be given for every frame or for none")
             (self.path / "labels").mkdir(exist_ok=True)
@@ -142,10 +177,15 @@ class RecordingWriter:
         if joints.ndim != 3 or joints.shape[2] != 3 or joints.shape[1] != len(names):
             raise ValueError(f"joints must be (F, {len(names)}, 3), got {joints.shape}")
         if joints.shape[0] != self.frame_count:
-            raise ValueError(f"ground truth has {joints.shape[0]} frames, recording has "
-                             f"{self.frame_count}")
-        np.savez_compressed(self.path / "groundtruth.npz", joints=joints, joint_names=names,
-                            **{k: np.asarray(v) for k, v in per_frame.items()})
+            raise ValueError(
+                f"ground truth has {joints.shape[0]} frames, recording has {self.frame_count}"
+            )
+        np.savez_compressed(
+            self.path / "groundtruth.npz",
+            joints=joints,
+            joint_names=names,
+            **{k: np.asarray(v) for k, v in per_frame.items()},
+        )
 
     def close(self) -> None:
         _atomic_write_json(self.path / "meta.json", self.meta)
@@ -175,31 +215,46 @@ class Recording:
         except (json.JSONDecodeError, UnicodeDecodeError) as err:
             raise RecordingError(f"{meta_path}: not valid JSON ({err})") from None
         if not isinstance(meta, dict) or meta.get("format") != RECORDING_FORMAT:
-            raise RecordingError(f"{meta_path}: not a recording (format is not "
-                                 f"'{RECORDING_FORMAT}')")
+            raise RecordingError(
+                f"{meta_path}: not a recording (format is not '{RECORDING_FORMAT}')"
+            )
         for key, tp in _REQUIRED.items():
             if key not in meta:
                 raise RecordingError(f"{meta_path}: missing key '{key}'")
             if not isinstance(meta[key], tp) or isinstance(meta[key], bool):
-                raise RecordingError(f"{meta_path}: '{key}' has the wrong type "
-                                     f"({type(meta[key]).__name__})")
+                raise RecordingError(
+                    f"{meta_path}: '{key}' has the wrong type ({type(meta[key]).__name__})"
+                )
         if meta["version"] > RECORDING_VERSION or meta["version"] < 1:
-            raise RecordingError(f"{meta_path}: recording version {meta['version']} is not "
-                                 f"supported (this build reads up to {RECORDING_VERSION})")
+            raise RecordingError(
+                f"{meta_path}: recording version {meta['version']} is not "
+                f"supported (this build reads up to {RECORDING_VERSION})"
+            )
         if meta["frame_count"] < 0 or meta["fps"] <= 0 or meta["depth_unit"] <= 0:
             raise RecordingError(f"{meta_path}: frame_count, fps and depth_unit must be positive")
         self.meta = meta
         try:
-            self.intrinsics = Intrinsics(meta["width"], meta["height"], float(meta["fx"]),
-                                         float(meta["fy"]), float(meta["cx"]), float(meta["cy"]))
+            self.intrinsics = Intrinsics(
+                meta["width"],
+                meta["height"],
+                float(meta["fx"]),
+                float(meta["fy"]),
+                float(meta["cx"]),
+                float(meta["cy"]),
+            )
             self.intrinsics.validate()
         except ValueError as err:
             raise RecordingError(f"{meta_path}: {err}") from None
-        missing = [i for i in (0, meta["frame_count"] - 1)
-                   if meta["frame_count"] and not self._depth_path(i).is_file()]
+        missing = [
+            i
+            for i in (0, meta["frame_count"] - 1)
+            if meta["frame_count"] and not self._depth_path(i).is_file()
+        ]
         if missing:
-            raise RecordingError(f"{self.path}: meta.json lists {meta['frame_count']} frames but "
-                                 f"{self._depth_path(missing[0]).name} is missing")
+            raise RecordingError(
+                f"{self.path}: meta.json lists {meta['frame_count']} frames but "
+                f"{self._depth_path(missing[0]).name} is missing"
+            )
         self._gt = None
 
     def _depth_path(self, i: int) -> Path:
@@ -223,8 +278,9 @@ class Recording:
     def _check_size(self, image: np.ndarray, path: Path) -> np.ndarray:
         h, w = self.intrinsics.height, self.intrinsics.width
         if image.shape != (h, w):
-            raise RecordingError(f"{path}: frame is {image.shape[1]}x{image.shape[0]} but "
-                                 f"meta.json says {w}x{h}")
+            raise RecordingError(
+                f"{path}: frame is {image.shape[1]}x{image.shape[0]} but meta.json says {w}x{h}"
+            )
         return image
 
     def read_depth_mm(self, i: int) -> np.ndarray:
@@ -266,10 +322,16 @@ class Recording:
         if "joints" not in gt or "joint_names" not in gt:
             raise RecordingError(f"{path}: needs 'joints' and 'joint_names'")
         j = gt["joints"]
-        if j.ndim != 3 or j.shape[0] != len(self) or j.shape[2] != 3 or \
-                j.shape[1] != len(gt["joint_names"]):
-            raise RecordingError(f"{path}: joints have shape {j.shape}, expected "
-                                 f"({len(self)}, {len(gt['joint_names'])}, 3)")
+        if (
+            j.ndim != 3
+            or j.shape[0] != len(self)
+            or j.shape[2] != 3
+            or j.shape[1] != len(gt["joint_names"])
+        ):
+            raise RecordingError(
+                f"{path}: joints have shape {j.shape}, expected "
+                f"({len(self)}, {len(gt['joint_names'])}, 3)"
+            )
         if "q" in gt and gt["q"].shape != (len(self), 34):
             raise RecordingError(f"{path}: q has shape {gt['q'].shape}, expected ({len(self)}, 34)")
         self._gt = gt

@@ -93,8 +93,23 @@ SEGMENT_PARENT = np.array([-1, 0, 1, 2, 3, 2, 2, 5, 6, 7, 8, 0, 0, 11, 12], dtyp
 _UP, _DOWN, _LEFT, _RIGHT = (0.0, 1.0, 0.0), (0.0, -1.0, 0.0), (1.0, 0.0, 0.0), (-1.0, 0.0, 0.0)
 # Direction from a segment's origin (its joint) towards its end, in the segment frame.
 SEGMENT_AXIS = np.array(
-    [_UP, _UP, _UP, _UP, _UP, _LEFT, _RIGHT, _DOWN, _DOWN, _DOWN, _DOWN, _DOWN, _DOWN, _DOWN,
-     _DOWN],
+    [
+        _UP,
+        _UP,
+        _UP,
+        _UP,
+        _UP,
+        _LEFT,
+        _RIGHT,
+        _DOWN,
+        _DOWN,
+        _DOWN,
+        _DOWN,
+        _DOWN,
+        _DOWN,
+        _DOWN,
+        _DOWN,
+    ],
     dtype=np.float64,
 )
 # A child's joint sits at ``attach_end * parent_length`` along the parent axis, plus
@@ -102,8 +117,14 @@ SEGMENT_AXIS = np.array(
 SEGMENT_ATTACH_END = np.array([0, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 0, 0, 1, 1], dtype=np.float64)
 SEGMENT_LATERAL = np.array([0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1, -1, 0, 0], dtype=np.float64)
 # Segments grouped by tree depth: forward kinematics handles one level per batched step.
-SEGMENT_LEVELS: tuple[tuple[int, ...], ...] = ((0,), (1, 11, 12), (2, 13, 14), (3, 5, 6), (4, 7, 8),
-                                               (9, 10))
+SEGMENT_LEVELS: tuple[tuple[int, ...], ...] = (
+    (0,),
+    (1, 11, 12),
+    (2, 13, 14),
+    (3, 5, 6),
+    (4, 7, 8),
+    (9, 10),
+)
 
 
 def _mirror(axis: tuple[float, float, float]) -> tuple[float, float, float]:
@@ -150,7 +171,12 @@ ROOT_ROTATION = slice(3, 6)
 ANGLE_DOFS = slice(6, 34)
 
 DOF_NAMES: tuple[str, ...] = (
-    "root_tx", "root_ty", "root_tz", "root_rx", "root_ry", "root_rz",
+    "root_tx",
+    "root_ty",
+    "root_tz",
+    "root_rx",
+    "root_ry",
+    "root_rz",
 ) + tuple(d[0] for d in _ANGLE_DOFS)
 NUM_DOFS = len(DOF_NAMES)
 assert NUM_DOFS == 34

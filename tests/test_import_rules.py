@@ -27,15 +27,22 @@ def imports(path: Path, top_level_only: bool = False):
 def test_layering(package):
     files = sorted((REPO / package).rglob("*.py"))
     assert files, f"package {package} has no modules"
-    bad = [f"{f.relative_to(REPO)}:{line} imports {mod}" for f in files
-           for mod, line in imports(f) if mod in FORBIDDEN[package]]
+    bad = [
+        f"{f.relative_to(REPO)}:{line} imports {mod}"
+        for f in files
+        for mod, line in imports(f)
+        if mod in FORBIDDEN[package]
+    ]
     assert not bad, "\n".join(bad)
 
 
 def test_runtime_has_no_heavy_top_level_imports():
-    bad = [f"{f.relative_to(REPO)}:{line} imports {mod}"
-           for f in sorted((REPO / "runtime").rglob("*.py"))
-           for mod, line in imports(f, top_level_only=True) if mod in RUNTIME_TOP_LEVEL_FORBIDDEN]
+    bad = [
+        f"{f.relative_to(REPO)}:{line} imports {mod}"
+        for f in sorted((REPO / "runtime").rglob("*.py"))
+        for mod, line in imports(f, top_level_only=True)
+        if mod in RUNTIME_TOP_LEVEL_FORBIDDEN
+    ]
     assert not bad, "\n".join(bad)
 
 

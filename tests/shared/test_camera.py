@@ -30,8 +30,9 @@ def test_depth_points_pixels_round_trip(device, dtype):
 def test_golden_projection():
     intr = Intrinsics.kinect_v1(640)
     uv = points_to_pixels(torch.tensor([[0.5, -0.25, 2.0]], dtype=torch.float64), intr)
-    assert torch.allclose(uv, torch.tensor([[319.5 + 575.8 * 0.25, 239.5 - 575.8 * 0.125]],
-                                           dtype=torch.float64))
+    assert torch.allclose(
+        uv, torch.tensor([[319.5 + 575.8 * 0.25, 239.5 - 575.8 * 0.125]], dtype=torch.float64)
+    )
 
 
 def test_no_reading_gives_origin():

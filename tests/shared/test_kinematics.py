@@ -6,7 +6,6 @@ import torch
 
 from shared import skeleton as sk
 from shared.body import BodyShape
-from shared.so3 import rotvec_to_matrix
 from shared.kinematics import (
     clamp_to_limits,
     forward_kinematics,
@@ -16,6 +15,7 @@ from shared.kinematics import (
     rest_pose,
     segment_points_to_world,
 )
+from shared.so3 import rotvec_to_matrix
 
 J = {n: i for i, n in enumerate(sk.JOINT_NAMES)}
 
@@ -166,8 +166,9 @@ def test_jacobian_sparsity_follows_tree():
     q = random_poses(1, torch.float64, "cpu")
     kin = forward_kinematics(q, body)
     seg = torch.tensor([sk.SEGMENT_NAMES.index("l_forearm")])
-    jac = point_jacobian(kin, segment_points_to_world(kin, torch.zeros(1, 1, 3).double() + 0.1,
-                                                      seg), seg)[0, 0]
+    jac = point_jacobian(
+        kin, segment_points_to_world(kin, torch.zeros(1, 1, 3).double() + 0.1, seg), seg
+    )[0, 0]
     moving = set(np.nonzero(jac.abs().sum(0).numpy() > 0)[0].tolist())
     leg = {sk.DOF_NAMES.index(n) for n in ("l_femur_flex", "r_tibia_flex", "head_x")}
     assert not moving & leg

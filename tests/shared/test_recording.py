@@ -100,9 +100,14 @@ def test_groundtruth_errors(tmp_path):
     rec = Recording(tmp_path / "rec")
     with pytest.raises(RecordingError, match="no ground truth"):
         rec.groundtruth()
-    np.savez(tmp_path / "rec" / "groundtruth.npz", joints=np.zeros((2, 2, 3)),
-             joint_names=np.array(["a", "b"]))
-    with pytest.raises(RecordingError, match=r"joints have shape \(2, 2, 3\), expected \(3, 2, 3\)"):
+    np.savez(
+        tmp_path / "rec" / "groundtruth.npz",
+        joints=np.zeros((2, 2, 3)),
+        joint_names=np.array(["a", "b"]),
+    )
+    with pytest.raises(
+        RecordingError, match=r"joints have shape \(2, 2, 3\), expected \(3, 2, 3\)"
+    ):
         Recording(tmp_path / "rec").groundtruth()
 
 

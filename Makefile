@@ -1,0 +1,31 @@
+# depthmocap: the two commands a newcomer needs are `make demo` (once the runtime lands:
+# set up, then run the main job) and `make test`. Everything runs from the repo's .venv.
+PY := .venv/bin/python
+SETUP_STAMP := .venv/.setup-stamp
+export PYTHONUNBUFFERED := 1
+
+.PHONY: setup test lint format bench clean
+
+setup: ## create .venv, install system packages (root), torch and the project with all extras
+	@bash scripts/setup.sh
+
+$(SETUP_STAMP): pyproject.toml scripts/setup.sh
+	@bash scripts/setup.sh
+
+test: $(SETUP_STAMP) ## lint, then the whole test suite
+	$(PY) -m ruff check .
+	$(PY) -m pytest -q
+
+lint: $(SETUP_STAMP)
+	$(PY) -m ruff check .
+	$(PY) -m ruff format --check .
+
+format: $(SETUP_STAMP)
+	$(PY) -m ruff format .
+	$(PY) -m ruff check --fix .
+
+bench: $(SETUP_STAMP) ## speed figures (printed, never asserted)
+	$(PY) -m runtime.bench
+
+clean:
+	rm -rf .venv .pytest_cache .ruff_cache
