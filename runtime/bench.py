@@ -46,7 +46,9 @@ def _random_poses(batch: int, dtype, device) -> torch.Tensor:
     g = torch.Generator().manual_seed(0)
     q = rest_pose(batch, dtype=dtype)
     lim = torch.as_tensor(DOF_LIMITS[6:], dtype=dtype)
-    q[:, 6:] = 0.5 * (lim[:, 0] + torch.rand(batch, 28, generator=g, dtype=dtype) * (lim[:, 1] - lim[:, 0]))
+    q[:, 6:] = 0.5 * (
+        lim[:, 0] + torch.rand(batch, 28, generator=g, dtype=dtype) * (lim[:, 1] - lim[:, 0])
+    )
     return q.to(device)
 
 
@@ -87,8 +89,11 @@ def bench_kinematics(batch: int, device: str, dtype=torch.float32) -> list[tuple
     return [
         (f"FK, {batch} poses", t_fk, "target < 5 ms on 2 CPU cores"),
         (f"FK + 16-joint Jacobian, {batch} poses", t_jac, ""),
-        (f"autograd Jacobian baseline, {batch} poses", t_auto,
-         f"analytic is {t_auto / t_jac:.1f}x faster"),
+        (
+            f"autograd Jacobian baseline, {batch} poses",
+            t_auto,
+            f"analytic is {t_auto / t_jac:.1f}x faster",
+        ),
         ("Jacobian of 5,000 surface points, 1 pose", t_track, "per tracker iteration"),
     ]
 
