@@ -18,7 +18,7 @@ import torch
 
 from . import skeleton as sk
 from .body import BodyShape
-from .so3 import compose_rotvec, rotvec_to_matrix, skew
+from .so3 import compose_rotvec, matrix_to_rotvec, rotvec_to_matrix, skew
 
 __all__ = [
     "Kinematics",
@@ -29,6 +29,7 @@ __all__ = [
     "pose_update",
     "clamp_to_limits",
     "rest_pose",
+    "transform_pose",
 ]
 
 
@@ -225,3 +226,21 @@ def rest_pose(
     q[:, 0:3] = torch.as_tensor(root_position, dtype=dtype, device=device)
     q[:, 3:6] = torch.as_tensor(sk.FACING_CAMERA_ROTVEC, dtype=dtype, device=device)
     return q
+
+
+def transform_pose(
+    q: torch.Tensor, rotation: torch.Tensor, translation: torch.Tensor
+) -> torch.Tensor:
+    """Pose seen from another frame: ``x' = rotation @ x + translation`` applied to the root.
+
+    Args:
+        q: (B, 34) poses in the source frame.
+        rotation: (3, 3) or (B, 3, 3); translation: (3,) or (B, 3).
+    Returns:
+        (B, 34) the same body configuration expressed in the target frame.
+    """
+    rotation = rotation.to(q).expand(q.shape[0], 3, 3)
+    translation = translation.to(q).expand(q.shape[0], 3)
+    root_pos = (rotation @ q[:, 0:3, None])[..., 0] + translation
+    root_rot = matrix_to_rotvec(rotation @ rotvec_to_matrix(q[:, 3:6]))
+    return torch.cat([root_pos, root_rot, q[:, 6:]], 1)

@@ -207,3 +207,14 @@ def test_clamp_to_limits():
     c = clamp_to_limits(q)
     assert torch.equal(c[:, :6], q[:, :6])
     assert torch.allclose(c[0, 6:], torch.as_tensor(sk.DOF_LIMITS[6:, 1]))
+
+
+def test_transform_pose_moves_every_joint_rigidly():
+    from shared.kinematics import transform_pose
+
+    q = random_poses(5, torch.float64, "cpu")
+    rot = rotvec_to_matrix(torch.tensor([0.3, -1.2, 2.0], dtype=torch.float64))
+    t = torch.tensor([0.1, 0.2, -0.3], dtype=torch.float64)
+    moved = joints(transform_pose(q, rot, t))
+    expected = joints(q) @ rot.T + t
+    assert torch.allclose(moved, expected, atol=1e-10)
