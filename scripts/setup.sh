@@ -44,5 +44,8 @@ if ! $VENV/bin/python -c "import torch" 2>/dev/null; then
 fi
 echo "setup: installing the project with all extras"
 $PIP install -q -e ".[all,dev]"
+# The body model's first build takes about a minute and writes ~0.8 GB: do it once here,
+# into the git-ignored .cache/anny, so that tests and synthesis start fast.
+$VENV/bin/python scripts/build_anny_cache.py || echo "setup: WARNING anny cache not built"
 echo "$want" > "$STAMP"
 echo "setup: done ($VENV)"
