@@ -385,7 +385,7 @@ def edge_erosion_mask(
     """
     z = np.asarray(depth, dtype=np.float32)
     # Treat no-reading neighbours as infinitely far so they count as an edge.
-    far = np.where(z > 0, z, np.float32(np.inf))
+    far = np.where(z > 0, z, np.float32(1e6))  # finite: avoids inf - inf warnings
     edge = np.zeros(z.shape, dtype=bool)
     edge[:, :-1] |= far[:, 1:] - far[:, :-1] > jump_m
     edge[:, 1:] |= far[:, :-1] - far[:, 1:] > jump_m
