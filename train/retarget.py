@@ -6,7 +6,7 @@ of :mod:`shared.skeleton`, a :class:`BodyShape` is measured from them, and inver
 recovers q frame by frame (batched). The same named joints drive the ``anny`` mesh.
 
 World frame of the outputs: y up (both HDM05 ASF/AMC and the CMU BVH files are y-up),
-metres; the floor is re-established by :func:`train.procedural_motion.ground_poses` users.
+metres; the floor is re-established by :func:`shared.procedural_motion.ground_poses` users.
 """
 
 from __future__ import annotations

@@ -56,6 +56,7 @@ from shared.camera import Intrinsics
 from shared.config import field_doc
 
 __all__ = [
+    "level_from_camera",
     "KinectNoiseConfig",
     "BackgroundConfig",
     "BackgroundBox",
@@ -563,46 +564,80 @@ def _rays(intr: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
     return rx[None, :], ry[:, None]
 
 
-def _level_rays(intr: Intrinsics, pitch: float):
+def _level_rays(intr: Intrinsics, pitch: float, level_from_camera: np.ndarray | None = None):
     """Pixel rays in the level floor frame, each (H, W): ``p_level = R p_cam`` where the camera
-    looks down by ``pitch`` radians (its optical axis is (0, sin, cos) in the level frame)."""
+    looks down by ``pitch`` radians (its optical axis is (0, sin, cos) in the level frame), or
+    ``R = level_from_camera`` (3, 3) when given (any pitch and roll; see
+    :func:`level_from_camera`)."""
     rx, ry = _rays(intr)
-    c, s = math.cos(pitch), math.sin(pitch)
-    dx = np.broadcast_to(rx, (intr.height, intr.width))
-    dy = np.broadcast_to(c * ry + s, (intr.height, intr.width))
-    dz = np.broadcast_to(c - s * ry, (intr.height, intr.width))
-    return dx, dy, dz
+    if level_from_camera is None:
+        c, s = math.cos(pitch), math.sin(pitch)
+        rot = np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])
+    else:
+        rot = np.asarray(level_from_camera, dtype=np.float64)
+    shape = (intr.height, intr.width)
+    return tuple(
+        np.broadcast_to(rot[i, 0] * rx + rot[i, 1] * ry + rot[i, 2], shape) for i in range(3)
+    )
 
 
-def floor_depth(intr: Intrinsics, camera_height: float, pitch: float) -> np.ndarray:
+def level_from_camera(cam_from_world: np.ndarray) -> np.ndarray:
+    """Rotation (3, 3) from a camera frame to its level floor frame, for a y-up world.
+
+    The level frame has y pointing down along world -y, z along the camera's optical axis
+    projected on the floor, x = y cross z; camera pitch and roll both end up in it.
+
+    Args:
+        cam_from_world: (4, 4) or (3, 3) OpenCV camera pose, ``p_cam = R p_world + t``.
+    """
+    rot = np.asarray(cam_from_world, dtype=np.float64)[:3, :3]
+    forward = rot[2].copy()  # optical axis in world coordinates
+    forward[1] = 0.0
+    forward /= max(np.linalg.norm(forward), 1e-12)
+    down = np.array([0.0, -1.0, 0.0])
+    level_from_world = np.stack([np.cross(down, forward), down, forward])
+    return level_from_world @ rot.T
+
+
+def floor_depth(
+    intr: Intrinsics, camera_height: float, pitch: float, level_rot: np.ndarray | None = None
+) -> np.ndarray:
     """Camera depth of the floor plane ``y_level = camera_height`` (y down), camera pitched down
     by ``pitch`` radians: ``z = h / (cos(pitch) r_y + sin(pitch))``.
 
     Returns:
         (H, W) float64 metres, ``inf`` where the ray does not reach the floor (above horizon).
     """
-    _, dy, _ = _level_rays(intr, pitch)
+    _, dy, _ = _level_rays(intr, pitch, level_rot)
     with np.errstate(divide="ignore"):
         return np.where(dy > 1e-9, camera_height / np.where(dy > 1e-9, dy, 1.0), np.inf)
 
 
-def wall_depth(intr: Intrinsics, pitch: float, distance: float) -> np.ndarray:
+def wall_depth(
+    intr: Intrinsics, pitch: float, distance: float, level_rot: np.ndarray | None = None
+) -> np.ndarray:
     """Camera depth of a vertical wall facing the camera at horizontal distance ``distance``.
 
     Returns:
         (H, W) float64 metres, ``inf`` for rays that never reach it.
     """
-    _, _, dz = _level_rays(intr, pitch)
+    _, _, dz = _level_rays(intr, pitch, level_rot)
     return np.where(dz > 1e-9, distance / np.where(dz > 1e-9, dz, 1.0), np.inf)
 
 
-def box_depth(intr: Intrinsics, camera_height: float, pitch: float, box: BackgroundBox):
+def box_depth(
+    intr: Intrinsics,
+    camera_height: float,
+    pitch: float,
+    box: BackgroundBox,
+    level_rot: np.ndarray | None = None,
+):
     """Camera depth of the visible face of one box on the floor (slab ray-box intersection).
 
     Returns:
         (H, W) float64 metres, ``inf`` where the ray misses the box.
     """
-    dirs = _level_rays(intr, pitch)
+    dirs = _level_rays(intr, pitch, level_rot)
     lows = (box.x_min, camera_height - box.height, box.z_min)
     highs = (box.x_max, camera_height, box.z_max)
     t_near = np.zeros((intr.height, intr.width))
@@ -649,6 +684,7 @@ def add_floor_and_background(
     rng: np.random.Generator | None = None,
     cfg: BackgroundConfig | None = None,
     scene: BackgroundScene | None = None,
+    level_rot: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Composite a floor, optional back wall and boxes with a rendered body frame.
 
@@ -665,6 +701,8 @@ def add_floor_and_background(
         rng: draws the scene when ``scene`` is None.
         cfg: ranges for the random scene (defaults if None).
         scene: a fixed background instead of a random one.
+        level_rot: (3, 3) :func:`level_from_camera` of the camera pose; overrides ``pitch``
+            and also accounts for roll.
     Returns:
         depth: (H, W) float32 metres; 0 where nothing is within ``cfg.max_distance_m``.
         labels: (H, W) uint8 with background/occluded pixels 0 (None if None).
@@ -677,11 +715,11 @@ def add_floor_and_background(
             raise ValueError("give rng (to draw a random scene) or scene")
         scene = random_background_scene(rng, cfg)
 
-    bg = floor_depth(intr, camera_height, pitch)
+    bg = floor_depth(intr, camera_height, pitch, level_rot)
     if scene.wall_distance is not None:
-        bg = np.minimum(bg, wall_depth(intr, pitch, scene.wall_distance))
+        bg = np.minimum(bg, wall_depth(intr, pitch, scene.wall_distance, level_rot))
     for box in scene.boxes:
-        bg = np.minimum(bg, box_depth(intr, camera_height, pitch, box))
+        bg = np.minimum(bg, box_depth(intr, camera_height, pitch, box, level_rot))
     bg = np.where(bg <= cfg.max_distance_m, bg, np.inf)
 
     body = np.where(depth > 0, depth, np.inf)

@@ -242,10 +242,8 @@ def transform_points(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
         (..., P, 3).
     """
     transform = np.asarray(transform)
-    return (
-        np.einsum("...ij,...pj->...pi", transform[..., :3, :3], points)
-        + transform[..., None, :3, 3]
-    )
+    # matmul, not einsum: einsum's generic loop is ~10x slower for these shapes.
+    return points @ np.swapaxes(transform[..., :3, :3], -1, -2) + transform[..., None, :3, 3]
 
 
 def fits_in_view(

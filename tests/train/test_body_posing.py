@@ -43,7 +43,7 @@ def test_rest_q_hangs_arms_down(body):
 def test_posed_mesh_follows_skeleton_pose(body):
     from train.anny_body import anatomical_joints
     from train.body_posing import pose_anny, skeleton_body_of
-    from train.procedural_motion import motion_poses
+    from shared.procedural_motion import motion_poses
     from train.retarget import retarget_joints
 
     sb = skeleton_body_of(body)

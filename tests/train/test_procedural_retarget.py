@@ -5,7 +5,7 @@ import torch
 from shared import skeleton as sk
 from shared.body import BodyShape
 from shared.kinematics import forward_kinematics, named_joint_positions
-from train.procedural_motion import (
+from shared.procedural_motion import (
     MOTIONS,
     ground_poses,
     motion_poses,

@@ -1,0 +1,164 @@
+"""The synthetic training set and sequence mode (train.synth, train.synth_sequence): tiny runs
+with the procedural motions, checked for consistency, determinism, resuming and read-back."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from shared import skeleton as sk
+from shared.body import BodyShape
+from shared.camera import Intrinsics, points_to_pixels
+from shared.config import load_config
+from shared.kinematics import forward_kinematics, named_joint_positions
+from shared.recording import Recording
+from train.motion_library import heading_normalized_joints
+from train.pose_selection import furthest_point_sample
+from train.sensor_noise import floor_depth, level_from_camera
+from train.synth import SynthConfig, frame_plan, synthesize_set
+from train.trainset import TrainSet, TrainSetError
+from train.viewpoints import axis_rotations, look_at
+
+REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def _need_egl():
+    pytest.importorskip("pyrender")
+    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+    from train.render import DepthLabelRenderer
+
+    try:
+        DepthLabelRenderer(Intrinsics.kinect_v1(320)).close()
+    except RuntimeError as err:
+        pytest.skip(f"EGL rendering unavailable: {err}")
+
+
+def tiny_config(**kw) -> SynthConfig:
+    cfg = load_config(SynthConfig, os.path.join(REPO, "configs", "synth_tiny.yaml"))
+    return replace(cfg, frames=6, shard_frames=3, **kw)
+
+
+@pytest.fixture(scope="module")
+def tiny_set(tmp_path_factory):
+    _need_egl()
+    out = tmp_path_factory.mktemp("tiny_set")
+    synthesize_set(tiny_config(), out, progress=False, log=lambda *_: None)
+    return out
+
+
+def test_tiny_set_is_consistent(tiny_set):
+    ts = TrainSet(tiny_set, verify=True)
+    assert ts.frames == 6 and ts.num_shards == 2
+    s = ts.load_frames()
+    intr = ts.intrinsics
+    assert s.depth.shape == (6, 240, 320) and s.depth.dtype == np.uint16
+    # Every labelled pixel has a reading, every frame shows a person of several parts.
+    assert not np.any((s.labels > 0) & (s.depth == 0))
+    assert all(len(np.unique(lab)) > 8 for lab in s.labels)
+    # The pelvis joint projects onto the person, at a depth a little in front of the surface
+    # behind it (the pelvis is inside the body).
+    uv = points_to_pixels(torch.as_tensor(s.joints), intr).numpy()
+    pel = sk.JOINT_NAMES.index("pelvis")
+    for f in range(6):
+        u, v = np.round(uv[f, pel]).astype(int)
+        assert 0 <= u < 320 and 0 <= v < 240
+        win = s.labels[f, v - 3 : v + 4, u - 3 : u + 4]
+        assert (win > 0).any()
+    # Ground-truth q reproduces the joints up to the skeleton/mesh difference (a few cm).
+    m = json.loads((tiny_set / "manifest.json").read_text())
+    assert m["complete"] and sum(m["class_pixel_counts"]) == 6 * 240 * 320
+
+
+def test_tiny_set_deterministic_and_resumable(tiny_set, tmp_path):
+    cfg = tiny_config()
+    out = tmp_path / "again"
+    synthesize_set(cfg, out, progress=False, log=lambda *_: None)
+    a = json.loads((tiny_set / "manifest.json").read_text())
+    b = json.loads((out / "manifest.json").read_text())
+    assert a["content_hash"] == b["content_hash"]
+    # Lose one shard (as if interrupted): only it is rendered again, with the same bytes.
+    (out / "shard_00001.npz").unlink()
+    logs = []
+    synthesize_set(cfg, out, progress=False, log=logs.append)
+    assert any("1 of 2 shards already done" in line for line in logs)
+    c = json.loads((out / "manifest.json").read_text())
+    assert c["content_hash"] == a["content_hash"]
+    # Another config in the same folder is refused rather than mixed in.
+    with pytest.raises(TrainSetError, match="another config"):
+        synthesize_set(replace(cfg, seed=5), out, progress=False, log=lambda *_: None)
+
+
+def test_sequence_mode_recording_reads_back(tmp_path):
+    _need_egl()
+    from train.synth_sequence import render_sequence
+
+    out = render_sequence("wave", tmp_path / "rec", frames=4, seed=2)
+    rec = Recording(out)
+    assert len(rec) == 4 and rec.has_labels and rec.has_groundtruth
+    gt = rec.groundtruth()
+    assert gt["joints"].shape == (4, len(sk.JOINT_NAMES), 3)
+    assert list(gt["joint_names"]) == list(sk.JOINT_NAMES)
+    assert gt["q"].shape == (4, sk.NUM_DOFS)
+    body = BodyShape.load(out / "body.json")
+    # FK of the ground-truth q with the ground-truth body lands near the anatomical joints.
+    fk = named_joint_positions(forward_kinematics(torch.as_tensor(gt["q"]), body)).numpy()
+    err = np.linalg.norm(fk - gt["joints"], axis=-1)
+    assert np.median(err) < 0.03, err
+    d = rec.read_depth_mm(0)
+    assert d.shape == (240, 320) and (rec.read_labels(0) > 0).sum() > 500
+
+
+def test_sequence_mode_rejects_unknown_motion(tmp_path):
+    from train.synth_cli import main
+
+    assert main(["--sequence", "--motion", "no_such_clip.bvh", "--out", str(tmp_path / "r")]) == 2
+
+
+def test_frame_plan_uses_every_pose_before_repeating():
+    cfg = replace(SynthConfig(), frames=25, bodies=3)
+    poses, bodies = frame_plan(cfg, 10)
+    assert sorted(poses[:10]) == list(range(10)) and sorted(poses[10:20]) == list(range(10))
+    assert bodies.min() >= 0 and bodies.max() < 3
+
+
+def test_furthest_point_sampling_spacing():
+    # Poses that differ by a pelvis-relative offset along a line, 1 cm apart.
+    base = np.zeros((200, 16, 3))
+    base[:, 0, 1] = np.arange(200) * 0.01
+    idx = furthest_point_sample(base, 1000, 0.05)
+    picked = np.sort(base[idx, 0, 1])
+    assert np.diff(picked).min() >= 0.05 - 1e-9
+    # Every candidate is within 5 cm of a pick, so 1.99 m need at least 20 picks.
+    assert len(idx) >= 20
+    assert len(furthest_point_sample(base, 3, 0.0)) == 3
+
+
+def test_heading_normalization_removes_position_and_heading():
+    rng = np.random.default_rng(0)
+    j = rng.normal(size=(1, 16, 3))
+    rot = axis_rotations(1, np.array([0.7]))[0]
+    moved = j @ rot.T + np.array([1.0, 0.0, -2.0])
+    a, b = heading_normalized_joints(j), heading_normalized_joints(moved)
+    assert np.allclose(a, b, atol=1e-9)
+    left = a[0, sk.JOINT_NAMES.index("l_hip")] - a[0, sk.JOINT_NAMES.index("r_hip")]
+    assert abs(left[2]) < 1e-9 and left[0] > 0
+
+
+def test_level_frame_matches_pitch_only_floor():
+    intr = Intrinsics.kinect_v1(320)
+    eye = np.array([[0.0, 1.2, 3.0]])
+    cam = look_at(eye, np.array([0.0, 0.5, 0.0]))[0]
+    pitch = math.atan2(0.7, 3.0)
+    rot = level_from_camera(cam)
+    assert np.allclose(floor_depth(intr, 1.2, pitch), floor_depth(intr, 1.2, 0.0, rot))
+    # With roll the floor line tilts: its depth differs between the left and right edges.
+    rolled = cam.copy()
+    rolled[:3, :3] = axis_rotations(2, np.array([0.1]))[0] @ cam[:3, :3]
+    d = floor_depth(intr, 1.2, 0.0, level_from_camera(rolled))
+    assert abs(d[200, 10] - d[200, 310]) > 0.05
