@@ -4,7 +4,7 @@ PY := .venv/bin/python
 SETUP_STAMP := .venv/.setup-stamp
 export PYTHONUNBUFFERED := 1
 
-.PHONY: setup test lint format bench clean
+.PHONY: setup test lint format bench clean synth
 
 setup: ## create .venv, install system packages (root), torch and the project with all extras
 	@bash scripts/setup.sh
@@ -23,6 +23,9 @@ lint: $(SETUP_STAMP)
 format: $(SETUP_STAMP)
 	$(PY) -m ruff format .
 	$(PY) -m ruff check --fix .
+
+synth: $(SETUP_STAMP) ## the ~20k-frame training set into data/synth (resumable)
+	$(PY) -m train.synth_cli --config configs/synth.yaml --out data/synth
 
 bench: $(SETUP_STAMP) ## speed figures (printed, never asserted)
 	$(PY) -m runtime.bench
