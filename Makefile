@@ -4,7 +4,7 @@ PY := .venv/bin/python
 SETUP_STAMP := .venv/.setup-stamp
 export PYTHONUNBUFFERED := 1
 
-.PHONY: setup test lint format bench clean synth
+.PHONY: setup test lint format bench clean synth dev-recordings
 
 setup: ## create .venv, install system packages (root), torch and the project with all extras
 	@bash scripts/setup.sh
@@ -26,6 +26,9 @@ format: $(SETUP_STAMP)
 
 synth: $(SETUP_STAMP) ## the ~20k-frame training set into data/synth (resumable)
 	$(PY) -m train.synth_cli --config configs/synth.yaml --out data/synth
+
+dev-recordings: $(SETUP_STAMP) ## evaluation recordings from the HDM05 dev clips into data/dev
+	$(PY) -m train.dev_recordings --out data/dev
 
 bench: $(SETUP_STAMP) ## speed figures (printed, never asserted)
 	$(PY) -m runtime.bench

@@ -1,0 +1,141 @@
+"""The built-in demo: a synthetic depth sequence that needs no camera, data or renderer.
+
+A default-sized body (the tracker's own cylinder model, :mod:`runtime.raycast`) performs the
+procedural motions of :mod:`shared.procedural_motion` (wave, squat, kick, arm crossing, walk)
+2.6 m in front of a level camera 1.0 m above a floor. Depth gets the Kinect v1 character the
+runtime must cope with: disparity-quantized, noise growing with z squared, the floor in view.
+The stream carries its ground truth (:attr:`DemoStream.groundtruth`), so the tracker alone can be
+started from it and the result evaluated.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+import torch
+
+from shared import skeleton as sk
+from shared.body import BodyShape
+from shared.camera import Intrinsics, pixel_grid
+from shared.kinematics import forward_kinematics, named_joint_positions, transform_pose
+from shared.procedural_motion import ground_poses, motion_poses
+
+from .base import ALL_FRAMES, DepthFrame, DepthStream, FrameRange
+
+__all__ = ["DEMO_MOTIONS", "DemoStream", "open_demo_stream", "demo_poses"]
+
+DEMO_MOTIONS = ("wave", "squat", "arm_cross", "kick", "walk")
+_SECONDS_PER_MOTION = 2.0
+_CAMERA_HEIGHT = 1.0  # metres above the floor
+_DISTANCE = 2.6  # person's root from the camera, metres
+# Kinect v1 (DESIGN.md facts): disparity step and random error, both growing with z^2.
+_QUANT_PER_Z2 = 2.9e-3
+_SIGMA_PER_Z2 = 1.5e-3
+
+
+def demo_poses(fps: float, seed: int = 0) -> np.ndarray:
+    """World poses (F, 34) of the demo (y up, floor y = 0, facing +z), F = 10 s at ``fps``."""
+    rng = np.random.default_rng(seed)
+    frames = int(round(_SECONDS_PER_MOTION * fps))
+    body = BodyShape.default(torch.float64)
+    q = np.concatenate([motion_poses(m, frames, fps, rng) for m in DEMO_MOTIONS])
+    q[:, 0] = 0.0  # stay in place (walking on the spot keeps the person in view)
+    q[:, 2] = 0.0
+    return ground_poses(q, body)
+
+
+def _camera_from_world() -> tuple[torch.Tensor, torch.Tensor]:
+    """Level camera at world (0, h, d) looking along -z at the person, who faces it:
+    ``p_cam = R p_world + t`` with R = diag(1, -1, -1) (rotation vector (pi, 0, 0))."""
+    rot = torch.diag(torch.tensor([1.0, -1.0, -1.0], dtype=torch.float64))
+    trans = torch.tensor([0.0, _CAMERA_HEIGHT, _DISTANCE], dtype=torch.float64)
+    return rot, trans
+
+
+def _floor_depth(intr: Intrinsics, like: torch.Tensor) -> torch.Tensor:
+    """Depth (H, W) of the floor plane y_cam = camera height; 0 above the horizon."""
+    _, v = pixel_grid(intr.height, intr.width, dtype=like.dtype, device=like.device)
+    ray_y = (v - intr.cy) / intr.fy
+    z = _CAMERA_HEIGHT / ray_y.clamp_min(1e-6)
+    return torch.where((ray_y > 1e-6) & (z < 8.0), z, torch.zeros_like(z))
+
+
+def kinect_like(depth_m: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+    """Quantize and perturb clean depth (B, H, W) metres like a Kinect v1; 0 stays 0."""
+    z = depth_m
+    noisy = z + _SIGMA_PER_Z2 * z * z * torch.randn(z.shape, generator=generator, dtype=z.dtype)
+    step = _QUANT_PER_Z2 * z * z
+    noisy = torch.round(noisy / step.clamp_min(1e-6)) * step
+    return torch.where(z > 0, noisy, torch.zeros_like(z))
+
+
+class DemoStream(DepthStream):
+    """The demo sequence as a depth stream (frames rendered on the fly, in batches).
+
+    Attributes:
+        groundtruth: ``joints`` (F, J, 3) camera metres, ``joint_names``, ``q`` (F, 34).
+        body: the body the sequence is rendered with.
+    """
+
+    source = "demo"
+
+    def __init__(
+        self,
+        intrinsics: Intrinsics | None = None,
+        frame_range: FrameRange = ALL_FRAMES,
+        fps: float | None = None,
+        seed: int = 0,
+    ) -> None:
+        self._intr = intrinsics or Intrinsics.kinect_v1(320)
+        self._fps = float(fps or 30.0)
+        self.body = BodyShape.default(torch.float64)
+        rot, trans = _camera_from_world()
+        q_world = torch.as_tensor(demo_poses(self._fps, seed))
+        self._q = transform_pose(q_world, rot, trans)
+        joints = named_joint_positions(forward_kinematics(self._q, self.body))
+        self.groundtruth = {
+            "joints": joints.numpy().astype(np.float32),
+            "joint_names": np.array(sk.JOINT_NAMES),
+            "q": self._q.numpy().astype(np.float32),
+        }
+        self._range = frame_range.clip(len(self._q))
+        self._seed = seed
+
+    @property
+    def intrinsics(self) -> Intrinsics:
+        return self._intr
+
+    @property
+    def fps(self) -> float:
+        return self._fps
+
+    @property
+    def frame_count(self) -> int:
+        return len(self._range)
+
+    def __iter__(self) -> Iterator[DepthFrame]:
+        from runtime.raycast import render_body_depth
+
+        gen = torch.Generator().manual_seed(self._seed)
+        body = self.body.to(torch.float32)
+        floor = None
+        idx = list(self._range)
+        for start in range(0, len(idx), 16):
+            chunk = idx[start : start + 16]
+            q = self._q[chunk].to(torch.float32)
+            depth = render_body_depth(q, body, self._intr)
+            if floor is None:
+                floor = _floor_depth(self._intr, depth)
+            nearer = (floor > 0) & ((depth == 0) | (floor < depth))
+            depth = torch.where(nearer, floor.expand_as(depth), depth)
+            depth_mm = (kinect_like(depth, gen) * 1000.0).round().clamp(0, 65535)
+            for i, d in zip(chunk, depth_mm.to(torch.int32).numpy().astype(np.uint16)):
+                yield DepthFrame(i, i / self._fps, d, self._intr)
+
+
+def open_demo_stream(
+    intrinsics: Intrinsics | None = None, frame_range: FrameRange = ALL_FRAMES, fps=None
+) -> DemoStream:
+    """The demo as a stream (see :class:`DemoStream`)."""
+    return DemoStream(intrinsics, frame_range, fps)
