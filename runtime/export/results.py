@@ -1,0 +1,251 @@
+"""The tracking result directory (DESIGN.md): one writer for everything ``runtime-track`` outputs.
+
+::
+
+    OUT/body.json      the body in use (shared.body format), written first: evaluation and
+                       re-export rebuild the skeleton from it
+    OUT/poses.jsonl    one line per frame, flushed per frame (runtime.export.poses_jsonl)
+    OUT/motion.bvh     the motion, valid between any two frames (runtime.export.bvh)
+    OUT/summary.json   run summary, refreshed about once a second while running and final
+                       (``"complete": true``) after close (runtime.export.summary)
+
+Every file is complete and readable up to the last finished frame at any moment, so Ctrl-C
+or a dropped camera loses nothing but the frame in flight; call :meth:`ResultWriter.close`
+(or use the writer as a context manager) to mark the summary complete.
+
+Output directory policy: created if missing; an existing directory may be empty or hold a
+previous result (any of the four files above), whose files are then overwritten (and a stale
+``evaluation.json`` / ``evaluation.png`` of it removed); any other non-empty directory is
+refused with :class:`ResultDirError`, so a typo cannot scribble into unrelated data.
+
+BVH frames follow the stream: frame ``f`` of ``motion.bvh`` is stream frame ``first_index + f``
+at ``1 / fps`` seconds spacing. A frame without a pose (``q`` None, e.g. status ``lost``), and
+any stream frames skipped between two written indices, repeat the last written pose; before
+the first pose the rest pose facing the camera at 2.5 m is used. ``poses.jsonl`` keeps the
+truth (null pose, status) for every written frame.
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from shared.body import BodyShape
+from shared.camera import Intrinsics
+from shared.skeleton import JOINT_NAMES, NUM_DOFS
+
+from .bvh import BvhWriter
+from .poses_jsonl import STATUSES, PosesJsonlWriter, pose_record
+from .summary import RESULT_FORMAT, RESULT_VERSION, write_summary
+
+__all__ = ["ResultWriter", "ResultDirError", "RESULT_FILES"]
+
+RESULT_FILES = {
+    "poses": "poses.jsonl",
+    "bvh": "motion.bvh",
+    "summary": "summary.json",
+    "body": "body.json",
+}
+_STALE_DERIVED = ("evaluation.json", "evaluation.png")
+_MAX_GAP = 100_000  # frames; a larger jump in stream indices is a caller bug, not a drop
+
+
+class ResultDirError(ValueError):
+    """An output directory that must not be written into."""
+
+
+def _now_iso() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def _prepare_dir(out_dir: Path) -> None:
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ResultDirError(f"{out_dir}: exists and is not a directory")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    entries = {p.name for p in out_dir.iterdir()}
+    if entries and not entries & set(RESULT_FILES.values()):
+        raise ResultDirError(
+            f"{out_dir}: directory is not empty and holds no tracking result; "
+            "choose a new or empty output directory"
+        )
+    for name in _STALE_DERIVED:
+        (out_dir / name).unlink(missing_ok=True)
+
+
+class ResultWriter:
+    """Writes a tracking result directory frame by frame.
+
+    Args:
+        out_dir: result directory (see the module docstring for the overwrite policy).
+        body: the body the tracker uses (unbatched).
+        fps: nominal stream frame rate (BVH frame time, summary ``stream_fps``).
+        intrinsics: depth camera of the stream (recorded in the summary).
+        mode: what produced the poses (e.g. ``"hybrid"``, ``"tracker"``, ``"detector"``).
+        source: where the frames came from (e.g. ``"recording:/data/rec1"``, ``"openni"``).
+        bvh_units: ``"cm"`` (default) or ``"m"``/``"mm"`` for ``motion.bvh``.
+        fsync: ``os.fsync`` the per-frame files after every frame (power-loss safety).
+        summary_interval_s: how often ``summary.json`` is refreshed while running.
+
+    Attributes:
+        extra: dict the caller may fill; it is stored under ``"extra"`` in the summary.
+    """
+
+    def __init__(
+        self,
+        out_dir: Path,
+        body: BodyShape,
+        fps: float,
+        intrinsics: Intrinsics,
+        mode: str,
+        source: str,
+        *,
+        bvh_units: str = "cm",
+        fsync: bool = False,
+        summary_interval_s: float = 1.0,
+    ) -> None:
+        if not (math.isfinite(fps) and fps > 0):
+            raise ValueError(f"fps must be positive, got {fps}")
+        intrinsics.validate()
+        self.out_dir = Path(out_dir)
+        _prepare_dir(self.out_dir)
+        self.fps = float(fps)
+        self.intrinsics = intrinsics
+        self.mode = mode
+        self.source = source
+        self.extra: dict = {}
+        self._summary_interval = summary_interval_s
+        self._status_counts = dict.fromkeys(STATUSES, 0)
+        self._first_index: int | None = None
+        self._last_index: int | None = None
+        self._t_open = _clock()
+        self._t_first: float | None = None
+        self._t_last: float | None = None
+        self._t_summary = -math.inf
+        self._started = _now_iso()
+        self._closed_summary: dict | None = None
+
+        body.save(self.out_dir / RESULT_FILES["body"])
+        self._bvh_units = bvh_units
+        self._poses = PosesJsonlWriter(self.out_dir / RESULT_FILES["poses"], fsync=fsync)
+        try:
+            self._bvh = BvhWriter(
+                self.out_dir / RESULT_FILES["bvh"], body, self.fps, bvh_units, fsync=fsync
+            )
+        except BaseException:
+            self._poses.close()
+            raise
+        self._write_summary(complete=False)
+
+    @property
+    def frames(self) -> int:
+        """Frames written so far."""
+        return self._poses.frames
+
+    def write_frame(
+        self,
+        index: int,
+        time: float,
+        status: str,
+        joints: np.ndarray | None,
+        q: np.ndarray | None,
+        errors: dict[str, float],
+    ) -> None:
+        """Append one frame to ``poses.jsonl`` and ``motion.bvh``.
+
+        Args:
+            index: stream frame index; must increase from call to call (gaps allowed).
+            time: stream timestamp, seconds.
+            status: ``"tracked"``, ``"detected"`` or ``"lost"``.
+            joints: (16, 3) named joints (``skeleton.JOINT_NAMES``) in camera metres, or None.
+            q: (34,) pose in the camera frame, or None (BVH repeats the last pose).
+            errors: per-frame fit errors by name (e.g. ``surface_error_q97_mm``).
+        """
+        if self._closed_summary is not None:
+            raise ValueError(f"{self.out_dir}: result writer is closed")
+        index = int(index)
+        if self._last_index is not None and index <= self._last_index:
+            raise ValueError(f"frame index {index} does not follow {self._last_index}")
+        gap = 0 if self._last_index is None else index - self._last_index - 1
+        if gap > _MAX_GAP:
+            raise ValueError(f"frame index jumps from {self._last_index} to {index}")
+        if joints is not None:
+            joints = np.asarray(joints, dtype=np.float64)
+        if q is not None:
+            q = np.asarray(q, dtype=np.float64)
+            if q.shape != (NUM_DOFS,):
+                raise ValueError(f"q must have shape ({NUM_DOFS},), got {q.shape}")
+        record = pose_record(index, time, status, joints, q, errors, JOINT_NAMES)
+        bvh_q = q if q is not None and np.isfinite(q).all() else None
+
+        self._poses.write(record)
+        self._bvh.write_pose(None, repeat=gap)
+        self._bvh.write_pose(bvh_q)
+
+        now = _clock()
+        if self._first_index is None:
+            self._first_index, self._t_first = index, now
+        self._last_index, self._t_last = index, now
+        self._status_counts[status] += 1
+        if now - self._t_summary >= self._summary_interval:
+            self._write_summary(complete=False)
+
+    def _summary(self, complete: bool) -> dict:
+        n = self.frames
+        span = (self._t_last - self._t_first) if n >= 2 else None
+        fps = (n - 1) / span if span else None
+        wall = (self._t_last if self._t_last is not None else _clock()) - self._t_open
+        return {
+            "format": RESULT_FORMAT,
+            "version": RESULT_VERSION,
+            "complete": complete,
+            "frames": n,
+            "first_frame": self._first_index,
+            "last_frame": self._last_index,
+            "fps": fps,
+            "stream_fps": self.fps,
+            "status_counts": dict(self._status_counts),
+            "mode": self.mode,
+            "source": self.source,
+            "intrinsics": self.intrinsics.as_dict(),
+            "timing": {
+                "started": self._started,
+                "finished": _now_iso() if complete else None,
+                "wall_s": wall,
+                "mean_frame_interval_ms": 1e3 / fps if fps else None,
+            },
+            "files": dict(RESULT_FILES),
+            "bvh": {
+                "frames": self._bvh.frames,
+                "units": self._bvh_units,
+                "world_frame": "y up, x = camera right, z = towards the camera; origin at camera",
+            },
+            "extra": self.extra,
+        }
+
+    def _write_summary(self, complete: bool) -> dict:
+        summary = self._summary(complete)
+        write_summary(self.out_dir / RESULT_FILES["summary"], summary)
+        self._t_summary = _clock()
+        return summary
+
+    def close(self) -> dict:
+        """Finish the files, write the final ``summary.json`` and return it. Idempotent."""
+        if self._closed_summary is None:
+            self._poses.close()
+            self._bvh.close()
+            self._closed_summary = self._write_summary(complete=True)
+        return self._closed_summary
+
+    def __enter__(self) -> ResultWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _clock() -> float:
+    return _time.perf_counter()

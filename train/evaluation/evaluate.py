@@ -1,0 +1,197 @@
+"""Evaluate a tracking result directory against a recording's ground truth.
+
+Frame matching: result frame ``i`` is recording frame ``i``. The evaluated range is recording
+frames ``0 .. last result frame``: frames inside it that the result lacks (dropped by the
+stream, or before the tracker started) count as system failures with no pose; frames after
+it (the run was interrupted or limited) are not evaluated and are reported as
+``frames_unprocessed``. Joints are matched by name; names present on one side only are
+listed and ignored. Metric definitions: :mod:`train.evaluation.metrics`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from shared import skeleton as sk
+from shared.body import BodyShape
+from shared.config import field_doc
+from shared.kinematics import forward_kinematics
+from shared.recording import Recording
+
+from . import metrics as m
+from .result_io import STATUSES, ResultFileError, TrackingResult, load_result
+
+__all__ = ["EvalConfig", "Evaluation", "evaluate", "EvaluationError", "ResultFileError"]
+
+SURFACE_KEY = "surface_error_q97_mm"
+
+
+class EvaluationError(ValueError):
+    """Recording and result that cannot be compared (mismatched frames or joints)."""
+
+
+@dataclass
+class EvalConfig:
+    """Thresholds of the evaluation (metres)."""
+
+    precision_threshold_m: float = field_doc(
+        0.10, "a joint estimate within this distance is correct (Wei 7.2, precision at 10 cm)"
+    )
+    failure_threshold_m: float = field_doc(
+        0.20, "a frame with any joint farther than this is a system failure"
+    )
+
+
+@dataclass
+class Evaluation:
+    """Everything the report and the plot need.
+
+    Attributes:
+        report: JSON-ready summary (NaN already turned into None).
+        frame_errors_mm: (F,) mean joint error per evaluated frame, NaN without a pose.
+        frame_status: (F,) status per evaluated frame, ``missing`` where the result lacks it.
+        joint_names: the evaluated joints.
+        per_joint_mm: (J,) raw mean error per joint; per_joint_norm_mm: offset-normalized.
+    """
+
+    report: dict
+    frame_errors_mm: np.ndarray
+    frame_status: np.ndarray
+    joint_names: tuple[str, ...]
+    per_joint_mm: np.ndarray
+    per_joint_norm_mm: np.ndarray
+
+
+def _segment_rotations(q: np.ndarray, joint_names: tuple[str, ...]) -> np.ndarray | None:
+    """(F, J, 3, 3) frames of the named joints from poses q (F, 34); NaN rows where q is."""
+    if not all(n in sk.JOINT_NAMES for n in joint_names):
+        return None
+    seg = sk.JOINT_SEGMENT[[sk.JOINT_NAMES.index(n) for n in joint_names]]
+    valid = np.isfinite(q).all(1)
+    rot = np.full((len(q), len(joint_names), 3, 3), np.nan)
+    if valid.any():
+        # Segment rotations depend on q only, not on the body's lengths.
+        kin = forward_kinematics(torch.from_numpy(q[valid]), BodyShape.default(torch.float64))
+        rot[valid] = kin.rotations.numpy()[:, seg]
+    return rot
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if x is not None and math.isfinite(x) else None
+
+
+def _per_joint(names, values, scale: float = 1.0) -> dict:
+    return {n: _finite(float(v) * scale) for n, v in zip(names, values)}
+
+
+def _match(result: TrackingResult, rec: Recording, gt: dict) -> tuple:
+    gt_names = tuple(str(n) for n in gt["joint_names"])
+    names = tuple(n for n in gt_names if n in result.joint_names)
+    if not names:
+        raise EvaluationError(
+            f"no joint names in common between the recording ({', '.join(gt_names)}) and the "
+            f"result ({', '.join(result.joint_names) or 'none'})"
+        )
+    if len(result.frame) and int(result.frame[-1]) >= len(rec):
+        raise EvaluationError(
+            f"result has frame {int(result.frame[-1])} but the recording has only {len(rec)} "
+            "frames (different recording?)"
+        )
+    ignored = sorted(set(gt_names) ^ set(result.joint_names))
+    return names, ignored
+
+
+def evaluate(
+    recording: str | Path, result_dir: str | Path, cfg: EvalConfig | None = None
+) -> Evaluation:
+    """Compare ``result_dir`` (runtime-track output) with ``recording``'s ground truth.
+
+    Raises:
+        RecordingError, ResultFileError, EvaluationError: with the file and the problem.
+    """
+    cfg = EvalConfig() if cfg is None else cfg
+    rec = Recording(recording)
+    gt = rec.groundtruth()
+    result = load_result(result_dir)
+    names, ignored = _match(result, rec, gt)
+    notes: list[str] = []
+    if not len(result.frame):
+        raise EvaluationError(f"{result_dir}: the result has no frames to evaluate")
+    n_eval = int(result.frame[-1]) + 1
+    gt_names = [str(n) for n in gt["joint_names"]]
+    gt_joints = np.asarray(gt["joints"], dtype=np.float64)[:n_eval][
+        :, [gt_names.index(n) for n in names]
+    ]
+    pred = np.full_like(gt_joints, np.nan)
+    res_idx = [result.joint_names.index(n) for n in names]
+    pred[result.frame] = result.joints[:, res_idx]
+    status = np.full(n_eval, "missing", dtype="<U8")
+    status[result.frame] = result.status
+    pred_q = np.full((n_eval, sk.NUM_DOFS), np.nan)
+    pred_q[result.frame] = result.q
+
+    errors = m.joint_errors(pred, gt_joints)
+    rotations, offset_frame = None, "camera"
+    if "q" in gt and np.isfinite(gt["q"][:n_eval]).all():
+        rotations = _segment_rotations(np.asarray(gt["q"][:n_eval], np.float64), names)
+        offset_frame = "ground_truth_q" if rotations is not None else offset_frame
+    if rotations is None and np.isfinite(pred_q).all(1).any():
+        rotations = _segment_rotations(pred_q, names)
+        offset_frame = "predicted_q" if rotations is not None else offset_frame
+    if offset_frame == "camera":
+        notes.append("offset normalization in the camera frame (no pose q to define joint frames)")
+    norm_errors = m.offset_normalized_errors(pred, gt_joints, rotations)
+
+    surface = result.errors.get(SURFACE_KEY)
+    surface_mm = m.sequence_surface_error_mm(surface) if surface is not None else math.nan
+    surface_frames = int(np.isfinite(surface).sum()) if surface is not None else 0
+    if surface_frames == 0:
+        notes.append(f"surface error not available: the result has no errors['{SURFACE_KEY}']")
+    if result.truncated:
+        notes.append("poses.jsonl ended in an unfinished line (interrupted run); it was dropped")
+    if not result.summary.get("complete", False):
+        notes.append("summary.json is missing or not marked complete (interrupted run?)")
+
+    failures = m.system_failures(errors, cfg.failure_threshold_m)
+    per_joint = m.per_joint_error_mm(errors)
+    per_joint_norm = m.per_joint_error_mm(norm_errors)
+    frame_mm = m.per_frame_error_mm(errors)
+    report = {
+        "recording": str(recording),
+        "result": str(result_dir),
+        "frames": n_eval,
+        "frames_with_pose": int(np.isfinite(errors).any(1).sum()),
+        "frames_missing": int((status == "missing").sum()),
+        "frames_unprocessed": len(rec) - n_eval,
+        "mean_joint_error_mm": _finite(m.mean_error_mm(errors)),
+        "mean_joint_error_offset_normalized_mm": _finite(m.mean_error_mm(norm_errors)),
+        "per_joint_error_mm": _per_joint(names, per_joint),
+        "per_joint_error_offset_normalized_mm": _per_joint(names, per_joint_norm),
+        "precision_10cm": _finite(m.precision_at(errors, cfg.precision_threshold_m)),
+        "per_joint_precision_10cm": _per_joint(
+            names, m.per_joint_precision_at(errors, cfg.precision_threshold_m)
+        ),
+        "surface_error_q97_mm": _finite(surface_mm),
+        "surface_error_frames": surface_frames,
+        "tracking_failure_pct": _finite(m.tracking_failure_pct(result.status)),
+        "system_failure_pct": _finite(m.percent(failures)),
+        "status_counts": {s: int((result.status == s).sum()) for s in STATUSES},
+        "fps": _finite(result.summary.get("fps") or math.nan),
+        "stream_fps": _finite(result.summary.get("stream_fps") or rec.fps),
+        "offset_frame": offset_frame,
+        "joints": list(names),
+        "joints_ignored": ignored,
+        "thresholds": {
+            "precision_m": cfg.precision_threshold_m,
+            "system_failure_m": cfg.failure_threshold_m,
+        },
+        "notes": notes,
+    }
+    if not math.isclose(cfg.precision_threshold_m, 0.10):
+        notes.append(f"precision_10cm was measured at {cfg.precision_threshold_m} m")
+    return Evaluation(report, frame_mm, status, names, per_joint, per_joint_norm)
