@@ -1,0 +1,147 @@
+"""The seam between ``runtime-track`` and the pose estimators (tracker, detector, hybrid).
+
+Every estimator turns one depth frame plus the person mask into a :class:`PoseEstimate`.
+:func:`make_estimator` builds one by mode name, importing its module only when asked, so the
+tool starts (and reports a clear error) even where a mode's module is missing.
+
+Contract of a mode module (``runtime.hybrid``, ``runtime.tracker``, ``runtime.detector``): it
+defines ``create_estimator(*, model_path, body, intrinsics, device, config) -> PoseEstimator``
+(``config``: a mode-specific mapping or None). It raises a ``ValueError`` subclass with a
+one-line message for bad input such as an unreadable model.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
+
+import numpy as np
+
+from shared.body import BodyShape
+from shared.camera import Intrinsics
+
+if TYPE_CHECKING:
+    import torch
+
+    from runtime.streams.base import DepthFrame
+
+__all__ = [
+    "PoseEstimate",
+    "PoseEstimator",
+    "EstimatorUnavailable",
+    "MODES",
+    "MODE_MODULES",
+    "MODES_NEEDING_MODEL",
+    "STATUSES",
+    "make_estimator",
+    "lost",
+]
+
+Status = Literal["tracked", "detected", "lost"]
+STATUSES: tuple[str, ...] = ("tracked", "detected", "lost")
+MODE_MODULES = {
+    "hybrid": "runtime.hybrid",
+    "tracker": "runtime.tracker",
+    "detector": "runtime.detector",
+    "shotton": "runtime.detector.meanshift_baseline",
+}
+MODES: tuple[str, ...] = tuple(MODE_MODULES)
+# The tracker alone starts from a default pose; the others run the forest every frame.
+MODES_NEEDING_MODEL = frozenset({"hybrid", "detector", "shotton"})
+
+
+class EstimatorUnavailable(ValueError):
+    """A mode that is unknown or whose module is not part of this installation."""
+
+
+@dataclass
+class PoseEstimate:
+    """What an estimator says about one frame.
+
+    Attributes:
+        q: (34,) float64 pose in camera coordinates (shared.skeleton layout), None if lost.
+        joints: (16, 3) named joints (shared.skeleton.JOINT_NAMES) in camera metres, or None.
+        status: "tracked" (tracker from the previous pose), "detected" (detector result) or
+            "lost" (no person, or no pose good enough).
+        errors: fit errors by name (e.g. mean depth error in metres, silhouette overlap).
+        labels: optional (H, W) uint8 body-part labels (shared.labels) the estimator computed;
+            only used for overlay images.
+    """
+
+    q: np.ndarray | None
+    joints: np.ndarray | None
+    status: Status
+    errors: dict[str, float] = field(default_factory=dict)
+    labels: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.status not in STATUSES:
+            raise ValueError(f"status must be one of {STATUSES}, got {self.status!r}")
+        if self.q is not None:
+            self.q = np.asarray(self.q, dtype=np.float64)
+            if self.q.shape != (34,):
+                raise ValueError(f"q must be (34,), got {self.q.shape}")
+        if self.joints is not None:
+            self.joints = np.asarray(self.joints, dtype=np.float64)
+            if self.joints.shape != (16, 3):
+                raise ValueError(f"joints must be (16, 3), got {self.joints.shape}")
+
+
+def lost(**errors: float) -> PoseEstimate:
+    """A 'lost' estimate (no pose) with optional error figures."""
+    return PoseEstimate(None, None, "lost", dict(errors))
+
+
+@runtime_checkable
+class PoseEstimator(Protocol):
+    """A per-frame pose estimator with state (the previous pose) between frames."""
+
+    def reset(self) -> None:
+        """Forget the past: the next frame is estimated from scratch. ``runtime-track`` calls
+        it after a frame without a person, whose estimate it writes as lost itself."""
+
+    def estimate(self, frame: DepthFrame, mask: np.ndarray | torch.Tensor) -> PoseEstimate:
+        """Pose of the person in ``frame``; ``mask`` (H, W) bool marks the person's pixels."""
+
+
+def make_estimator(
+    mode: str,
+    model_path: str | Path | None,
+    body: BodyShape,
+    intrinsics: Intrinsics,
+    device: str = "cpu",
+    config: dict[str, Any] | None = None,
+) -> PoseEstimator:
+    """Build the estimator of ``mode`` ("hybrid", "tracker" or "detector").
+
+    Raises:
+        EstimatorUnavailable: unknown mode, or its module / factory is not installed.
+        ValueError subclasses from the mode (missing or unreadable model, ...).
+    """
+    if mode not in MODE_MODULES:
+        raise EstimatorUnavailable(f"unknown mode '{mode}' (choose from {', '.join(MODES)})")
+    name = MODE_MODULES[mode]
+    try:
+        module = importlib.import_module(name)
+    except ModuleNotFoundError as err:
+        if err.name and not name.startswith(err.name):
+            raise EstimatorUnavailable(
+                f"mode '{mode}' needs the package '{err.name}' (pip install 'depthmocap[runtime]')"
+            ) from None
+        raise EstimatorUnavailable(
+            f"mode '{mode}' is not available in this build ({name} is missing)"
+        ) from None
+    factory = getattr(module, "create_estimator", None)
+    if factory is None:
+        raise EstimatorUnavailable(
+            f"mode '{mode}' is not available in this build ({name} has no create_estimator)"
+        )
+    return factory(
+        model_path=None if model_path is None else Path(model_path),
+        body=body,
+        intrinsics=intrinsics,
+        device=device,
+        config=config,
+    )

@@ -1,0 +1,492 @@
+"""``runtime-track``: the pipeline with a fake estimator, every kind of bad input, interrupts
+and dropped cameras (outputs stay valid up to the last frame), and no tracebacks."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import runtime.track_cli as cli
+from runtime.estimator import (
+    EstimatorUnavailable,
+    PoseEstimate,
+    PoseEstimator,
+    make_estimator,
+)
+from runtime.streams import DepthFrame, DepthStream, SensorDisconnected, StreamError
+from shared.body import BodyShape
+from shared.camera import Intrinsics
+from shared.recording import RecordingWriter, write_png16
+
+REPO = Path(__file__).resolve().parents[2]
+INTR = Intrinsics.kinect_v1(160)
+
+
+def person_frame(intr: Intrinsics = INTR, z_mm: int = 2500) -> np.ndarray:
+    """uint16 depth: a 0.5 m x 1.7 m slab at ``z_mm`` in front of nothing (0 = no reading)."""
+    u, v = np.meshgrid(np.arange(intr.width), np.arange(intr.height))
+    z = z_mm / 1000
+    x, y = (u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z
+    inside = (np.abs(x) < 0.25) & (y > -0.8) & (y < 0.9)
+    return np.where(inside, z_mm, 0).astype(np.uint16)
+
+
+class FakeEstimator:
+    """Says "tracked" with a fixed pose; records what it was given."""
+
+    def __init__(self, delay_s: float = 0.0):
+        self.calls: list[int] = []
+        self.resets = 0
+        self.delay_s = delay_s
+
+    def reset(self) -> None:
+        self.resets += 1
+
+    def estimate(self, frame: DepthFrame, mask) -> PoseEstimate:
+        assert mask.shape == frame.depth_mm.shape and bool(mask.any())
+        self.calls.append(frame.index)
+        time.sleep(self.delay_s)
+        q = np.zeros(34)
+        q[2], q[3] = 2.5, np.pi
+        joints = np.tile([0.0, 0.0, 2.5], (16, 1)) + np.linspace(-0.8, 0.8, 16)[:, None] * [0, 1, 0]
+        return PoseEstimate(q, joints, "tracked", {"depth_m": 0.01})
+
+
+class ListStream(DepthStream):
+    """Frames from a list; raises ``fail`` (an exception instance) after them if given."""
+
+    def __init__(self, depths, fail: BaseException | None = None, fps: float = 30.0):
+        self.depths, self.fail, self._fps = depths, fail, fps
+        self.closed = False
+        self.source = "test:list"
+
+    @property
+    def intrinsics(self):
+        return INTR
+
+    @property
+    def fps(self):
+        return self._fps
+
+    @property
+    def frame_count(self):
+        return len(self.depths)
+
+    def __iter__(self):
+        for i, d in enumerate(self.depths):
+            yield DepthFrame(i, i / self._fps, d, INTR)
+        if self.fail is not None:
+            raise self.fail
+
+    def close(self):
+        self.closed = True
+
+
+@pytest.fixture
+def fake(monkeypatch) -> FakeEstimator:
+    est = FakeEstimator()
+    monkeypatch.setattr(cli, "make_estimator", lambda *a, **k: est)
+    return est
+
+
+@pytest.fixture
+def recording(tmp_path) -> Path:
+    path = tmp_path / "rec"
+    with RecordingWriter(path, INTR, fps=30.0, source="test") as w:
+        for i in range(5):
+            w.write_frame(np.zeros_like(person_frame()) if i == 2 else person_frame())
+    return path
+
+
+def read_result(out: Path) -> tuple[list[dict], dict, int]:
+    """(poses.jsonl records, summary.json, BVH frame count) after checking they agree."""
+    lines = (out / "poses.jsonl").read_text().splitlines()
+    records = [json.loads(line) for line in lines]
+    summary = json.loads((out / "summary.json").read_text())
+    bvh = (out / "motion.bvh").read_text().split("MOTION\n", 1)[1].splitlines()
+    count = int(bvh[0].split(":")[1])
+    assert bvh[1].startswith("Frame Time:")
+    assert len(bvh) - 2 == count, "BVH frame count does not match its motion lines"
+    assert summary["complete"] is True and summary["frames"] == len(records)
+    return records, summary, count
+
+
+def run(argv, capsys) -> tuple[int, str]:
+    code = cli.main([str(a) for a in argv])
+    return code, capsys.readouterr().err
+
+
+def assert_one_line_error(err: str, *fragments: str) -> None:
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), err
+    assert "Traceback" not in err
+    for f in fragments:
+        assert f in lines[0], (f, lines[0])
+
+
+# ---- the pipeline ----------------------------------------------------------------------------
+
+
+def test_recording_end_to_end(fake, recording, tmp_path, capsys):
+    out = tmp_path / "out"
+    code, err = run(["--input", recording, "--output", out, "--mode", "tracker"], capsys)
+    assert code == 0, err
+    records, summary, bvh_frames = read_result(out)
+    assert [r["frame"] for r in records] == [0, 1, 2, 3, 4]
+    assert [r["status"] for r in records] == ["tracked"] * 2 + ["lost"] + ["tracked"] * 2
+    assert records[2]["q"] is None and records[0]["joints"]["head"] is not None
+    assert fake.calls == [0, 1, 3, 4] and fake.resets == 1  # reset after the empty frame
+    assert summary["status_counts"] == {"tracked": 4, "detected": 0, "lost": 1}
+    assert summary["source"].startswith("recording:") and summary["mode"] == "tracker"
+    assert bvh_frames == 5
+    assert "5 frames" in err and str(out) in err
+
+
+def test_frame_range_overlays_and_intrinsics_override(fake, tmp_path, capsys):
+    folder = tmp_path / "pngs"
+    folder.mkdir()
+    for i in range(4):
+        write_png16(folder / f"{i}.png", person_frame())
+    out = tmp_path / "out"
+    argv = ["-i", folder, "-o", out, "--mode", "tracker", "--start", 1, "--stop", 3]
+    argv += ["--width", 160, "--height", 120, "--fx", 140, "--save-overlays", "--quiet"]
+    code, err = run(argv, capsys)
+    assert code == 0 and err == ""
+    records, summary, _ = read_result(out)
+    assert [r["frame"] for r in records] == [1, 2]
+    assert summary["intrinsics"]["fx"] == 140 and summary["intrinsics"]["fy"] == 140
+    overlays = sorted(p.name for p in (out / "overlays").iterdir())
+    assert overlays == ["000001.png", "000002.png"]
+
+
+def test_zero_and_nan_frames_are_lost_and_tracking_goes_on(fake, monkeypatch, tmp_path, capsys):
+    nan = np.full(person_frame().shape, np.nan, dtype=np.float32)  # a misbehaving source
+    depths = [person_frame(), np.zeros_like(person_frame()), nan, person_frame()]
+    monkeypatch.setattr(cli, "open_stream", lambda *a, **k: ListStream(depths))
+    out = tmp_path / "out"
+    code, err = run(["-i", "x", "-o", out, "--mode", "tracker"], capsys)
+    assert code == 0, err
+    records, _, bvh_frames = read_result(out)
+    assert [r["status"] for r in records] == ["tracked", "lost", "lost", "tracked"]
+    assert fake.calls == [0, 3] and bvh_frames == 4
+
+
+@pytest.mark.parametrize(
+    "fail, code, message",
+    [
+        (KeyboardInterrupt(), 0, "interrupted; results up to frame 2"),
+        (SensorDisconnected("cable pulled"), 1, "camera disconnected: cable pulled"),
+        (StreamError("frame 3 unreadable"), 2, "error: frame 3 unreadable"),
+    ],
+    ids=["ctrl-c", "disconnect", "bad-frame"],
+)
+def test_stream_ending_badly_leaves_valid_outputs(
+    fake, monkeypatch, tmp_path, capsys, fail, code, message
+):
+    stream = ListStream([person_frame()] * 3, fail=fail)
+    monkeypatch.setattr(cli, "open_stream", lambda *a, **k: stream)
+    out = tmp_path / "out"
+    got, err = run(["-i", "x", "-o", out, "--mode", "tracker"], capsys)
+    assert got == code
+    assert message in err and "Traceback" not in err
+    records, summary, bvh_frames = read_result(out)
+    assert [r["frame"] for r in records] == [0, 1, 2] and bvh_frames == 3
+    assert summary["extra"]["stopped"] is not None
+    assert stream.closed
+
+
+def test_track_function_directly():
+    """track() with a plain writer double: the loop's contract without files."""
+
+    class Writer:
+        def __init__(self):
+            self.rows = []
+
+        def write_frame(self, index, time, status, joints, q, errors):
+            self.rows.append((index, status))
+
+    w, est = Writer(), FakeEstimator()
+    stats = cli.track(ListStream([person_frame(), np.zeros_like(person_frame())]), est, w)
+    assert w.rows == [(0, "tracked"), (1, "lost")]
+    assert stats.frames == 2 and stats.status_counts["lost"] == 1 and stats.last_index == 1
+
+
+def test_depth_to_metres_handles_nan_and_uint16():
+    m = cli.depth_to_metres(np.array([[1500, 0]], np.uint16))
+    assert m.dtype == torch.float32
+    np.testing.assert_allclose(m.numpy(), [[1.5, 0.0]])
+    m = cli.depth_to_metres(np.array([[np.nan, 2000.0, -5.0, np.inf]], np.float32))
+    np.testing.assert_allclose(m.numpy(), [[0.0, 2.0, 0.0, 0.0]])
+
+
+# ---- bad input -------------------------------------------------------------------------------
+
+
+def test_missing_model(recording, tmp_path, capsys):
+    code, err = run(
+        ["-i", recording, "-o", tmp_path / "o", "--model", tmp_path / "none.npz"], capsys
+    )
+    assert code == 2
+    assert_one_line_error(err, "model file not found", "none.npz")
+    assert not (tmp_path / "o").exists()
+
+
+def test_corrupt_and_version_mismatched_model(recording, tmp_path, capsys):
+    ff = pytest.importorskip("shared.forest_format", reason="the forest format is not written yet")
+    bad = tmp_path / "corrupt.npz"
+    bad.write_bytes(b"PK\x03\x04" + os.urandom(200))
+    code, err = run(["-i", recording, "-o", tmp_path / "o", "--model", bad], capsys)
+    assert code == 2
+    assert_one_line_error(err, "corrupt.npz")
+    newer = tmp_path / "newer.npz"
+    meta = json.dumps({"format": ff.FOREST_FORMAT, "version": ff.FOREST_VERSION + 1})
+    np.savez(newer, meta=np.array(meta), checksum=np.array(ff.forest_checksum({}, meta)))
+    code, err = run(["-i", recording, "-o", tmp_path / "o", "--model", newer], capsys)
+    assert code == 2
+    assert_one_line_error(err, "version")
+
+
+def test_unreadable_recording(fake, recording, tmp_path, capsys):
+    (recording / "meta.json").write_text('{"format": "depthmocap-recording"}')
+    code, err = run(["-i", recording, "-o", tmp_path / "o", "--mode", "tracker"], capsys)
+    assert code == 2
+    assert_one_line_error(err, "meta.json", "missing key")
+
+
+def test_frame_size_contradicting_intrinsics(fake, tmp_path, capsys):
+    folder = tmp_path / "raw"
+    folder.mkdir()
+    person_frame().tofile(folder / "0.raw")
+    argv = [
+        "-i",
+        folder,
+        "-o",
+        tmp_path / "o",
+        "--mode",
+        "tracker",
+        "--width",
+        320,
+        "--height",
+        240,
+    ]
+    code, err = run(argv, capsys)
+    assert code == 2
+    assert_one_line_error(err, "0.raw", "do not make a 320x240")
+
+
+def test_no_camera_attached(fake, tmp_path, capsys):
+    pytest.importorskip("openni", reason="the 'openni' package is not installed")
+    from runtime.streams.openni import load_openni2
+
+    try:
+        openni2 = load_openni2()
+    except StreamError as err:
+        pytest.skip(str(err))
+    if openni2.Device.enumerate_uris():
+        pytest.skip("a real camera is attached")
+    code, err = run(["-i", "device", "-o", tmp_path / "o", "--mode", "tracker"], capsys)
+    assert code == 2
+    assert_one_line_error(err, "no depth camera found")
+
+
+@pytest.mark.parametrize(
+    "argv, fragments",
+    [
+        (["--body", "nope.json"], ["body file not found"]),
+        (["--fx", "100"], ["need --width and --height"]),
+        (["--start", "5", "--stop", "2"], ["frame range is empty"]),
+        (["--min-depth-m", "0.5", "--segmentation-config", "nope.yaml"], ["config file not found"]),
+    ],
+    ids=["body", "intrinsics", "range", "seg-config"],
+)
+def test_bad_options(fake, recording, tmp_path, capsys, argv, fragments):
+    code, err = run(["-i", recording, "-o", tmp_path / "o", "--mode", "tracker", *argv], capsys)
+    assert code == 2
+    assert_one_line_error(err, *fragments)
+
+
+def test_output_directory_with_unrelated_files(fake, recording, tmp_path, capsys):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "precious.txt").write_text("keep")
+    code, err = run(["-i", recording, "-o", out, "--mode", "tracker"], capsys)
+    assert code == 2
+    assert_one_line_error(err, "not empty")
+
+
+def test_body_file_is_used(fake, recording, tmp_path, capsys):
+    body = BodyShape.default().scaled(1.1)
+    body.save(tmp_path / "body.json")
+    out = tmp_path / "o"
+    code, _ = run(
+        ["-i", recording, "-o", out, "--mode", "tracker", "--body", tmp_path / "body.json"], capsys
+    )
+    assert code == 0
+    saved = BodyShape.load(out / "body.json")
+    assert torch.allclose(saved.lengths, body.lengths)
+
+
+# ---- estimator registry ----------------------------------------------------------------------
+
+
+def test_registry_unknown_missing_and_factory(monkeypatch):
+    import types
+
+    import runtime.estimator as reg
+
+    args = (None, BodyShape.default(), INTR)
+    with pytest.raises(EstimatorUnavailable, match="unknown mode"):
+        make_estimator("magic", *args)
+    monkeypatch.setitem(reg.MODE_MODULES, "hybrid", "runtime.no_such_module")
+    with pytest.raises(EstimatorUnavailable, match="not available in this build"):
+        make_estimator("hybrid", *args)
+    monkeypatch.setitem(reg.MODE_MODULES, "hybrid", "runtime.bench")  # no create_estimator
+    with pytest.raises(EstimatorUnavailable, match="has no create_estimator"):
+        make_estimator("hybrid", *args)
+    module = types.ModuleType("fake_mode")
+    module.create_estimator = lambda **kw: (FakeEstimator(), kw)
+    monkeypatch.setitem(sys.modules, "fake_mode", module)
+    monkeypatch.setitem(reg.MODE_MODULES, "hybrid", "fake_mode")
+    est, kw = make_estimator("hybrid", "m.npz", *args[1:], device="cpu")
+    assert isinstance(est, PoseEstimator)
+    assert kw["model_path"] == Path("m.npz") and kw["intrinsics"] == INTR and kw["device"] == "cpu"
+
+
+def test_pose_estimate_checks_shapes():
+    with pytest.raises(ValueError, match="status"):
+        PoseEstimate(None, None, "maybe")
+    with pytest.raises(ValueError, match=r"\(34,\)"):
+        PoseEstimate(np.zeros(33), None, "tracked")
+    with pytest.raises(ValueError, match=r"\(16, 3\)"):
+        PoseEstimate(None, np.zeros((15, 3)), "tracked")
+
+
+# ---- as a separate process -------------------------------------------------------------------
+
+
+def python(code: str, *args: str, **kw) -> subprocess.Popen:
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(REPO)}
+    return subprocess.Popen(
+        [sys.executable, "-c", textwrap.dedent(code), *args],
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        **kw,
+    )
+
+
+def test_subprocess_bad_input_has_no_traceback(tmp_path):
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "runtime.track_cli",
+            "-i",
+            str(tmp_path / "nothing"),
+            "-o",
+            str(tmp_path / "o"),
+            "--mode",
+            "tracker",
+        ],
+        cwd=REPO,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 2
+    assert_one_line_error(r.stderr, "no such file or directory")
+
+
+# A fake "tracker" module for the child process: the real estimators are not needed to test
+# the tool's plumbing.
+_CHILD = """
+    import sys, time, numpy as np
+    import runtime.track_cli as cli
+    from runtime.estimator import PoseEstimate
+
+    class Slow:
+        def reset(self):
+            pass
+        def estimate(self, frame, mask):
+            time.sleep(0.02)
+            q = np.zeros(34); q[2] = 2.5; q[3] = np.pi
+            return PoseEstimate(q, np.tile([0.0, 0.0, 2.5], (16, 1)), "tracked", {})
+
+    cli.make_estimator = lambda *a, **k: Slow()
+    sys.exit(cli.main(sys.argv[1:]))
+"""
+
+
+def test_subprocess_ctrl_c_leaves_valid_outputs(tmp_path):
+    rec = tmp_path / "rec"
+    with RecordingWriter(rec, INTR, fps=30.0) as w:
+        for _ in range(300):
+            w.write_frame(person_frame())
+    out = tmp_path / "out"
+    p = python(_CHILD, "-i", str(rec), "-o", str(out), "--mode", "tracker", "--realtime")
+    poses = out / "poses.jsonl"
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and p.poll() is None:
+        if poses.exists() and len(poses.read_text().splitlines()) >= 3:
+            break
+        time.sleep(0.05)
+    assert p.poll() is None, p.communicate()
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 0, err
+    assert "interrupted; results up to frame" in err and "Traceback" not in err
+    records, summary, bvh_frames = read_result(out)
+    assert 3 <= len(records) < 300
+    # Real-time pacing may drop frames; the BVH still has one frame per stream frame.
+    assert records[0]["frame"] == 0
+    assert bvh_frames == records[-1]["frame"] + 1
+    assert summary["extra"]["stopped"] == "interrupted"
+
+
+def test_subprocess_openni_dummy_device(tmp_path):
+    pytest.importorskip("openni", reason="the 'openni' package is not installed")
+    out = tmp_path / "out"
+    p = python(_CHILD, "-i", "device:Dummy", "-o", str(out), "--mode", "tracker", "--stop", "4")
+    _, err = p.communicate(timeout=120)
+    if p.returncode == 2 and "OpenNI2 library not found" in err:
+        pytest.skip("libOpenNI2 is not installed")
+    assert p.returncode == 0, err
+    records, summary, _ = read_result(out)
+    assert [r["frame"] for r in records] == [0, 1, 2, 3]
+    # The Dummy device shows no person: every frame is lost, and nothing breaks.
+    assert summary["status_counts"]["lost"] == 4
+    assert summary["source"] == "openni:Dummy"
+
+
+@pytest.mark.slow
+def test_real_kinect_frames_end_to_end(shared_data, tmp_path, capsys):
+    """Issue 6: real Kinect v1 frames are segmented and tracked without error (with the real
+    default estimator and model; skipped while either is not available)."""
+    frames = shared_data / "kinect" / "skeltrack"
+    if not frames.is_dir():
+        pytest.skip("no Skeltrack frames")
+    out = tmp_path / "out"
+    code, err = run(["-i", frames, "-o", out, "--device", "cpu"], capsys)
+    if code == 2 and ("not available" in err or "model file not found" in err):
+        pytest.skip(err.strip())
+    assert code == 0, err
+    records, summary, _ = read_result(out)
+    assert len(records) == 12
+    found = [r for r in records if r["status"] != "lost"]
+    assert found, "no skeleton on any real frame"
+    for r in found:
+        head = np.array(r["joints"]["head"])
+        assert np.isfinite(head).all() and 0.5 < head[2] < 3.0
