@@ -25,7 +25,7 @@ from shared.recording import RecordingWriter
 
 from .synth_frames import SceneConfig, body_for_index, place_on_floor, render_frame
 
-__all__ = ["sequence_poses", "render_sequence"]
+__all__ = ["sequence_poses", "face_forward", "render_sequence"]
 
 
 def sequence_poses(
@@ -52,6 +52,22 @@ def sequence_poses(
     return q, str(path)
 
 
+def face_forward(q: np.ndarray, frames: int = 10) -> np.ndarray:
+    """Turn world poses (F, 34) about the vertical so the person faces +z over the first
+    ``frames`` frames (clips start facing anywhere; the camera is placed relative to +z)."""
+    from shared.body import BodyShape
+    from shared.kinematics import forward_kinematics, named_joint_positions, transform_pose
+
+    qt = torch.as_tensor(q, dtype=torch.float64)
+    j = named_joint_positions(forward_kinematics(qt[:frames], BodyShape.default(torch.float64)))
+    left = (j[:, sk.JOINT_NAMES.index("l_hip")] - j[:, sk.JOINT_NAMES.index("r_hip")]).mean(0)
+    forward = torch.linalg.cross(left, torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64))
+    yaw = torch.atan2(forward[0], forward[2])
+    c, s = torch.cos(-yaw), torch.sin(-yaw)
+    rot = torch.tensor([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]], dtype=torch.float64)
+    return transform_pose(qt, rot, torch.zeros(3, dtype=torch.float64)).numpy()
+
+
 def render_sequence(
     motion: str,
     out: str | Path,
@@ -75,6 +91,7 @@ def render_sequence(
     cfg = SceneConfig() if cfg is None else cfg
     rng = np.random.default_rng([seed, 11])
     q_world, source = sequence_poses(motion, fps, frames, rng, asf)
+    q_world = face_forward(q_world)
     body = body_for_index(seed, 1_000_000 + seed)
     placed = place_on_floor(body, q_world, per_frame=False)
     skeleton_body = skeleton_body_of(body)
