@@ -41,9 +41,9 @@ def test_rest_q_hangs_arms_down(body):
 
 @pytest.mark.slow
 def test_posed_mesh_follows_skeleton_pose(body):
+    from shared.procedural_motion import motion_poses
     from train.anny_body import anatomical_joints
     from train.body_posing import pose_anny, skeleton_body_of
-    from shared.procedural_motion import motion_poses
     from train.retarget import retarget_joints
 
     sb = skeleton_body_of(body)

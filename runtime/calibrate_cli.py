@@ -1,0 +1,153 @@
+"""``runtime-calibrate``: measure a person's body (bone lengths, radii) and write a body file.
+
+The person stands facing the camera in the reference pose (T-pose: arms raised sideways to
+the horizontal, legs a little apart; see :mod:`runtime.calibration.calibrate`). Per frame:
+depth -> person mask (:func:`runtime.segmentation.segment_person`) -> part labels (the forest,
+or with ``--labels recording`` the ground-truth labels of a synthetic recording) -> the
+detector's pose with the template body. Once the reference pose has been held for ``--frames``
+consecutive frames, those frames are calibrated (Wei section 6) and the body is written; it is
+what ``runtime-track --body`` loads. ``--no-pose-check`` takes the first ``--frames`` frames
+with a person without checking the pose (a recording known to show the reference pose).
+
+Exit codes: 0 written; 2 bad input or the pose was never held (one ``error: ...`` line).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import torch
+
+from shared.body import BodyShape
+from shared.recording import Recording, RecordingError
+
+from .calibration import CalibrationConfig, CalibrationError, ReferencePoseWatcher, calibrate_body
+from .detector import (
+    DetectorConfig,
+    DetectorError,
+    depth_frame_to_metres,
+    labels_from,
+    load_forest_labeler,
+)
+from .detector.detect import detect_pose
+from .segmentation import segment_person
+from .streams import FrameRange, StreamError, describe_sources, open_stream
+
+__all__ = ["main", "build_parser", "CalibrateError"]
+
+DEFAULT_MODEL = Path(__file__).resolve().parents[1] / "models" / "forest.npz"
+
+
+class CalibrateError(ValueError):
+    """Bad options or input for ``runtime-calibrate``."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="runtime-calibrate",
+        description="Calibrate the body model (bone lengths and radii) from depth frames of a "
+        "person holding the reference pose (T-pose facing the camera); writes a body file.",
+    )
+    p.add_argument("--input", "-i", required=True, help=f"depth source: {describe_sources()}")
+    p.add_argument("--output", "-o", required=True, type=Path, help="body file to write (JSON)")
+    p.add_argument("--model", type=Path, default=DEFAULT_MODEL, help="forest artifact")
+    p.add_argument(
+        "--labels",
+        choices=("forest", "recording"),
+        default="forest",
+        help="part labels from the forest, or the recording's own ground-truth labels/",
+    )
+    p.add_argument("--frames", type=int, default=10, help="frames the pose must be held / used")
+    p.add_argument("--template", type=Path, help="template body file (default: average adult)")
+    p.add_argument(
+        "--no-pose-check", action="store_true", help="use the first frames without a pose check"
+    )
+    p.add_argument("--start", type=int, default=0, help="first frame index")
+    p.add_argument("--stop", type=int, help="stop before this frame index")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress messages")
+    return p
+
+
+def _labeler(args, intr):
+    if args.labels == "forest":
+        if not args.model.is_file():
+            raise CalibrateError(f"model file not found: {args.model}")
+        return load_forest_labeler(args.model, "cpu", intr)
+    try:
+        rec = Recording(args.input)
+    except RecordingError as err:
+        raise CalibrateError(f"--labels recording needs a recording directory: {err}") from None
+    if not rec.has_labels:
+        raise CalibrateError(f"{args.input}: the recording has no labels/")
+    return lambda index: torch.from_numpy(rec.read_labels(index).astype("int64"))
+
+
+def run(args: argparse.Namespace) -> BodyShape:
+    if args.frames < 1:
+        raise CalibrateError(f"--frames must be >= 1, got {args.frames}")
+    template = BodyShape.default()
+    if args.template is not None:
+        try:
+            template = BodyShape.load(args.template)
+        except (FileNotFoundError, ValueError) as err:
+            raise CalibrateError(str(err)) from None
+    cfg = CalibrationConfig(hold_frames=args.frames)
+    det_cfg = DetectorConfig(refine_iterations=0)
+    watcher = ReferencePoseWatcher(cfg)
+    with open_stream(args.input, frame_range=FrameRange(args.start, args.stop)) as stream:
+        intr = stream.intrinsics
+        labeler = _labeler(args, intr)
+        for frame in stream:
+            depth = depth_frame_to_metres(frame.depth_mm)
+            mask = segment_person(depth, intr)
+            if not bool(mask.any()):
+                watcher.update(None, depth, depth)
+                continue
+            if args.labels == "forest":
+                labels = labels_from(labeler(depth, mask))
+            else:
+                labels = labeler(frame.index) * mask
+            if args.no_pose_check:
+                watcher.frames.append((depth, labels))
+            else:
+                det = detect_pose(depth, labels, intr, template, det_cfg, mask=mask)
+                watcher.update(det.q if det.found else None, depth, labels)
+            if not args.quiet:
+                print(f"frame {frame.index}: held {len(watcher.frames)}/{args.frames}",
+                      file=sys.stderr)  # fmt: skip
+            if watcher.ready:
+                break
+    if not watcher.ready:
+        raise CalibrateError(
+            f"the reference pose (T-pose facing the camera) was not held for {args.frames} "
+            f"frames in {args.input}"
+        )
+    frames = watcher.frames[: args.frames]
+    return calibrate_body([f[0] for f in frames], [f[1] for f in frames], intr, template, cfg)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        body = run(args)
+        args.output.parent.mkdir(parents=True, exist_ok=True)
+        body.save(args.output)
+    except (CalibrateError, CalibrationError, StreamError, RecordingError, DetectorError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    except ValueError as err:  # the forest loader's ForestFormatError and similar bad input
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:
+        print(f"error: cannot write {args.output}: {err}", file=sys.stderr)
+        return 2
+    if not args.quiet:
+        lengths = ", ".join(f"{x * 100:.1f}" for x in body.lengths.tolist())
+        print(f"wrote {args.output} (lengths cm: {lengths})", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

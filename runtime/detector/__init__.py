@@ -1,0 +1,152 @@
+"""3D pose detector of Wei section 4.2 (mode "detector") and the Shotton 2011 baseline.
+
+Mode "detector" runs the forest and :func:`detect_pose` on every frame with tracker refinement,
+independently of the previous frames: status "detected", or "lost" when too few body pixels
+are labelled. The forest itself (``runtime.forest.inference.ForestClassifier``) is loaded by
+:func:`load_forest_labeler`, shared with the hybrid and the Shotton baseline.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from shared.body import BodyShape
+from shared.camera import Intrinsics
+from shared.config import ConfigError, config_from_dict
+
+from .bone_ransac import BoneFit, bone_reach, fit_bones
+from .centroids import ClassCentroids, class_centroids, part_markers
+from .config import DetectorConfig, MeanShiftConfig
+from .detect import DetectionResult, Detector, DetectorError, detect_pose, labels_from
+
+__all__ = [
+    "DetectorConfig",
+    "MeanShiftConfig",
+    "DetectorError",
+    "DetectionResult",
+    "Detector",
+    "detect_pose",
+    "labels_from",
+    "BoneFit",
+    "fit_bones",
+    "bone_reach",
+    "ClassCentroids",
+    "class_centroids",
+    "part_markers",
+    "Labeler",
+    "load_forest_labeler",
+    "depth_frame_to_metres",
+    "DetectorEstimator",
+    "create_estimator",
+]
+
+# (depth_m (H, W), mask (H, W) bool) -> (H, W) int part labels or (C, H, W) posteriors.
+Labeler = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+
+
+def load_forest_labeler(
+    model_path: str | Path | None,
+    device: str | torch.device = "cpu",
+    intrinsics: Intrinsics | None = None,
+    posteriors: bool = False,
+) -> Labeler:
+    """Per-pixel part labels (or (C, H, W) posteriors) from the forest at ``model_path``.
+
+    ``intrinsics``: the stream's camera (feature offsets are rescaled to its focal length).
+
+    Raises:
+        DetectorError: no model given or the forest runtime is missing; the forest loader's
+            ``ForestFormatError`` (a ValueError) for a missing or corrupt file.
+    """
+    if model_path is None:
+        raise DetectorError("this mode needs a forest model (--model forest.npz)")
+    from shared.forest_format import load_forest
+    from shared.labels import PART_NAMES
+
+    forest = load_forest(model_path, expected_classes=PART_NAMES)
+    try:
+        from runtime.forest.inference import ForestClassifier
+    except ImportError as err:
+        raise DetectorError(f"forest inference is not available in this build ({err})") from None
+    clf = ForestClassifier(forest, device, intrinsics=intrinsics)
+    return clf.posteriors if posteriors else clf.labels
+
+
+def depth_frame_to_metres(depth_mm: np.ndarray, device: str | torch.device = "cpu") -> torch.Tensor:
+    """(H, W) millimetres (uint16, or float with NaN) -> float32 metres on ``device``, 0 = none."""
+    depth = np.asarray(depth_mm)
+    if depth.dtype.kind == "f":
+        depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0)
+    return torch.from_numpy(depth.astype(np.float32)).to(device) * 1e-3
+
+
+def _as_mask(mask, device) -> torch.Tensor:
+    return torch.as_tensor(np.asarray(mask) if not torch.is_tensor(mask) else mask).to(
+        device=device, dtype=torch.bool
+    )
+
+
+class DetectorEstimator:
+    """Mode "detector": forest labels -> :class:`Detector` on every frame (no memory)."""
+
+    def __init__(self, labeler: Labeler, detector: Detector) -> None:
+        self.labeler, self.detector = labeler, detector
+
+    def reset(self) -> None:
+        """Nothing to forget: every frame is detected from scratch."""
+
+    def estimate(self, frame, mask):
+        from runtime.estimator import PoseEstimate, lost
+
+        depth = depth_frame_to_metres(frame.depth_mm, self.detector.device)
+        m = _as_mask(mask, depth.device)
+        if not bool(m.any()):
+            return lost()
+        labels = labels_from(self.labeler(depth, m))
+        det = self.detector.detect(depth, labels, m)
+        if not det.found:
+            return lost(labelled_pixels=float(det.labelled_pixels))
+        errors = {"ik_rms_m": det.ik_rms, "labelled_pixels": float(det.labelled_pixels)}
+        if det.refined is not None:
+            errors.update(
+                depth_error_cm=det.refined.depth_error_cm,
+                overlap=det.refined.overlap,
+                surface_error_q97_mm=det.refined.surface_error_q97_mm,
+            )
+        return PoseEstimate(
+            det.q.detach().cpu().double().numpy(),
+            det.joints.detach().cpu().double().numpy(),
+            "detected",
+            errors,
+            det.labels.cpu().numpy().astype(np.uint8),
+        )
+
+
+def _config(cls, config: Mapping[str, Any] | Any | None, where: str):
+    if config is None:
+        return cls()
+    if isinstance(config, cls):
+        return config
+    try:
+        return config_from_dict(cls, dict(config), where)
+    except ConfigError as err:
+        raise DetectorError(str(err)) from None
+
+
+def create_estimator(
+    *,
+    model_path: Path | None,
+    body: BodyShape,
+    intrinsics: Intrinsics,
+    device: str = "cpu",
+    config: Mapping[str, Any] | DetectorConfig | None = None,
+) -> DetectorEstimator:
+    """Mode "detector" for ``make_estimator`` (``config``: DetectorConfig keys)."""
+    cfg = _config(DetectorConfig, config, "detector config")
+    labeler = load_forest_labeler(model_path, device, intrinsics)
+    return DetectorEstimator(labeler, Detector(body, intrinsics, cfg, device=device))

@@ -1,0 +1,303 @@
+"""3D pose detection from classified depth pixels (Wei section 4.2).
+
+labels (forest argmax, or ground truth) -> 3D points -> RANSAC bone fitting drops misclassified
+pixels (:mod:`.bone_ransac`) -> per-class centroids as markers (:mod:`.centroids`) -> inverse
+kinematics in joint-angle space with joint limits (``shared.ik.fit_pose``, Levenberg-Marquardt)
+-> a few iterations of the MAP tracker from the IK pose as refinement (Wei: three).
+
+The IK is local, so it runs from several root orientations at once (one batch) and keeps the
+best fit: the torso frame measured from the centroids (up: pelvis -> chest; left: right-side
+minus left-side centroids of hips, clavicles, upper arms), the same frame turned by 180 degrees
+about its up axis (left/right labels swapped by the forest), and upright facing the camera or
+with the back to it. All starts have every joint angle at zero; a pose hint (e.g. the last
+tracked pose) is one more start.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+
+from shared import skeleton as sk
+from shared.body import BodyShape
+from shared.camera import Intrinsics, depth_to_points
+from shared.ik import fit_pose
+from shared.kinematics import forward_kinematics, named_joint_positions
+from shared.labels import NUM_CLASSES, PART_NAMES
+from shared.so3 import matrix_to_rotvec
+
+from .bone_ransac import fit_bones
+from .centroids import class_centroids, part_markers
+from .config import DetectorConfig
+
+if TYPE_CHECKING:
+    from runtime.tracker import Tracker, TrackerConfig, TrackResult
+
+__all__ = ["DetectionResult", "DetectorError", "detect_pose", "labels_from", "Detector"]
+
+
+class DetectorError(ValueError):
+    """Input the detector cannot work with (shapes, label values)."""
+
+
+@dataclass
+class DetectionResult:
+    """What the detector found in one frame.
+
+    Attributes:
+        found: enough labelled body pixels for a pose (otherwise q is the hint or None).
+        q: (34,) final pose (refined when a tracker was given), or None if not found.
+        q_ik: (34,) the IK pose before refinement, or None.
+        joints: (16, 3) named joints of q, or None.
+        targets: (19, 3) class-centroid targets (NaN for missing classes).
+        weights: (19,) their IK weights (0 = missing).
+        counts: (19,) surviving pixels per class.
+        ik_rms: weighted RMS marker error of the IK, metres (inf if not found).
+        labels: (H, W) uint8 part labels after outlier removal (rejected pixels set to 0).
+        labelled_pixels: body pixels with a label before outlier removal.
+        refined: the tracker's result of the refinement, or None.
+    """
+
+    found: bool
+    q: torch.Tensor | None
+    q_ik: torch.Tensor | None
+    joints: torch.Tensor | None
+    targets: torch.Tensor
+    weights: torch.Tensor
+    counts: torch.Tensor
+    ik_rms: float
+    labels: torch.Tensor
+    labelled_pixels: int
+    refined: TrackResult | None = None
+
+
+def labels_from(labels_or_posteriors: torch.Tensor | np.ndarray) -> torch.Tensor:
+    """(H, W) int labels from labels, or from posteriors (C, H, W) / (H, W, C) by argmax."""
+    x = torch.as_tensor(labels_or_posteriors)
+    if x.dim() == 2:
+        if x.is_floating_point():
+            raise DetectorError("2-D label images must be integer part labels")
+        if x.numel() and (int(x.min()) < 0 or int(x.max()) >= NUM_CLASSES):
+            raise DetectorError(f"labels must be in [0, {NUM_CLASSES - 1}]")
+        return x.long()
+    if x.dim() == 3 and x.shape[0] == NUM_CLASSES:
+        return x.argmax(0)
+    if x.dim() == 3 and x.shape[-1] == NUM_CLASSES:
+        return x.argmax(-1)
+    raise DetectorError(
+        f"expected (H, W) labels or ({NUM_CLASSES}, H, W) posteriors, got {tuple(x.shape)}"
+    )
+
+
+_SIDE_PAIRS = tuple(
+    (PART_NAMES.index("l_" + n) - 1, PART_NAMES.index("r_" + n) - 1)
+    for n in ("thigh_upper", "clavicle", "upper_arm")
+)
+_PELVIS, _ABDOMEN, _CHEST = (PART_NAMES.index(n) - 1 for n in ("pelvis", "abdomen", "chest"))
+
+
+def _normalize(v: torch.Tensor) -> torch.Tensor:
+    return v / v.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+
+
+def start_orientations(targets: torch.Tensor, weights: torch.Tensor, count: int) -> torch.Tensor:
+    """Root rotation vectors of the IK starts (module docstring): (count, 3), count <= 4."""
+    dev, dt = targets.device, targets.dtype
+    t = torch.nan_to_num(targets)
+    present = weights > 0
+
+    def centre(ids):
+        m = present[list(ids)].to(dt)
+        return (t[list(ids)] * m[:, None]).sum(0) / m.sum().clamp_min(1.0), bool(m.sum() > 0)
+
+    low, has_low = centre((_PELVIS, _ABDOMEN))
+    high, has_high = centre((_CHEST,))
+    up = _normalize(high - low) if has_low and has_high else t.new_tensor([0.0, -1.0, 0.0])
+    left = t.new_zeros(3)
+    for li, ri in _SIDE_PAIRS:
+        if bool(present[li] & present[ri]):
+            left = left + _normalize(t[li] - t[ri])
+    if float(left.norm()) < 1e-6:
+        left = t.new_tensor([-1.0, 0.0, 0.0])  # facing the camera: the person's left is -x
+    left = _normalize(left - (left @ up) * up)
+    forward = torch.linalg.cross(left, up)
+    measured = torch.stack([left, up, forward], 1)  # columns: body axes in camera frame
+    turn = torch.diag(t.new_tensor([-1.0, 1.0, -1.0]))
+    facing = torch.diag(t.new_tensor([1.0, -1.0, -1.0]))
+    rots = torch.stack([measured, measured @ turn, facing, facing @ turn])[: max(1, count)]
+    return matrix_to_rotvec(rots.to(device=dev, dtype=dt))
+
+
+_ARM_ABDUCTION_DEG = (0.0, 90.0, 160.0)
+
+
+def _arm_presets(count: int, like: torch.Tensor) -> torch.Tensor:
+    """Joint-angle starts (count, 34): both arms hanging, raised sideways, raised overhead.
+
+    The arm's IK has a local minimum between abduction and flexion for raised arms; starting
+    from each of these (in that order, ``count`` of them) lets the batch find the right branch.
+    """
+    out = like.new_zeros(max(1, min(count, len(_ARM_ABDUCTION_DEG))), sk.NUM_DOFS)
+    for i in range(out.shape[0]):
+        for side in ("l", "r"):
+            out[i, sk.DOF_NAMES.index(f"{side}_humerus_abd")] = math.radians(_ARM_ABDUCTION_DEG[i])
+    return out
+
+
+def detect_pose(
+    depth_m: torch.Tensor,
+    labels: torch.Tensor | np.ndarray,
+    intr: Intrinsics,
+    body: BodyShape,
+    cfg: DetectorConfig | None = None,
+    q_hint: torch.Tensor | None = None,
+    mask: torch.Tensor | None = None,
+    tracker: Tracker | None = None,
+    generator: torch.Generator | None = None,
+) -> DetectionResult:
+    """Pose from one depth frame and its part labels (module docstring).
+
+    Args:
+        depth_m: (H, W) metric depth, 0 = no reading.
+        labels: (H, W) int part labels (0 = background), or posteriors (C, H, W) / (H, W, C).
+        intr: intrinsics of the image.
+        body: body model (unbatched).
+        cfg: settings (defaults when None).
+        q_hint: (34,) an extra IK start (e.g. the last good pose), optional.
+        mask: (H, W) bool person mask; labels outside it are ignored. Needed for refinement
+            (default: labelled pixels).
+        tracker: refines the IK pose with ``tracker.step`` when given (its config sets the
+            iteration count; see :class:`Detector`).
+        generator: random source of the RANSAC (default: seeded from ``cfg.seed``).
+    Returns:
+        :class:`DetectionResult`.
+    """
+    cfg = cfg or DetectorConfig()
+    if depth_m.dim() != 2 or tuple(depth_m.shape) != (intr.height, intr.width):
+        raise DetectorError(
+            f"depth must be (H, W) = ({intr.height}, {intr.width}), got {tuple(depth_m.shape)}"
+        )
+    lab = labels_from(labels).to(depth_m.device)
+    if lab.shape != depth_m.shape:
+        raise DetectorError(f"labels {tuple(lab.shape)} do not match depth {tuple(depth_m.shape)}")
+    dev = depth_m.device
+    dt = depth_m.dtype if depth_m.is_floating_point() else torch.float32
+    depth = depth_m.to(dt)
+    body = body.to(dtype=dt, device=dev)
+    gen = generator or torch.Generator().manual_seed(cfg.seed)
+    use = (lab > 0) & torch.isfinite(depth) & (depth > 0)
+    if mask is not None:
+        use = use & mask.to(device=dev, dtype=torch.bool)
+    n_lab = int(use.sum())
+    pts_img = depth_to_points(torch.where(use, depth, torch.zeros_like(depth))[None], intr)[0]
+    C = NUM_CLASSES - 1
+    empty = DetectionResult(
+        False, None, None, None, depth.new_full((C, 3), math.nan), depth.new_zeros(C),
+        depth.new_zeros(C), math.inf, torch.zeros_like(lab, dtype=torch.uint8), n_lab,
+    )  # fmt: skip
+    if n_lab < cfg.min_person_pixels:
+        return empty
+
+    pix = use.nonzero(as_tuple=True)
+    points, plabels = pts_img[pix], lab[pix]
+    fit = fit_bones(
+        points, plabels, body, cfg.ransac_samples, cfg.ransac_scored, cfg.ransac_points,
+        cfg.min_pair_fraction, cfg.inlier_margin_m, gen,
+    )  # fmt: skip
+    cen = class_centroids(
+        points, plabels, fit.inlier, body, cfg.surface_offset, cfg.min_class_pixels,
+        cfg.weight_pixels,
+    )  # fmt: skip
+    kept = torch.zeros_like(lab, dtype=torch.uint8)
+    kept[pix] = torch.where(fit.inlier, plabels, torch.zeros_like(plabels)).to(torch.uint8)
+    if int((cen.weights > 0).sum()) < 3:
+        empty.labels, empty.targets, empty.weights, empty.counts = (
+            kept, cen.targets, cen.weights, cen.counts,
+        )  # fmt: skip
+        return empty
+
+    # IK from several root orientations in one batch; the root starts at the pelvis centroid.
+    rotvecs = start_orientations(cen.targets, cen.weights, cfg.orientation_starts)
+    present = cen.weights > 0
+    t0 = torch.nan_to_num(cen.targets)
+    root = t0[_PELVIS] if bool(present[_PELVIS]) else t0[present].mean(0)
+    arms = _arm_presets(cfg.arm_starts, depth)  # (A, 34) joint angles only
+    q0 = arms.repeat(rotvecs.shape[0], 1)
+    q0[:, 0:3], q0[:, 3:6] = root, rotvecs.repeat_interleave(arms.shape[0], 0)
+    if q_hint is not None:
+        q0 = torch.cat([q0, q_hint.to(q0).reshape(1, sk.NUM_DOFS)], 0)
+    q_ref = q0.clone()
+    markers = part_markers(body)
+    ik = fit_pose(
+        cen.targets[None].expand(q0.shape[0], -1, -1), q0, body,
+        cen.weights[None].expand(q0.shape[0], -1), markers, q_ref=q_ref, prior=cfg.ik_prior,
+        iterations=cfg.ik_iterations,
+    )  # fmt: skip
+    best = int(torch.argmin(ik.rms))
+    q_ik = ik.q[best]
+    q, refined = q_ik, None
+    if tracker is not None and getattr(tracker.cfg, "iterations", 1) > 0:
+        ref_mask = use if mask is None else mask.to(device=dev, dtype=torch.bool)
+        refined = tracker.step(depth, ref_mask, q_ik, None)
+        q = refined.q.to(q_ik)
+    joints = named_joint_positions(forward_kinematics(q[None], body))[0]
+    return DetectionResult(
+        True, q, q_ik, joints, cen.targets, cen.weights, cen.counts, float(ik.rms[best]),
+        kept, n_lab, refined,
+    )  # fmt: skip
+
+
+class Detector:
+    """Stateless-per-frame detector of one stream: settings, body, and the refining tracker.
+
+    Args:
+        body: body model; intr: stream intrinsics; cfg: detector settings.
+        tracker_cfg: settings of the refining tracker (its ``iterations`` is replaced by
+            ``cfg.refine_iterations``; no refinement when that is 0).
+        device, dtype: where and in which float type to compute.
+    """
+
+    def __init__(
+        self,
+        body: BodyShape,
+        intr: Intrinsics,
+        cfg: DetectorConfig | None = None,
+        tracker_cfg: TrackerConfig | None = None,
+        device: torch.device | str | None = None,
+        dtype: torch.dtype = torch.float32,
+    ) -> None:
+        self.cfg = cfg or DetectorConfig()
+        self.intr = intr
+        self.device = torch.device("cpu") if device is None else torch.device(device)
+        self.dtype = dtype
+        self.body = body.to(dtype=dtype, device=self.device)
+        self.generator = torch.Generator().manual_seed(self.cfg.seed)
+        self.tracker = None
+        if self.cfg.refine_iterations > 0:
+            from runtime.tracker import Tracker, TrackerConfig
+
+            tcfg = dataclasses.replace(
+                tracker_cfg or TrackerConfig(), iterations=self.cfg.refine_iterations
+            )
+            self.tracker = Tracker(self.body, intr, tcfg, device=self.device, dtype=dtype)
+
+    def detect(
+        self,
+        depth_m: torch.Tensor,
+        labels: torch.Tensor | np.ndarray,
+        mask: torch.Tensor | None = None,
+        q_hint: torch.Tensor | None = None,
+    ) -> DetectionResult:
+        """:func:`detect_pose` on one frame with this detector's settings and tracker."""
+        return detect_pose(
+            depth_m.to(device=self.device, dtype=self.dtype),
+            torch.as_tensor(labels).to(self.device),
+            self.intr, self.body, self.cfg, q_hint,
+            None if mask is None else torch.as_tensor(mask).to(self.device),
+            self.tracker, self.generator,
+        )  # fmt: skip

@@ -1,0 +1,191 @@
+"""Hybrid tracking and detection (Wei section 5): mode "hybrid" of ``runtime-track``.
+
+The tracker reconstructs every frame from the two previous poses, except the first frame and
+the frames where it fails; those are (re)initialized by the detector (forest labels -> RANSAC
+-> centroids -> IK -> a few tracker iterations, :mod:`runtime.detector`). A tracked frame
+fails when
+
+- the mean depth / extra-depth residual exceeds ``epsilon1_cm`` (Wei: 2.5 cm), or
+- the silhouette overlap |R and O| / |R or O| is below ``epsilon2`` (Wei: 90%).
+
+Statuses per frame: "tracked" (the tracker's pose passed both tests), "detected" (the detector
+gave the pose: first frame, after a failure, after a lost frame), "lost" (no person: empty
+mask, or too few labelled body pixels for the detector). After a lost frame the estimator
+forgets its past, so the person is picked up by the detector when they return.
+
+The detector's pose is accepted as it is, even where it would fail the two tests too (Wei
+re-initializes the tracker from it); the next frame is tracked from it and judged again.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from runtime.detector import (
+    DetectionResult,
+    Detector,
+    DetectorConfig,
+    Labeler,
+    depth_frame_to_metres,
+    labels_from,
+    load_forest_labeler,
+)
+from runtime.estimator import PoseEstimate, lost
+from shared.body import BodyShape
+from shared.camera import Intrinsics
+from shared.config import ConfigError, config_from_dict, field_doc
+from shared.kinematics import forward_kinematics, named_joint_positions
+
+__all__ = ["HybridConfig", "HybridError", "HybridEstimator", "tracking_failed", "create_estimator"]
+
+
+class HybridError(ValueError):
+    """Bad settings or inputs of the hybrid estimator."""
+
+
+def _tracker_config_type():
+    from runtime.tracker import TrackerConfig
+
+    return TrackerConfig
+
+
+@dataclass
+class HybridConfig:
+    """Switching thresholds of Wei section 5 and the settings of both estimators."""
+
+    epsilon1_cm: float = field_doc(
+        2.5, help="tracking fails above this mean depth / extra-depth error, cm (Wei: 2.5)"
+    )
+    epsilon2: float = field_doc(
+        0.9, help="tracking fails below this silhouette overlap |R and O| / |R or O| (Wei: 0.9)"
+    )
+    hint_from_tracker: bool = field_doc(
+        True,
+        help="give the detector's IK the last pose as one more start (it is used only if it "
+        "fits the class centroids best)",
+    )
+    detector: DetectorConfig = field_doc(help="detector settings", default_factory=DetectorConfig)
+    tracker: dict = field_doc(
+        {}, help="tracker settings (runtime.tracker.TrackerConfig keys); defaults when empty"
+    )
+
+    def tracker_config(self):
+        """The tracker's settings as a ``TrackerConfig``."""
+        cls = _tracker_config_type()
+        try:
+            return config_from_dict(cls, dict(self.tracker), "hybrid tracker config")
+        except ConfigError as err:
+            raise HybridError(str(err)) from None
+
+
+def tracking_failed(depth_error_cm: float, overlap: float, cfg: HybridConfig) -> bool:
+    """Wei's two failure tests on a tracked frame."""
+    return not (depth_error_cm <= cfg.epsilon1_cm and overlap >= cfg.epsilon2)
+
+
+class HybridEstimator:
+    """Tracker with detector (re)initialization for one stream (implements PoseEstimator).
+
+    Args:
+        labeler: per-pixel part labels of a frame (the forest).
+        detector: the pose detector (with its refining tracker).
+        tracker: the frame-to-frame tracker (``Tracker.step`` API).
+        cfg: thresholds.
+    """
+
+    def __init__(self, labeler: Labeler, detector: Detector, tracker, cfg: HybridConfig) -> None:
+        self.labeler, self.detector, self.tracker, self.cfg = labeler, detector, tracker, cfg
+        self.device = detector.device
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the previous poses: the next frame goes to the detector."""
+        self.q_prev: torch.Tensor | None = None
+        self.q_prev2: torch.Tensor | None = None
+
+    def _joints(self, q: torch.Tensor) -> np.ndarray:
+        kin = forward_kinematics(q[None].to(self.detector.body.lengths), self.detector.body)
+        return named_joint_positions(kin)[0].detach().cpu().double().numpy()
+
+    def _detect(self, depth: torch.Tensor, mask: torch.Tensor, errors: dict) -> PoseEstimate:
+        labels = labels_from(self.labeler(depth, mask))
+        hint = self.q_prev if self.cfg.hint_from_tracker else None
+        det: DetectionResult = self.detector.detect(depth, labels, mask, q_hint=hint)
+        errors["labelled_pixels"] = float(det.labelled_pixels)
+        if not det.found:
+            self.reset()
+            return lost(**errors)
+        errors["ik_rms_m"] = det.ik_rms
+        if det.refined is not None:
+            errors.update(
+                depth_error_cm=det.refined.depth_error_cm,
+                overlap=det.refined.overlap,
+                surface_error_q97_mm=det.refined.surface_error_q97_mm,
+            )
+        q = det.q.detach()
+        self.q_prev, self.q_prev2 = q, None
+        return PoseEstimate(
+            q.cpu().double().numpy(),
+            self._joints(q),
+            "detected",
+            errors,
+            det.labels.cpu().numpy().astype(np.uint8),
+        )
+
+    def estimate(self, frame, mask) -> PoseEstimate:
+        """Pose of the person in ``frame`` (``frame.depth_mm``: (H, W) millimetres)."""
+        depth = depth_frame_to_metres(frame.depth_mm, self.device)
+        m = torch.as_tensor(np.asarray(mask) if not torch.is_tensor(mask) else mask)
+        m = m.to(device=self.device, dtype=torch.bool)
+        if m.shape != depth.shape:
+            raise HybridError(f"mask {tuple(m.shape)} does not match depth {tuple(depth.shape)}")
+        if not bool(m.any()):
+            self.reset()
+            return lost()
+        errors: dict[str, float] = {}
+        if self.q_prev is not None:
+            res = self.tracker.step(depth, m, self.q_prev, self.q_prev2)
+            errors = {
+                "depth_error_cm": float(res.depth_error_cm),
+                "overlap": float(res.overlap),
+                "surface_error_q97_mm": float(res.surface_error_q97_mm),
+            }
+            if not tracking_failed(res.depth_error_cm, res.overlap, self.cfg):
+                q = res.q.detach()
+                self.q_prev, self.q_prev2 = q, self.q_prev
+                return PoseEstimate(q.cpu().double().numpy(), self._joints(q), "tracked", errors)
+            errors = {f"tracker_{k}": v for k, v in errors.items()}
+        return self._detect(depth, m, errors)
+
+
+def create_estimator(
+    *,
+    model_path: Path | None,
+    body: BodyShape,
+    intrinsics: Intrinsics,
+    device: str = "cpu",
+    config: Mapping[str, Any] | HybridConfig | None = None,
+) -> HybridEstimator:
+    """Mode "hybrid" for ``runtime.estimator.make_estimator`` (``config``: HybridConfig keys)."""
+    if config is None:
+        cfg = HybridConfig()
+    elif isinstance(config, HybridConfig):
+        cfg = config
+    else:
+        try:
+            cfg = config_from_dict(HybridConfig, dict(config), "hybrid config")
+        except ConfigError as err:
+            raise HybridError(str(err)) from None
+    from runtime.tracker import Tracker
+
+    tcfg = cfg.tracker_config()
+    labeler = load_forest_labeler(model_path, device, intrinsics)
+    detector = Detector(body, intrinsics, cfg.detector, tcfg, device=device)
+    tracker = Tracker(body, intrinsics, tcfg, device=device)
+    return HybridEstimator(labeler, detector, tracker, cfg)

@@ -1,0 +1,367 @@
+"""Body ray-caster: depth, silhouette, segment index and surface coordinates of the cylinder model.
+
+The tracker (Wei section 3, step 1-2 of the optimization) renders the body at the current pose
+and needs, per pixel, which segment it sees and where on that segment (``p0`` of
+``p = f(q; k, p0)``), so that the analytic point Jacobian applies. Wei reads these from
+OpenGL's selection buffer; here every pixel's ray is intersected analytically with every
+segment's quadric, batched over poses x segments x pixels.
+
+Geometry of segment k (see :mod:`shared.body`): an elliptic cylinder with semi-axes
+``radii[k]`` along ``cross_section_axes()[k]``, spanning ``-extents[k, 0]`` to
+``lengths[k] + extents[k, 1]`` along ``SEGMENT_AXIS[k]``, closed by half-ellipsoid caps with
+the same cross-section and axial semi-axis ``cap = CAP_FRACTION[k] * min(radii[k])``:
+
+- at a *joint end* (where another segment attaches: every lower end except the root's, and
+  upper ends with children) the cap is centred on the end of the cylinder and bulges
+  ``cap`` beyond it, so consecutive segments overlap and joints bend without gaps;
+- at a *free end* (pelvis bottom, top of the head, hands, feet) the cap is inset so the
+  geometry ends exactly at the body's stated extent and the stature stays as documented.
+
+Limbs use hemispherical caps (``CAP_FRACTION = 1``): capsules. The torso's elliptic segments use
+shallow caps (0.3) so the chest stays roughly flat at the shoulder line. In coordinates scaled
+by ``1 / (r1, r2, cap)`` each segment is a unit-radius capsule along z, and since that scaling is
+affine, the ray parameter t of a hit is the same in both spaces: one closed-form capsule
+intersection per ray and segment (Inigo Quilez's formulation). Rays have ``d_z = 1`` so t is
+the metric depth z directly.
+
+Only pixels inside a conservative bounding box of the projected body are cast (one host sync
+for the box); the rest of the image is background. Everything follows q's device and dtype.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from shared import skeleton as sk
+from shared.body import BodyShape, cross_section_axes
+from shared.camera import Intrinsics, pixel_grid
+from shared.kinematics import Kinematics, forward_kinematics
+
+__all__ = [
+    "CAP_FRACTION",
+    "SegmentGeometry",
+    "BodyRender",
+    "segment_geometry",
+    "render_body",
+    "render_body_depth",
+    "surface_distance",
+]
+
+# Axial semi-axis of each segment's end caps, as a fraction of its smaller cross-section radius.
+CAP_FRACTION = np.array([0.3, 0.3, 0.3] + [1.0] * 12)
+
+# Upper end has a child attached (a joint end); lower ends are joint ends except the root's.
+_HAS_CHILD_AT_END = np.zeros(sk.NUM_SEGMENTS, dtype=bool)
+for _k, _p in enumerate(sk.SEGMENT_PARENT):
+    if _p >= 0 and sk.SEGMENT_ATTACH_END[_k] > 0.5:
+        _HAS_CHILD_AT_END[_p] = True
+_LOWER_IS_FREE = sk.SEGMENT_PARENT < 0
+
+_NEAR = 1e-3  # hits closer than this to the camera (or behind it) are ignored, metres
+
+
+@dataclass
+class SegmentGeometry:
+    """Per-segment capsule parameters in segment-local coordinates.
+
+    Attributes:
+        basis: (15, 3, 3) rows: first and second cross-section axis, segment axis (local frame).
+        scale: (..., 15, 3) semi-axes (r1, r2, cap), metres.
+        span: (..., 15, 2) axial positions of the two cap centres (metres along the axis).
+    """
+
+    basis: torch.Tensor
+    scale: torch.Tensor
+    span: torch.Tensor
+
+
+@dataclass
+class BodyRender:
+    """What the ray-caster sees for B poses on an H x W image.
+
+    Attributes:
+        depth: (B, H, W) metric z of the nearest hit, 0 where the ray misses the body.
+        mask: (B, H, W) bool, the rendered silhouette.
+        segment: (B, H, W) int64 segment hit, -1 on background.
+        local_points: (B, H, W, 3) hit point in the hit segment's frame (0 on background).
+        normals: (B, H, W, 3) unit outward surface normal in camera frame (0 on background).
+        kin: forward kinematics of the poses (reused by the tracker for Jacobians).
+    """
+
+    depth: torch.Tensor
+    mask: torch.Tensor
+    segment: torch.Tensor
+    local_points: torch.Tensor
+    normals: torch.Tensor
+    kin: Kinematics
+
+
+def segment_geometry(body: BodyShape, like: torch.Tensor) -> SegmentGeometry:
+    """Capsule parameters of ``body`` (unbatched or batched) in ``like``'s dtype/device."""
+    dtype, device = like.dtype, like.device
+    axes = torch.as_tensor(cross_section_axes(), dtype=dtype, device=device)  # (15, 2, 3)
+    seg_axis = torch.as_tensor(sk.SEGMENT_AXIS, dtype=dtype, device=device)
+    basis = torch.cat([axes, seg_axis[:, None]], 1)
+    radii = body.radii.to(dtype=dtype, device=device)
+    lengths = body.lengths.to(dtype=dtype, device=device)
+    ext = body.extents.to(dtype=dtype, device=device)
+    frac = torch.as_tensor(CAP_FRACTION, dtype=dtype, device=device)
+    cap = frac * radii.min(-1).values
+    lower_free = torch.as_tensor(_LOWER_IS_FREE, device=device)
+    upper_free = torch.as_tensor(~_HAS_CHILD_AT_END, device=device)
+    lo = -ext[..., 0] + torch.where(lower_free, cap, torch.zeros_like(cap))
+    hi = lengths + ext[..., 1] - torch.where(upper_free, cap, torch.zeros_like(cap))
+    hi = torch.maximum(hi, lo)
+    return SegmentGeometry(basis, torch.cat([radii, cap[..., None]], -1), torch.stack([lo, hi], -1))
+
+
+def _segment_boxes(
+    kin: Kinematics, geom: SegmentGeometry, intr: Intrinsics
+) -> list[tuple[int, int, int, int]]:
+    """Conservative pixel box (u0, u1, v0, v1), end-exclusive, of each segment over the batch.
+
+    A capsule lies in the convex hull of two spheres of radius ``max(r1, r2)`` around its cap
+    centres; perspective maps that hull into the hull of the spheres' projections, whose
+    boxes bound each sphere's projection via the extreme x/z and y/z ratios. Empty boxes are
+    (0, 0, 0, 0). This is the ray-caster's one host sync.
+    """
+    B = kin.origins.shape[0]
+    axis_w = torch.einsum("bkij,kj->bki", kin.rotations, geom.basis[:, 2])
+    span = geom.span.expand(B, -1, -1)
+    centres = kin.origins[:, :, None] + span[..., None] * axis_w[:, :, None]  # (B, K, 2, 3)
+    radius = geom.scale[..., :2].max(-1).values.expand(B, -1)[..., None]  # (B, K, 1)
+    x, y, z = centres.unbind(-1)
+    near, far = (z - radius).clamp_min(_NEAR), z + radius
+    visible = far > _NEAR
+
+    def extent(c):
+        lo = torch.minimum((c - radius) / near, (c - radius) / far)
+        hi = torch.maximum((c + radius) / near, (c + radius) / far)
+        big = torch.finfo(c.dtype).max
+        lo = torch.where(visible, lo, big).amin(dim=(0, 2))
+        hi = torch.where(visible, hi, -big).amax(dim=(0, 2))
+        return lo, hi
+
+    ux, uy = extent(x), extent(y)
+    box = (
+        torch.stack(
+            [
+                ux[0] * intr.fx + intr.cx,
+                ux[1] * intr.fx + intr.cx,
+                uy[0] * intr.fy + intr.cy,
+                uy[1] * intr.fy + intr.cy,
+            ],
+            -1,
+        )
+        .clamp(-1e6, 1e6)
+        .tolist()
+    )
+    out = []
+    for u0, u1, v0, v1 in box:
+        u0i, v0i = max(0, int(np.floor(u0))), max(0, int(np.floor(v0)))
+        u1i = min(intr.width, int(np.ceil(u1)) + 1)
+        v1i = min(intr.height, int(np.ceil(v1)) + 1)
+        out.append((u0i, u1i, v0i, v1i) if u1i > u0i and v1i > v0i else (0, 0, 0, 0))
+    return out
+
+
+def _pairs(boxes: list[tuple[int, int, int, int]], width: int, device) -> tuple[torch.Tensor, ...]:
+    """Every (pixel, segment) pair inside the segments' boxes: flat pixel index (P,), segment (P,),
+    column (P,), row (P,)."""
+    sizes = [(u1 - u0) * (v1 - v0) for u0, u1, v0, v1 in boxes]
+    geo = torch.tensor([(u0, u1 - u0, v0) for u0, u1, v0, _ in boxes], device=device)
+    counts = torch.tensor(sizes, device=device)
+    seg = torch.repeat_interleave(
+        torch.arange(len(boxes), device=device), counts, output_size=sum(sizes)
+    )
+    first = torch.cumsum(counts, 0) - counts
+    idx = torch.arange(seg.shape[0], device=device) - first[seg]
+    g = geo[seg]
+    col = g[:, 0] + idx % g[:, 1].clamp_min(1)
+    row = g[:, 2] + idx // g[:, 1].clamp_min(1)
+    return row * width + col, seg, col, row
+
+
+def _cast(
+    rays: torch.Tensor, seg: torch.Tensor, kin: Kinematics, geom: SegmentGeometry
+) -> torch.Tensor:
+    """Ray parameter (= depth) of each ray's hit with one segment's capsule.
+
+    Args:
+        rays: (P, 3) ray directions with z = 1 (from the camera centre).
+        seg: (P,) segment to intersect.
+    Returns:
+        (B, P) depth, inf where the ray misses.
+    """
+    B, K = kin.origins.shape[:2]
+    # World -> scaled local: xi = diag(1/scale) @ basis @ R^T @ (x - o). One table row per
+    # (pose, segment), gathered once per pair: 9 matrix entries, camera centre, cap centres.
+    m = (geom.basis @ kin.rotations.transpose(-1, -2)) / geom.scale.expand(B, -1, -1)[..., None]
+    o = -(m @ kin.origins[..., None])[..., 0]  # (B, K, 3): camera centre in scaled space
+    zab = (geom.span / geom.scale[..., 2:]).expand(B, -1, -1)
+    table = torch.cat([m.reshape(B, K, 9), o, zab], -1)  # (B, K, 14)
+    # Channel-first gather: every component below is a contiguous (B, P) tensor.
+    row = table.index_select(1, seg).permute(2, 0, 1).contiguous()  # (14, B, P)
+    rx, ry, rz = rays.unbind(-1)
+    dx = row[0] * rx + row[1] * ry + row[2] * rz
+    dy = row[3] * rx + row[4] * ry + row[5] * rz
+    dz = row[6] * rx + row[7] * ry + row[8] * rz
+    ox, oy, oz, za, zb = row[9:].unbind(0)
+
+    a = dx * dx + dy * dy
+    b = ox * dx + oy * dy
+    c = ox * ox + oy * oy - 1.0
+    h = b * b - a * c
+    t_cyl = (-b - h.clamp_min(0).sqrt()) / a.clamp_min(1e-12)
+    z = oz + t_cyl * dz
+    on_body = (z >= za) & (z <= zb)
+    # Otherwise the ray enters through the cap on the side where it met the infinite cylinder.
+    oc_z = oz - torch.where(z < za, za, zb)
+    a_s = a + dz * dz
+    b_s = b + oc_z * dz
+    c_s = c + oc_z * oc_z
+    h_s = b_s * b_s - a_s * c_s
+    t_cap = (-b_s - h_s.clamp_min(0).sqrt()) / a_s
+    t = torch.where(on_body, t_cyl, t_cap)
+    hit = (h >= 0) & (on_body | (h_s >= 0)) & (t > _NEAR)
+    return torch.where(hit, t, torch.full_like(t, float("inf")))
+
+
+def _hit_details(
+    points: torch.Tensor, segment: torch.Tensor, kin: Kinematics, geom: SegmentGeometry
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Local coordinates and camera-frame unit normals of points on their segments' surfaces.
+
+    Args:
+        points: (B, N, 3) camera-frame points; segment: (B, N) int64 (clamped to >= 0).
+    Returns:
+        local (B, N, 3), normals (B, N, 3).
+    """
+    B, N = points.shape[:2]
+    K = kin.origins.shape[1]
+    # Camera -> section coordinates (r1-direction, r2-direction, axial), metres: c = A (p - o).
+    a_mat = geom.basis @ kin.rotations.transpose(-1, -2)  # (B, K, 3, 3)
+    scale = geom.scale.expand(B, -1, -1)
+    span = geom.span.expand(B, -1, -1)
+    basis = geom.basis.expand(B, -1, -1, -1)
+    table = torch.cat(
+        [a_mat.reshape(B, K, 9), kin.origins, scale, span, basis.reshape(B, K, 9)], -1
+    )  # (B, K, 26)
+    flat = (segment + K * torch.arange(B, device=points.device)[:, None]).reshape(-1)
+    row = table.reshape(B * K, -1).index_select(0, flat).T.contiguous().reshape(-1, B, N)
+    a_r = row[0:9]
+    rel = points.permute(2, 0, 1) - row[9:12]  # (3, B, N)
+    coords = torch.stack(
+        [a_r[3 * i] * rel[0] + a_r[3 * i + 1] * rel[1] + a_r[3 * i + 2] * rel[2] for i in range(3)]
+    )
+    b_r = row[17:26]
+    # basis is orthonormal: local = basis^T c
+    local = torch.stack(
+        [b_r[j] * coords[0] + b_r[3 + j] * coords[1] + b_r[6 + j] * coords[2] for j in range(3)]
+    )
+    axial = coords[2] - torch.minimum(torch.maximum(coords[2], row[15]), row[16])
+    grad = torch.stack([coords[0], coords[1], axial]) / (row[12:15] * row[12:15])
+    normals = torch.stack(
+        [a_r[j] * grad[0] + a_r[3 + j] * grad[1] + a_r[6 + j] * grad[2] for j in range(3)]
+    )
+    norm = (normals[0] * normals[0] + normals[1] * normals[1] + normals[2] * normals[2]).sqrt()
+    normals = normals / norm.clamp_min(1e-12)
+    return local.permute(1, 2, 0), normals.permute(1, 2, 0)
+
+
+def render_body(
+    q: torch.Tensor,
+    body: BodyShape,
+    intr: Intrinsics,
+    kin: Kinematics | None = None,
+    box: bool = True,
+) -> BodyRender:
+    """Ray-cast the cylinder model at poses ``q``.
+
+    Args:
+        q: (B, 34) poses in camera frame.
+        body: body parameters (unbatched or batch B).
+        intr: intrinsics of the output image (H x W = intr.height x intr.width).
+        kin: forward kinematics of ``q`` if already computed.
+        box: cast only the pixels inside the projected body's bounding box (same result,
+            faster); False casts every pixel.
+    Returns:
+        :class:`BodyRender` with tensors on q's device, depth/points in q's dtype.
+    """
+    if q.dim() != 2 or q.shape[-1] != sk.NUM_DOFS:
+        raise ValueError(f"q must have shape (B, {sk.NUM_DOFS}), got {tuple(q.shape)}")
+    kin = forward_kinematics(q, body) if kin is None else kin
+    geom = segment_geometry(body, q)
+    B, H, W = q.shape[0], intr.height, intr.width
+    if box:
+        boxes = _segment_boxes(kin, geom, intr)
+    else:
+        boxes = [(0, W, 0, H)] * sk.NUM_SEGMENTS
+    pix, pseg, col, row = _pairs(boxes, W, q.device)
+    rays = torch.stack(
+        [
+            (col.to(q.dtype) - intr.cx) / intr.fx,
+            (row.to(q.dtype) - intr.cy) / intr.fy,
+            torch.ones(col.shape, dtype=q.dtype, device=q.device),
+        ],
+        -1,
+    )
+    t = _cast(rays, pseg, kin, geom)  # (B, P)
+    inf = torch.full((B, H * W), float("inf"), dtype=q.dtype, device=q.device)
+    zbuf = inf.scatter_reduce(1, pix.expand(B, -1), t, "amin")
+    # Winner per pixel: the pair whose depth equals the z-buffer (ties: any of them).
+    won = (t == zbuf[:, pix]) & torch.isfinite(t)
+    segment = torch.full((B, H * W), -1, dtype=torch.long, device=q.device)
+    flat_seg = torch.where(won, pseg.expand(B, -1), torch.full_like(t, -1, dtype=torch.long))
+    segment = segment.scatter_reduce(1, pix.expand(B, -1), flat_seg, "amax")
+    depth = torch.where(segment >= 0, zbuf, torch.zeros_like(zbuf)).reshape(B, H, W)
+    segment = segment.reshape(B, H, W)
+    local = q.new_zeros(B, H, W, 3)
+    normals = q.new_zeros(B, H, W, 3)
+    # Surface coordinates only inside the union of the boxes (everything else is background).
+    live = [b for b in boxes if b[1] > b[0]]
+    if live:
+        u0, u1 = min(b[0] for b in live), max(b[1] for b in live)
+        v0, v1 = min(b[2] for b in live), max(b[3] for b in live)
+        d, sg = depth[:, v0:v1, u0:u1], segment[:, v0:v1, u0:u1]
+        u, v = pixel_grid(v1 - v0, u1 - u0, q.dtype, q.device)
+        rays = torch.stack(
+            [(u + u0 - intr.cx) / intr.fx, (v + v0 - intr.cy) / intr.fy, torch.ones_like(u)], -1
+        )
+        pts = (d[..., None] * rays).reshape(B, -1, 3)
+        loc, nrm = _hit_details(pts, sg.reshape(B, -1).clamp_min(0), kin, geom)
+        hit = (sg >= 0).reshape(B, -1, 1)
+        local[:, v0:v1, u0:u1] = (loc * hit).reshape(B, v1 - v0, u1 - u0, 3)
+        normals[:, v0:v1, u0:u1] = (nrm * hit).reshape(B, v1 - v0, u1 - u0, 3)
+    return BodyRender(depth, segment >= 0, segment, local, normals, kin)
+
+
+def render_body_depth(q: torch.Tensor, body: BodyShape, intr: Intrinsics) -> torch.Tensor:
+    """Depth image (B, H, W) of the cylinder model at poses ``q``, metres, 0 = background."""
+    return render_body(q, body, intr).depth
+
+
+def surface_distance(points: torch.Tensor, kin: Kinematics, body: BodyShape) -> torch.Tensor:
+    """Approximate distance of camera-frame points to the model surface: (B, N).
+
+    Per segment the distance is measured along the line from the point to its nearest point
+    on the capsule's axis: exact for circular sections and spherical caps, an upper bound for
+    the elliptic torso. The union's signed distance is the minimum over segments; its
+    absolute value is returned (points inside the body count by their depth inside).
+    """
+    geom = segment_geometry(body, points)
+    B = points.shape[0]
+    rel = points[:, :, None, :] - kin.origins[:, None]  # (B, N, K, 3)
+    local = (rel[..., None, :] @ kin.rotations[:, None])[..., 0, :]
+    coords = torch.einsum("kij,bnkj->bnki", geom.basis, local)
+    span = geom.span.expand(B, -1, -1)[:, None]
+    scale = geom.scale.expand(B, -1, -1)[:, None]
+    axial = coords[..., 2] - coords[..., 2].clamp(span[..., 0], span[..., 1])
+    offset = torch.stack([coords[..., 0], coords[..., 1], axial], -1)
+    length = offset.norm(dim=-1)
+    rho = (offset / scale).norm(dim=-1)
+    signed = length * (1.0 - 1.0 / rho.clamp_min(1e-9))
+    return signed.min(-1).values.abs()

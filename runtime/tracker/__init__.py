@@ -1,0 +1,16 @@
+"""MAP tracker of Wei et al. 2012 section 3 (depth, extra depth, silhouette, prior terms)."""
+
+from .benchmark import benchmark_tracker
+from .config import TrackerConfig
+from .tracker import FrameFit, Tracker, TrackerError, TrackResult, fit_frames, track_sequence
+
+__all__ = [
+    "TrackerConfig",
+    "Tracker",
+    "TrackResult",
+    "TrackerError",
+    "FrameFit",
+    "fit_frames",
+    "track_sequence",
+    "benchmark_tracker",
+]

@@ -1,0 +1,128 @@
+"""Linearized residual rows, the normal equations, and the limited Gauss-Newton step.
+
+Every data term of Wei's appendix A linearizes to rows of the form
+
+    w * g^T (dp/dq) dq = w * r
+
+for a model surface point p fixed on segment k, a direction g (3,) in camera frame, a residual
+r and a weight w: the depth term's g is the surface normal (eq. 15), the extra depth term uses
+the three camera axes (eq. 17), the silhouette term the distance-transform gradient pulled back
+through the projection (eq. 16). A revolute DoF with world axis a through o moves p by
+``a x (p - o)``, so its entry is ``g . (a x (p - o)) = (p x g) . a + g . (o x a)``: one (N, 6) @
+(6, 31) product per iteration instead of the (N, 3, 34) point Jacobian. The root rotation's
+columns are those of the left SO(3) increment (:func:`shared.kinematics.pose_update`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from shared import skeleton as sk
+from shared.kinematics import Kinematics, clamp_to_limits, pose_update
+
+__all__ = [
+    "Rows",
+    "cat_rows",
+    "rows_jacobian",
+    "normal_equations",
+    "solve_step",
+    "apply_step",
+]
+
+
+@dataclass
+class Rows:
+    """N linearized residuals of the data terms.
+
+    Attributes:
+        batch: (N,) int64 pose each row belongs to.
+        points: (N, 3) camera-frame model surface points (at the current pose).
+        segment: (N,) int64 segment each point is fixed on.
+        direction: (N, 3) g: the row is g^T dp/dq.
+        residual: (N,) r (target of the linearized model).
+        weight: (N,) w (1 / sigma times the subsampling compensation).
+    """
+
+    batch: torch.Tensor
+    points: torch.Tensor
+    segment: torch.Tensor
+    direction: torch.Tensor
+    residual: torch.Tensor
+    weight: torch.Tensor
+
+    def __len__(self) -> int:
+        return int(self.residual.shape[0])
+
+
+def cat_rows(rows: list[Rows]) -> Rows:
+    """Concatenate the rows of several terms."""
+    return Rows(*(torch.cat([getattr(r, f) for r in rows]) for f in Rows.__dataclass_fields__))
+
+
+def rows_jacobian(kin: Kinematics, rows: Rows) -> torch.Tensor:
+    """Jacobian rows g^T dp/dq: (N, 34)."""
+    B = kin.origins.shape[0]
+    axes = kin.dof_axes[:, 3:]  # (B, 31, 3)
+    moments = torch.linalg.cross(kin.dof_origins[:, 3:], axes, dim=-1)
+    table = torch.cat([axes, moments], -1).reshape(B * 31, 6)
+    g = rows.direction
+    lever = torch.cat([torch.linalg.cross(rows.points, g, dim=-1), g], -1)  # (N, 6)
+    rot = (lever @ table.T).reshape(-1, B, 31)
+    if B == 1:
+        rot = rot[:, 0]
+    else:
+        rot = rot.gather(1, rows.batch[:, None, None].expand(-1, 1, 31))[:, 0]
+    affects = torch.as_tensor(sk.DOF_AFFECTS_SEGMENT, dtype=g.dtype, device=g.device)
+    return torch.cat([g, rot], 1) * affects.index_select(0, rows.segment)
+
+
+def normal_equations(
+    kin: Kinematics, rows: Rows, batch_size: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Sum of w^2 J^T J and w^2 J^T r per pose: (B, 34, 34), (B, 34), float64."""
+    jac = rows_jacobian(kin, rows) * rows.weight[:, None]
+    res = rows.residual * rows.weight
+    if batch_size == 1:
+        jt = jac.T[None]
+    else:
+        onehot = rows.batch[None] == torch.arange(batch_size, device=jac.device)[:, None]
+        jt = jac.T[None] * onehot[:, None].to(jac.dtype)  # (B, 34, N)
+    hess = (jt @ jac).double()
+    grad = (jt @ res[:, None])[..., 0].double()
+    return hess, grad
+
+
+def solve_step(
+    hess: torch.Tensor, grad: torch.Tensor, q: torch.Tensor, damping: float, limits: bool
+) -> torch.Tensor:
+    """Damped Gauss-Newton increment, with joint limits as a one-pass active set.
+
+    After the unconstrained solve, joint angles that would leave their limits are fixed at the
+    limit and the remaining DoFs are solved again with that fixed contribution moved to the
+    right-hand side, so the other joints can compensate. (B, 34) in q's dtype.
+    """
+    diag = hess.diagonal(dim1=-2, dim2=-1)
+    lam = damping * diag.mean(-1, keepdim=True) + 1e-9
+    damped = hess + torch.diag_embed(lam.expand_as(diag))
+    dq = torch.linalg.solve(damped, grad[..., None])[..., 0]
+    if limits:
+        q64 = q.double()
+        target = clamp_to_limits(q64 + dq)
+        fixed = torch.zeros_like(dq, dtype=torch.bool)
+        fixed[:, 6:] = (target - (q64 + dq)).abs()[:, 6:] > 0
+        fixed_dq = torch.where(fixed, target - q64, torch.zeros_like(dq))
+        free = ~fixed
+        both = free[:, :, None] & free[:, None, :]
+        reduced = torch.where(both, damped, torch.zeros_like(damped))
+        reduced = reduced + torch.diag_embed(fixed.to(damped.dtype))
+        rhs = torch.where(free, grad - (damped @ fixed_dq[..., None])[..., 0], fixed_dq)
+        dq = torch.linalg.solve(reduced, rhs[..., None])[..., 0]
+    return dq.to(q.dtype)
+
+
+def apply_step(q: torch.Tensor, dq: torch.Tensor, limits: bool) -> torch.Tensor:
+    """``q (+) dq``, clamped to the joint limits when ``limits``."""
+    q = pose_update(q, dq)
+    return clamp_to_limits(q) if limits else q

@@ -1,0 +1,58 @@
+"""Constant-acceleration prior (Wei eq. 7, 12, 18): ``q ~ 2 q_prev - q_prev2``.
+
+Its Jacobian is the identity (root rotation: the left SO(3) increment), so it enters the
+normal equations as a diagonal; angles and the root position get separate noise scales
+because q mixes radians and metres.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from shared.kinematics import clamp_to_limits
+from shared.so3 import matrix_to_rotvec, rotvec_to_matrix
+
+__all__ = ["predict_pose", "prior_residual", "prior_system"]
+
+
+def predict_pose(q_prev: torch.Tensor, q_prev2: torch.Tensor | None) -> torch.Tensor:
+    """Constant-velocity prediction 2 q_prev - q_prev2 (root rotation on SO(3)): (B, 34).
+
+    Without ``q_prev2`` the prediction is ``q_prev`` (zero velocity).
+    """
+    if q_prev2 is None:
+        return q_prev.clone()
+    pred = 2 * q_prev - q_prev2
+    r1, r2 = rotvec_to_matrix(q_prev[:, 3:6]), rotvec_to_matrix(q_prev2[:, 3:6])
+    pred[:, 3:6] = matrix_to_rotvec(r1 @ r2.transpose(-1, -2) @ r1)
+    return clamp_to_limits(pred)
+
+
+def prior_residual(q: torch.Tensor, q_pred: torch.Tensor) -> torch.Tensor:
+    """``q_pred (-) q`` in the update's coordinates (root: the left increment taking q there).
+
+    The root part is ``sin(angle) * axis`` of ``R_pred R^T`` (the vee of its antisymmetric
+    part): the rotation vector to first order, exact in direction, and a fraction of the cost
+    of the logarithm; prior residuals are per-frame accelerations, i.e. small angles.
+    """
+    res = q_pred - q
+    rot = rotvec_to_matrix(q_pred[:, 3:6]) @ rotvec_to_matrix(q[:, 3:6]).transpose(-1, -2)
+    res[:, 3:6] = 0.5 * torch.stack(
+        [rot[:, 2, 1] - rot[:, 1, 2], rot[:, 0, 2] - rot[:, 2, 0], rot[:, 1, 0] - rot[:, 0, 1]], -1
+    )
+    return res
+
+
+def prior_system(
+    q: torch.Tensor, q_pred: torch.Tensor, sigma_rad: float, sigma_m: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Prior contribution to the normal equations and its energy.
+
+    Returns:
+        diagonal (B, 34) of w^2, right-hand side (B, 34) w^2 r, energy (B,) sum (w r)^2.
+    """
+    w = torch.full_like(q, 1.0 / sigma_rad)
+    w[:, 0:3] = 1.0 / sigma_m
+    res = prior_residual(q, q_pred)
+    w2 = w * w
+    return w2, w2 * res, (w2 * res * res).sum(-1)

@@ -1,0 +1,89 @@
+"""Failure signals of a tracked frame (Wei section 5) and the surface error (Helten IV).
+
+- ``depth_error_cm``: mean absolute residual of the depth and extra depth terms, the hybrid's
+  epsilon1 signal (Wei: switch to the detector above 2.5 cm). It averages |observed - rendered
+  depth| over G and the 3D distance to the matched point over the extra term's query pixels
+  (B1, B2, B3); a query without an eligible match counts as the gate (8 cm), so a lost track
+  approaches 8 cm instead of hiding behind the gates. No data pixel at all gives the gate.
+- ``overlap``: |R and O| / |R or O| of rendered and observed silhouettes (epsilon2 = 90%);
+  0 when both are empty.
+- ``surface_error_q97_mm``: 97% quantile of the distances from observed foreground points
+  to the model surface (approximate point-to-capsule distance, see
+  :func:`runtime.raycast.surface_distance`); 0 without observed points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from runtime.raycast import BodyRender, surface_distance
+from shared.body import BodyShape
+
+from .config import TrackerConfig
+from .depth_term import depth_error_sum
+from .extra_depth_term import ExtraResult
+from .observation import Observation
+from .regions import Regions, sample_pixels
+
+__all__ = ["FrameSignals", "frame_signals", "overlap", "surface_error_quantile"]
+
+
+@dataclass
+class FrameSignals:
+    """Per-pose signals, each (B,)."""
+
+    depth_error_cm: torch.Tensor
+    overlap: torch.Tensor
+    surface_error_q97_mm: torch.Tensor
+
+
+def overlap(rendered: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
+    """Intersection over union of two (B, H, W) bool silhouettes: (B,), 0 if both empty."""
+    inter = (rendered & observed).sum((1, 2))
+    union = (rendered | observed).sum((1, 2))
+    return inter.double() / union.clamp_min(1).double()
+
+
+def surface_error_quantile(
+    obs: Observation, render: BodyRender, body: BodyShape, max_points: int, level: float = 0.97
+) -> torch.Tensor:
+    """``level`` quantile (mm) of observed points' distances to the model surface: (B,)."""
+    idx, _, _ = sample_pixels(obs.valid, max_points)
+    B = obs.depth.shape[0]
+    if idx.shape[0] == 0:
+        return obs.depth.new_zeros(B, dtype=torch.float64)
+    b, v, u = idx.unbind(1)
+    pts = obs.points[b, v, u]
+    dist = surface_distance(pts[None].expand(B, -1, -1), render.kin, body)  # (B, N)
+    own = b[None] == torch.arange(B, device=b.device)[:, None]
+    dist = torch.where(own, dist, torch.full_like(dist, float("nan")))
+    q = torch.nanquantile(dist.double(), level, dim=1) * 1e3
+    return torch.nan_to_num(q, nan=0.0)
+
+
+def frame_signals(
+    render: BodyRender,
+    obs: Observation,
+    regions: Regions,
+    extra: ExtraResult,
+    body: BodyShape,
+    cfg: TrackerConfig,
+) -> FrameSignals:
+    """The three signals for the poses ``render`` was cast at."""
+    err, n = depth_error_sum(regions)
+    total = err.double() + extra.error_sum.double()
+    count = n.double() + extra.count.double()
+    depth_cm = (
+        torch.where(
+            count > 0, total / count.clamp_min(1e-9), torch.full_like(total, cfg.extra_gate_m)
+        )
+        * 100.0
+    )
+    iou = overlap(render.mask, obs.silhouette)
+    if cfg.surface_error:
+        surf = surface_error_quantile(obs, render, body, cfg.max_surface_points)
+    else:
+        surf = torch.zeros_like(iou)
+    return FrameSignals(depth_cm, iou, surf)

@@ -1,0 +1,51 @@
+"""Silhouette image term (Wei eq. 6, 11 and its linearization eq. 16).
+
+Wei evaluates ``S - S_render`` where the rendered silhouette's image gradient is non-zero,
+i.e. on the rendered silhouette's boundary. With binary images that residual carries no
+information about *how far* the boundary is off; here the observed silhouette's distance
+transform takes the place of S: each rendered boundary pixel x whose surface point lies
+outside the observed silhouette has residual ``-dist_O(x)`` (working pixels), and moves by
+``grad dist_O . dx/dp . dp/dq``. Boundary pixels inside O have zero residual and zero gradient,
+so, like Wei's term, it only pulls the rendered silhouette in where it spills over the
+observed one; the opposite case (observed foreground the rendering misses) is the extra
+depth term's type 2.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from runtime.raycast import BodyRender
+
+from .config import TrackerConfig
+from .gauss_newton import Rows
+from .observation import Observation
+from .regions import rendered_points, sample_pixels
+
+__all__ = ["silhouette_boundary", "silhouette_rows"]
+
+
+def silhouette_boundary(mask: torch.Tensor) -> torch.Tensor:
+    """Foreground pixels with a background 4-neighbour (image borders count as background)."""
+    p = torch.nn.functional.pad(mask, (1, 1, 1, 1))
+    inner = p[:, :-2, 1:-1] & p[:, 2:, 1:-1] & p[:, 1:-1, :-2] & p[:, 1:-1, 2:]
+    return mask & ~inner
+
+
+def silhouette_rows(render: BodyRender, obs: Observation, cfg: TrackerConfig) -> Rows:
+    """Rows for the rendered boundary pixels that lie outside the observed silhouette."""
+    outside = silhouette_boundary(render.mask) & (obs.distance > 0)
+    idx, _, ratio = sample_pixels(outside, cfg.max_silhouette_pixels)
+    points, segment = rendered_points(render, idx, obs.intr)
+    b, v, u = idx.unbind(1)
+    dist = obs.distance[b, v, u]
+    grad = obs.distance_grad[b, v, u]  # (N, 2) per pixel along (u, v)
+    x, y, z = points.unbind(-1)
+    inv_z = 1.0 / z.clamp_min(1e-6)
+    fx, fy = obs.intr.fx, obs.intr.fy
+    # d(dist)/dp = grad_u * du/dp + grad_v * dv/dp with the pinhole projection's derivatives.
+    gu, gv = grad[:, 0] * fx * inv_z, grad[:, 1] * fy * inv_z
+    direction = torch.stack([gu, gv, -(gu * x + gv * y) * inv_z], -1)
+    weight = torch.full_like(dist, ratio**0.5 / cfg.sigma_silhouette_px)
+    residual = -(dist - cfg.silhouette_deadzone_px).clamp_min(0)
+    return Rows(b, points, segment, direction, residual, weight)

@@ -1,0 +1,252 @@
+"""The MAP tracker of Wei section 3.1: Gauss-Newton on eq. 8 from the previous pose.
+
+Per frame: pool the observation to the working resolution (once), then iterate: ray-cast the
+model at the current pose (depth, silhouette, segment, surface coordinates), classify pixels
+(G, B1, B2, B3), build the linearized rows of the depth, extra depth and silhouette terms with
+analytic Jacobians, add the constant-acceleration prior, solve the 34x34 normal equations in
+float64 with a little damping and joint limits as an active set, and update q (root rotation
+on SO(3)); stop after ``cfg.iterations`` or when the update is small. A last ray-cast at the
+result gives the failure signals of :mod:`runtime.tracker.signals` only with
+``cfg.exact_signals`` and an unconverged last step; otherwise the last iteration's rendering (one
+step before the result) stands in for it, which saves a sixth of the frame time.
+
+Everything is batch-first (B poses on B frames) and follows the device/dtype of the tracker;
+:class:`Tracker` is the single-stream wrapper that takes (H, W) frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from runtime.raycast import render_body
+from shared import skeleton as sk
+from shared.body import BodyShape
+from shared.camera import Intrinsics
+
+from .config import TrackerConfig
+from .depth_term import depth_rows
+from .extra_depth_term import extra_rows, observed_candidates
+from .gauss_newton import apply_step, cat_rows, normal_equations, solve_step
+from .observation import Observation, observe
+from .prior_term import predict_pose, prior_system
+from .regions import classify
+from .signals import FrameSignals, frame_signals
+from .silhouette_term import silhouette_rows
+
+__all__ = ["TrackerError", "TrackResult", "FrameFit", "fit_frames", "Tracker", "track_sequence"]
+
+
+class TrackerError(ValueError):
+    """Input the tracker cannot work with (shapes, intrinsics)."""
+
+
+@dataclass
+class TrackResult:
+    """Result of one tracked frame.
+
+    Attributes:
+        q: (34,) estimated pose in camera frame.
+        depth_error_cm: mean depth / extra-depth residual (cm), Wei's epsilon1 signal.
+        overlap: |R and O| / |R or O| of rendered and observed silhouettes, epsilon2 signal.
+        surface_error_q97_mm: 97% quantile of observed points' distance to the model (mm).
+        iterations: Gauss-Newton iterations run.
+        converged: the last update was below the stop thresholds.
+    """
+
+    q: torch.Tensor
+    depth_error_cm: float
+    overlap: float
+    surface_error_q97_mm: float
+    iterations: int
+    converged: bool
+
+
+@dataclass
+class FrameFit:
+    """Batched result of :func:`fit_frames`.
+
+    Attributes:
+        q: (B, 34); signals: per-pose signals at q; iterations: iterations run (all poses
+        iterate together); converged: (B,) bool.
+    """
+
+    q: torch.Tensor
+    signals: FrameSignals
+    iterations: int
+    converged: torch.Tensor
+
+
+def _small(dq: torch.Tensor, cfg: TrackerConfig) -> torch.Tensor:
+    return (dq[:, :3].abs().amax(1) < cfg.stop_translation_m) & (
+        dq[:, 3:].abs().amax(1) < cfg.stop_angle_rad
+    )
+
+
+def fit_frames(
+    obs: Observation,
+    q_prev: torch.Tensor,
+    q_prev2: torch.Tensor | None,
+    body: BodyShape,
+    cfg: TrackerConfig,
+) -> FrameFit:
+    """Gauss-Newton fit of B poses to B observed frames.
+
+    Args:
+        obs: working-resolution observation (batch B).
+        q_prev, q_prev2: (B, 34) poses of the two previous frames (q_prev2 may be None: the
+            prior then predicts no motion).
+    """
+    B = q_prev.shape[0]
+    q_pred = predict_pose(q_prev, q_prev2)
+    q = q_pred.clone() if cfg.init_from_prediction else q_prev.clone()
+    observed = observed_candidates(obs, cfg.max_candidates) if cfg.use_extra_depth else None
+    converged = torch.zeros(B, dtype=torch.bool, device=q.device)
+    iterations = 0
+    last = None
+    for _ in range(cfg.iterations):
+        render = render_body(q, body, obs.intr)
+        regions = classify(render, obs, cfg.depth_gate_m, cfg.occlusion_handling)
+        extra = extra_rows(render, obs, regions, observed, cfg, B) if observed is not None else None
+        rows = []
+        if cfg.use_depth:
+            rows.append(depth_rows(render, obs, regions, cfg))
+        if extra is not None:
+            rows.append(extra.rows)
+        if cfg.use_silhouette:
+            rows.append(silhouette_rows(render, obs, cfg))
+        if rows:
+            hess, grad = normal_equations(render.kin, cat_rows(rows), B)
+        else:
+            hess = q.new_zeros(B, sk.NUM_DOFS, sk.NUM_DOFS, dtype=torch.float64)
+            grad = q.new_zeros(B, sk.NUM_DOFS, dtype=torch.float64)
+        if cfg.use_prior:
+            diag, rhs, _ = prior_system(q, q_pred, cfg.sigma_prior_rad, cfg.sigma_prior_m)
+            hess = hess + torch.diag_embed(diag.double())
+            grad = grad + rhs.double()
+        dq = solve_step(hess, grad, q, cfg.damping, cfg.use_limits)
+        q = apply_step(q, dq, cfg.use_limits)
+        iterations += 1
+        converged = _small(dq, cfg)
+        last = (render, regions, extra)
+        if bool(converged.all()):
+            break
+    if last is None or (cfg.exact_signals and not bool(converged.all())):
+        render = render_body(q, body, obs.intr)
+        regions = classify(render, obs, cfg.depth_gate_m, cfg.occlusion_handling)
+        extra = None
+    else:
+        render, regions, extra = last
+    if extra is None:
+        cands = observed if observed is not None else observed_candidates(obs, cfg.max_candidates)
+        extra = extra_rows(render, obs, regions, cands, cfg, B)
+    signals = frame_signals(render, obs, regions, extra, body, cfg)
+    return FrameFit(q, signals, iterations, converged)
+
+
+class Tracker:
+    """Frame-to-frame tracker of one depth stream.
+
+    Args:
+        body: the cylinder body model (from calibration or a body file).
+        intr: intrinsics of the stream (full resolution); the tracker works at
+            ``intr / cfg.downsample``.
+        cfg: settings; defaults if None.
+        device: where to compute (default: CPU); inputs are moved there.
+        dtype: float dtype of the computation (normal equations are always float64).
+    """
+
+    def __init__(
+        self,
+        body: BodyShape,
+        intr: Intrinsics,
+        cfg: TrackerConfig | None = None,
+        device: torch.device | str | None = None,
+        dtype: torch.dtype = torch.float32,
+    ) -> None:
+        intr.validate()
+        self.cfg = TrackerConfig() if cfg is None else cfg
+        if self.cfg.downsample < 1:
+            raise TrackerError(f"downsample must be >= 1, got {self.cfg.downsample}")
+        self.intr = intr
+        self.device = torch.device("cpu") if device is None else torch.device(device)
+        self.dtype = dtype
+        self.body = body.to(dtype=dtype, device=self.device)
+
+    def observe(self, depth_m: torch.Tensor, mask: torch.Tensor) -> Observation:
+        """Working-resolution observation of one frame (H, W) or a batch (B, H, W)."""
+        if depth_m.shape[-2:] != (self.intr.height, self.intr.width):
+            raise TrackerError(
+                f"depth is {tuple(depth_m.shape[-2:])} (H, W), the tracker's intrinsics are "
+                f"{self.intr.height}x{self.intr.width}"
+            )
+        if mask.shape != depth_m.shape:
+            raise TrackerError(f"mask {tuple(mask.shape)} does not match depth {depth_m.shape}")
+        depth = depth_m.to(device=self.device, dtype=self.dtype)
+        mask = mask.to(device=self.device, dtype=torch.bool)
+        if depth.dim() == 2:
+            depth, mask = depth[None], mask[None]
+        return observe(depth, mask, self.intr, self.cfg.downsample, self.cfg.silhouette_max_px)
+
+    def step(
+        self,
+        depth_m: torch.Tensor,
+        mask: torch.Tensor,
+        q_prev: torch.Tensor,
+        q_prev2: torch.Tensor | None = None,
+    ) -> TrackResult:
+        """Track one frame.
+
+        Args:
+            depth_m: (H, W) depth in metres at the stream's resolution, 0 = no reading.
+            mask: (H, W) bool observed person silhouette (from the caller's segmentation).
+            q_prev: (34,) pose of the previous frame; q_prev2: (34,) the one before, or None.
+        Returns:
+            :class:`TrackResult` (q on the tracker's device).
+        """
+        if depth_m.dim() != 2:
+            raise TrackerError(f"depth must be (H, W), got {tuple(depth_m.shape)}")
+        for name, q in (("q_prev", q_prev), ("q_prev2", q_prev2)):
+            if q is not None and tuple(q.shape) != (sk.NUM_DOFS,):
+                raise TrackerError(f"{name} must have shape ({sk.NUM_DOFS},), got {q.shape}")
+        obs = self.observe(depth_m, mask)
+        qp = q_prev.to(device=self.device, dtype=self.dtype)[None]
+        qp2 = None if q_prev2 is None else q_prev2.to(device=self.device, dtype=self.dtype)[None]
+        fit = fit_frames(obs, qp, qp2, self.body, self.cfg)
+        s = fit.signals
+        return TrackResult(
+            q=fit.q[0],
+            depth_error_cm=float(s.depth_error_cm[0]),
+            overlap=float(s.overlap[0]),
+            surface_error_q97_mm=float(s.surface_error_q97_mm[0]),
+            iterations=fit.iterations,
+            converged=bool(fit.converged[0]),
+        )
+
+
+def track_sequence(
+    depths: torch.Tensor, masks: torch.Tensor, q0: torch.Tensor, tracker: Tracker
+) -> tuple[torch.Tensor, list[TrackResult]]:
+    """Track a sequence frame by frame, starting from ``q0`` (e.g. ground truth of frame 0).
+
+    Frame 0 is tracked like the others with ``q0`` as its previous pose (and no velocity).
+
+    Args:
+        depths: (F, H, W) metres; masks: (F, H, W) bool; q0: (34,) start pose.
+    Returns:
+        q (F, 34) estimated poses and one :class:`TrackResult` per frame.
+    """
+    if depths.dim() != 3 or masks.shape != depths.shape:
+        raise TrackerError(
+            f"depths and masks must both be (F, H, W), got {tuple(depths.shape)}, "
+            f"{tuple(masks.shape)}"
+        )
+    q0 = q0.to(device=tracker.device, dtype=tracker.dtype)
+    results = []
+    prev, prev2 = q0, None
+    for f in range(depths.shape[0]):
+        res = tracker.step(depths[f], masks[f], prev, prev2)
+        results.append(res)
+        prev, prev2 = res.q, prev
+    return torch.stack([r.q for r in results]), results

@@ -1,0 +1,127 @@
+"""Skeleton calibration (Wei section 6) from ray-cast reference poses with exact labels."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from runtime.calibrate_cli import main
+from runtime.calibration import (
+    CalibrationConfig,
+    ReferencePoseWatcher,
+    calibrate_body,
+    fit_cylinder,
+    is_reference_pose,
+    reference_pose,
+)
+from runtime.raycast import render_body
+from shared import skeleton as sk
+from shared.body import BodyShape
+from shared.camera import Intrinsics
+from shared.kinematics import rest_pose
+from shared.labels import PART_NAMES, segment_to_part
+from shared.recording import RecordingWriter
+
+INTR = Intrinsics.kinect_v1(320)
+TEMPLATE = BodyShape.default()
+FAST = CalibrationConfig(samples=384)
+
+
+def render_labels(q: torch.Tensor, body: BodyShape):
+    r = render_body(q[None], body, INTR)
+    seg = r.segment[0]
+    axis = torch.as_tensor(sk.SEGMENT_AXIS, dtype=q.dtype)[seg.clamp_min(0)]
+    frac = (r.local_points[0] * axis).sum(-1) / body.lengths[seg.clamp_min(0)]
+    labels = torch.from_numpy(segment_to_part(seg.numpy(), frac.numpy()).astype(np.int64))
+    return r.depth[0], labels
+
+
+def subject() -> BodyShape:
+    """A body unlike the template: taller legs, shorter forearms, broader, wider hips."""
+    f = torch.tensor([1.08, 1.0, 1.1, 1.0, 0.95, 1.1, 1.1, 1.06, 1.06, 0.92, 0.92, 1.1, 1.1, 1.04,
+                      1.04])  # fmt: skip
+    t = TEMPLATE
+    return BodyShape(t.lengths * f, t.radii * 1.1, t.extents * 1.05, t.hip_half_width * 1.1)
+
+
+def test_calibrated_lengths_within_2cm():
+    body = subject()
+    q = reference_pose(root_position=(0.05, 0.1, 2.7))
+    q[sk.DOF_NAMES.index("l_humerus_abd")] += math.radians(6)  # not held perfectly
+    depth, labels = render_labels(q, body)
+    cal = calibrate_body([depth], [labels], INTR, TEMPLATE, FAST)
+    err = (cal.lengths - body.lengths).abs()
+    assert float(err.max()) < 0.02, err
+    assert float((cal.radii - body.radii).abs().max()) < 0.02
+    assert abs(float(cal.hip_half_width - body.hip_half_width)) < 0.02
+    # Symmetric: left and right bones are the same.
+    assert torch.allclose(cal.lengths[7], cal.lengths[8]) and torch.allclose(
+        cal.lengths[13], cal.lengths[14]
+    )
+    cal.validate()
+
+
+def test_fit_cylinder_of_a_forearm():
+    body = TEMPLATE
+    depth, labels = render_labels(reference_pose(root_position=(0.0, 0.0, 2.5)), body)
+    forearm = labels == PART_NAMES.index("l_forearm")
+    g = torch.Generator().manual_seed(0)
+    fit = fit_cylinder(depth.double(), forearm, INTR, (0.02, 0.08), 384, generator=g)
+    assert fit.found
+    assert fit.radius == pytest.approx(0.04, abs=0.01)
+    # Visible: forearm plus hand (0.26 + 0.10 m) minus the overlap at the elbow.
+    assert 0.28 < fit.length < 0.40
+    none = fit_cylinder(depth.double(), torch.zeros_like(forearm), INTR, (0.02, 0.08))
+    assert not none.found
+
+
+def test_reference_pose_detection():
+    cfg = CalibrationConfig(hold_frames=3)
+    assert is_reference_pose(reference_pose(cfg), cfg)
+    assert not is_reference_pose(rest_pose()[0], cfg)
+    turned = reference_pose(cfg)
+    turned[3:6] = torch.tensor([0.0, 0.0, math.pi])  # back to the camera
+    assert not is_reference_pose(turned, cfg)
+    watcher = ReferencePoseWatcher(cfg)
+    d = torch.zeros(2, 2)
+    ref = reference_pose(cfg)
+    assert [watcher.update(ref, d, d) for _ in range(2)] == [False, False]
+    watcher.update(None, d, d)  # out of the pose: count restarts
+    assert [watcher.update(ref, d, d) for _ in range(3)] == [False, False, True]
+    assert len(watcher.frames) == 3
+
+
+def _write_recording(path, poses, body):
+    with RecordingWriter(path, INTR) as w:
+        for q in poses:
+            depth, labels = render_labels(q, body)
+            w.write_frame(
+                (depth.numpy() * 1000).round().astype(np.uint16), labels.numpy().astype(np.uint8)
+            )
+
+
+@pytest.mark.slow
+def test_cli_calibrates_from_a_recording(tmp_path):
+    body = subject()
+    ref = reference_pose(root_position=(0.0, 0.1, 2.6))
+    _write_recording(tmp_path / "rec", [rest_pose(1, (0.0, 0.1, 2.6))[0], ref, ref], body)
+    out = tmp_path / "body.json"
+    args = ["--input", str(tmp_path / "rec"), "--output", str(out), "--labels", "recording"]
+    assert main([*args, "--frames", "2", "--quiet"]) == 0
+    cal = BodyShape.load(out)
+    assert float((cal.lengths - body.lengths).abs().max()) < 0.02
+
+
+def test_cli_errors(tmp_path, capsys):
+    _write_recording(tmp_path / "rec", [rest_pose(1, (0.0, 0.1, 2.6))[0]], TEMPLATE)
+    out = tmp_path / "body.json"
+    base = ["--input", str(tmp_path / "rec"), "--output", str(out), "--quiet"]
+    assert main([*base, "--model", str(tmp_path / "none.npz")]) == 2
+    assert "model file not found" in capsys.readouterr().err
+    assert main([*base, "--labels", "recording", "--frames", "1"]) == 2
+    assert "reference pose" in capsys.readouterr().err
+    assert main(["--input", str(tmp_path / "nothing"), "--output", str(out)]) == 2
+    assert not out.exists()

@@ -1,0 +1,199 @@
+"""Detector (Wei 4.2) and Shotton baseline on ray-cast cylinder bodies with exact part labels."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from runtime.detector import (
+    DetectorConfig,
+    DetectorError,
+    DetectorEstimator,
+    create_estimator,
+    detect_pose,
+    fit_bones,
+    labels_from,
+    part_markers,
+)
+from runtime.detector.meanshift_baseline import propose_joints
+from runtime.estimator import make_estimator
+from runtime.raycast import render_body
+from runtime.streams.base import DepthFrame
+from runtime.tracker import Tracker, TrackerConfig
+from shared import skeleton as sk
+from shared.body import BodyShape
+from shared.camera import Intrinsics
+from shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
+from shared.labels import NUM_CLASSES, PART_NAMES, segment_to_part
+
+INTR = Intrinsics.kinect_v1(320)
+BODY = BodyShape.default()
+D = {n: i for i, n in enumerate(sk.DOF_NAMES)}
+
+
+def render_labels(q: torch.Tensor, body: BodyShape, intr: Intrinsics = INTR):
+    """Depth (H, W), exact part labels (H, W) int64 and mask of the cylinder body at q (34,)."""
+    r = render_body(q[None], body, intr)
+    seg = r.segment[0]
+    axis = torch.as_tensor(sk.SEGMENT_AXIS, dtype=q.dtype)[seg.clamp_min(0)]
+    frac = (r.local_points[0] * axis).sum(-1) / body.lengths[seg.clamp_min(0)]
+    labels = torch.from_numpy(segment_to_part(seg.numpy(), frac.numpy()).astype(np.int64))
+    return r.depth[0], labels, r.mask[0]
+
+
+def make_pose(name: str) -> torch.Tensor:
+    q = rest_pose(1, (0.1, 0.1, 2.6))[0]
+    deg = {
+        "rest": {},
+        "arms_raised": {"l_humerus_abd": 160, "r_humerus_abd": 150, "l_radius_flex": 20},
+        "arms_crossed": {
+            "l_humerus_flex": 80, "r_humerus_flex": 70, "l_humerus_abd": -30,
+            "r_humerus_abd": -25, "l_radius_flex": 90, "r_radius_flex": 100,
+        },
+        "walk": {
+            "l_femur_flex": 30, "r_femur_flex": -15, "r_tibia_flex": 40, "l_humerus_flex": -25,
+            "r_humerus_flex": 30, "r_radius_flex": 45,
+        },
+    }[name]  # fmt: skip
+    for k, v in deg.items():
+        q[D[k]] = math.radians(v)
+    return q
+
+
+def true_joints(q: torch.Tensor, body: BodyShape = BODY) -> torch.Tensor:
+    return named_joint_positions(forward_kinematics(q[None], body))[0]
+
+
+@pytest.fixture(scope="module")
+def refiner() -> Tracker:
+    return Tracker(BODY, INTR, TrackerConfig(iterations=3))
+
+
+def corrupt(
+    labels: torch.Tensor, fraction: float, seed: int = 1
+) -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    hit = (torch.rand(labels.shape, generator=g) < fraction) & (labels > 0)
+    out = labels.clone()
+    out[hit] = torch.randint(1, NUM_CLASSES, (int(hit.sum()),), generator=g)
+    return out, hit & (out != labels)
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        "arms_raised",
+        "arms_crossed",
+        pytest.param("rest", marks=pytest.mark.slow),
+        pytest.param("walk", marks=pytest.mark.slow),
+    ],
+)
+def test_detector_recovers_joints(name, refiner):
+    q = make_pose(name)
+    depth, labels, mask = render_labels(q, BODY)
+    res = detect_pose(depth, labels, INTR, BODY, DetectorConfig(), mask=mask, tracker=refiner)
+    assert res.found
+    err = (res.joints - true_joints(q)).norm(dim=-1)
+    assert float(err.mean()) < 0.05, err
+    # The IK alone (before refinement) is already close.
+    ik = true_joints(q) - named_joint_positions(forward_kinematics(res.q_ik[None], BODY))[0]
+    assert float(ik.norm(dim=-1).mean()) < 0.06
+
+
+def test_ransac_rejects_corrupted_labels(refiner):
+    q = make_pose("arms_raised")
+    depth, labels, mask = render_labels(q, BODY)
+    bad_labels, wrong = corrupt(labels, 0.2)
+    res = detect_pose(depth, bad_labels, INTR, BODY, DetectorConfig(), mask=mask, tracker=refiner)
+    err = (res.joints - true_joints(q)).norm(dim=-1)
+    assert float(err.mean()) < 0.05
+    # Most wrongly labelled pixels are dropped; most correct ones survive.
+    rejected = res.labels == 0
+    assert float(rejected[wrong].float().mean()) > 0.6
+    assert float(rejected[(labels > 0) & ~wrong].float().mean()) < 0.1
+
+
+def test_missing_arm_does_not_break_it(refiner):
+    q = make_pose("walk")
+    depth, labels, mask = render_labels(q, BODY)
+    for part in ("l_upper_arm", "l_forearm"):
+        labels[labels == PART_NAMES.index(part)] = 0
+    res = detect_pose(depth, labels, INTR, BODY, DetectorConfig(), mask=mask, tracker=refiner)
+    assert res.found and bool(torch.isfinite(res.q).all())
+    assert float(res.weights[PART_NAMES.index("l_forearm") - 1]) == 0.0
+    err = (res.joints - true_joints(q)).norm(dim=-1)
+    others = [i for i, n in enumerate(sk.JOINT_NAMES) if not n.startswith("l_") or "hip" in n]
+    assert float(err[others].mean()) < 0.06
+
+
+def test_no_person_is_not_found():
+    depth = torch.zeros(INTR.height, INTR.width)
+    res = detect_pose(depth, torch.zeros_like(depth, dtype=torch.long), INTR, BODY)
+    assert not res.found and res.q is None
+
+
+def test_posteriors_give_the_same_labels():
+    labels = torch.randint(0, NUM_CLASSES, (6, 5))
+    post = torch.nn.functional.one_hot(labels, NUM_CLASSES).permute(2, 0, 1).float()
+    assert torch.equal(labels_from(post), labels)
+    assert torch.equal(labels_from(post.permute(1, 2, 0)), labels)
+    with pytest.raises(DetectorError):
+        labels_from(torch.zeros(3, 4, 5))
+
+
+def test_fit_bones_rejects_outliers_on_a_line():
+    g = torch.Generator().manual_seed(0)
+    thigh = PART_NAMES.index("l_thigh_upper")
+    t = torch.rand(200, generator=g) * 0.4
+    line = torch.stack([0.02 * torch.randn(200, generator=g), t, 2.5 + 0.01 * t], -1)
+    outliers = torch.tensor([[0.6, 0.2, 2.5], [-0.5, 0.1, 2.4], [0.0, 0.9, 2.5]])
+    points = torch.cat([line, outliers])
+    labels = torch.full((203,), thigh)
+    fit = fit_bones(points, labels, BODY, generator=g)
+    assert bool(fit.inlier[:200].float().mean() > 0.95)
+    assert not bool(fit.inlier[200:].any())
+
+
+def test_part_markers_split_halves():
+    m = part_markers(BODY)
+    upper, lower = PART_NAMES.index("l_thigh_upper") - 1, PART_NAMES.index("l_thigh_lower") - 1
+    assert m.fraction[upper] == pytest.approx(0.25)
+    assert m.fraction[lower] == pytest.approx(0.75)
+    assert len(m) == NUM_CLASSES - 1
+
+
+def test_shotton_baseline_on_rendered_pose():
+    q = make_pose("rest")
+    depth, labels, mask = render_labels(q, BODY)
+    prop = propose_joints(depth, labels, INTR, BODY, mask=mask)
+    assert bool(prop.found.all())
+    err = (prop.joints - true_joints(q)).norm(dim=-1)
+    assert float(err.mean()) < 0.08
+    empty = propose_joints(torch.zeros_like(depth), labels, INTR, BODY)
+    assert not bool(empty.found.any())
+
+
+def test_detector_estimator_statuses():
+    q = make_pose("rest")
+    depth, labels, mask = render_labels(q, BODY)
+    from runtime.detector import Detector
+
+    est = DetectorEstimator(
+        lambda d, m: labels * m, Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
+    )
+    frame = DepthFrame(0, 0.0, (depth.numpy() * 1000).astype(np.uint16), INTR)
+    out = est.estimate(frame, mask.numpy())
+    assert out.status == "detected" and out.joints.shape == (16, 3)
+    assert np.linalg.norm(out.joints - true_joints(q).numpy(), axis=-1).mean() < 0.06
+    assert est.estimate(frame, np.zeros_like(mask.numpy())).status == "lost"
+
+
+def test_modes_need_a_model(tmp_path):
+    with pytest.raises(ValueError, match="model"):
+        create_estimator(model_path=None, body=BODY, intrinsics=INTR)
+    for mode in ("detector", "shotton"):
+        with pytest.raises(ValueError):
+            make_estimator(mode, tmp_path / "missing.npz", BODY, INTR)

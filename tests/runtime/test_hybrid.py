@@ -1,0 +1,172 @@
+"""Hybrid switching (Wei section 5): statuses, failure tests, lost frames and re-acquisition."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+import torch
+
+from runtime.detector import Detector, DetectorConfig
+from runtime.estimator import make_estimator
+from runtime.hybrid import (
+    HybridConfig,
+    HybridError,
+    HybridEstimator,
+    create_estimator,
+    tracking_failed,
+)
+from runtime.raycast import render_body
+from runtime.streams.base import DepthFrame
+from runtime.tracker import Tracker, TrackerConfig
+from shared import skeleton as sk
+from shared.body import BodyShape
+from shared.camera import Intrinsics
+from shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
+from shared.labels import segment_to_part
+
+INTR = Intrinsics.kinect_v1(160)
+BODY = BodyShape.default()
+
+
+def render_labels(q: torch.Tensor):
+    r = render_body(q[None], BODY, INTR)
+    seg = r.segment[0]
+    axis = torch.as_tensor(sk.SEGMENT_AXIS, dtype=q.dtype)[seg.clamp_min(0)]
+    frac = (r.local_points[0] * axis).sum(-1) / BODY.lengths[seg.clamp_min(0)]
+    labels = torch.from_numpy(segment_to_part(seg.numpy(), frac.numpy()).astype(np.int64))
+    return r.depth[0], labels, r.mask[0]
+
+
+def frame_of(depth: torch.Tensor, index: int) -> DepthFrame:
+    return DepthFrame(index, index / 30, (depth.numpy() * 1000).round().astype(np.uint16), INTR)
+
+
+@dataclass
+class FakeResult:
+    q: torch.Tensor
+    depth_error_cm: float
+    overlap: float
+    surface_error_q97_mm: float
+    iterations: int = 1
+    converged: bool = True
+
+
+class FakeTracker:
+    """Returns the previous pose; fails (large depth error) on the listed call numbers."""
+
+    def __init__(self, fail_calls=(), low_overlap_calls=()):
+        self.calls, self.fail, self.low = 0, set(fail_calls), set(low_overlap_calls)
+        self.seen_prev2 = []
+
+    def step(self, depth, mask, q_prev, q_prev2=None):
+        self.calls += 1
+        self.seen_prev2.append(q_prev2 is not None)
+        err = 5.0 if self.calls in self.fail else 1.0
+        ov = 0.5 if self.calls in self.low else 0.95
+        return FakeResult(q_prev.clone(), err, ov, 12.0)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    q = rest_pose(1, (0.0, 0.1, 2.5))[0]
+    q[sk.DOF_NAMES.index("l_humerus_abd")] = math.radians(40)
+    return q, *render_labels(q)
+
+
+def make_hybrid(scene, tracker, **cfg):
+    q, depth, labels, mask = scene
+    det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
+    calls = []
+
+    def labeler(d, m):
+        calls.append(1)
+        return labels * m
+
+    return HybridEstimator(labeler, det, tracker, HybridConfig(**cfg)), calls
+
+
+def test_status_sequence_with_failures_and_empty_frames(scene):
+    q, depth, labels, mask = scene
+    tracker = FakeTracker(fail_calls={2}, low_overlap_calls={4})
+    est, labeler_calls = make_hybrid(scene, tracker)
+    empty = np.zeros(mask.shape, dtype=bool)
+    masks = [mask, mask, mask, mask, mask, mask, empty, empty, mask, mask]
+    statuses = [est.estimate(frame_of(depth, i), m).status for i, m in enumerate(masks)]
+    # d: first frame; t; tracker call 2 fails (depth) -> d; t; call 4 fails (overlap) -> d;
+    # t; two empty frames lost; the person returns -> d; t.
+    assert statuses == ["detected", "tracked", "detected", "tracked", "detected", "tracked",
+                        "lost", "lost", "detected", "tracked"]  # fmt: skip
+    assert len(labeler_calls) == 4  # the forest runs only when the detector does
+    # The prior sees two previous poses except right after a detection.
+    assert tracker.seen_prev2 == [False, True, False, True, False, False]
+
+
+def test_errors_and_joints_are_reported(scene):
+    q, depth, labels, mask = scene
+    est, _ = make_hybrid(scene, FakeTracker(fail_calls={2}))
+    first = est.estimate(frame_of(depth, 0), mask)
+    assert first.status == "detected" and first.labels is not None
+    true = named_joint_positions(forward_kinematics(q[None], BODY))[0].numpy()
+    assert np.linalg.norm(first.joints - true, axis=-1).mean() < 0.06
+    tracked = est.estimate(frame_of(depth, 1), mask)
+    assert set(tracked.errors) == {"depth_error_cm", "overlap", "surface_error_q97_mm"}
+    redetected = est.estimate(frame_of(depth, 2), mask)
+    assert redetected.status == "detected"
+    assert redetected.errors["tracker_depth_error_cm"] == 5.0
+
+
+def test_no_labelled_pixels_is_lost_and_resets(scene):
+    q, depth, labels, mask = scene
+    det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
+    est = HybridEstimator(lambda d, m: torch.zeros_like(labels), det, FakeTracker(), HybridConfig())
+    assert est.estimate(frame_of(depth, 0), mask).status == "lost"
+    assert est.q_prev is None
+
+
+def test_failure_thresholds():
+    cfg = HybridConfig()
+    assert cfg.epsilon1_cm == 2.5 and cfg.epsilon2 == 0.9
+    assert not tracking_failed(2.4, 0.95, cfg)
+    assert tracking_failed(2.6, 0.95, cfg)
+    assert tracking_failed(1.0, 0.85, cfg)
+    assert not tracking_failed(3.0, 0.5, HybridConfig(epsilon1_cm=4.0, epsilon2=0.4))
+
+
+def test_with_real_tracker_and_detector(scene):
+    """A small motion: detected once, then tracked (exact data pass both tests)."""
+    q, depth, labels, mask = scene
+    det = Detector(BODY, INTR, DetectorConfig(refine_iterations=2))
+    trk = Tracker(BODY, INTR, TrackerConfig(iterations=3))
+    state = {}
+
+    def labeler(d, m):
+        return state["labels"] * m
+
+    est = HybridEstimator(labeler, det, trk, HybridConfig())
+    statuses, errs = [], []
+    for i in range(3):
+        qi = q.clone()
+        qi[0] += 0.01 * i
+        qi[sk.DOF_NAMES.index("r_humerus_abd")] = math.radians(5 * i)
+        d, lab, m = render_labels(qi)
+        state["labels"] = lab
+        out = est.estimate(frame_of(d, i), m)
+        statuses.append(out.status)
+        true = named_joint_positions(forward_kinematics(qi[None], BODY))[0].numpy()
+        errs.append(np.linalg.norm(out.joints - true, axis=-1).mean())
+    assert statuses == ["detected", "tracked", "tracked"]
+    assert max(errs) < 0.03
+
+
+def test_config_and_factory_errors(tmp_path):
+    with pytest.raises(HybridError):
+        create_estimator(
+            model_path=tmp_path / "f.npz", body=BODY, intrinsics=INTR, config={"epsilon3": 1}
+        )
+    with pytest.raises(ValueError):
+        make_estimator("hybrid", tmp_path / "missing.npz", BODY, INTR)
+    with pytest.raises(HybridError):
+        HybridConfig(tracker={"no_such_key": 1}).tracker_config()

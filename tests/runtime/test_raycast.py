@@ -1,0 +1,159 @@
+"""Body ray-caster: golden depths, segment ids, local-point round trip, normals, batching."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from runtime.raycast import render_body, render_body_depth, segment_geometry, surface_distance
+from shared import skeleton as sk
+from shared.body import BodyShape
+from shared.camera import Intrinsics, depth_to_points
+from shared.kinematics import forward_kinematics, rest_pose, segment_points_to_world
+
+# Principal point on a pixel centre so the centre pixel's ray is the optical axis.
+INTR = Intrinsics(320, 240, 287.9, 287.9, 160.0, 120.0)
+SMALL = Intrinsics(160, 120, 143.95, 143.95, 80.0, 60.0)
+
+
+def _project(point: torch.Tensor, intr: Intrinsics) -> tuple[int, int]:
+    u = intr.fx * point[0] / point[2] + intr.cx
+    v = intr.fy * point[1] / point[2] + intr.cy
+    return int(round(float(u))), int(round(float(v)))
+
+
+def _posed(dtype=torch.float64, device="cpu") -> torch.Tensor:
+    q = rest_pose(2, dtype=dtype, device=device)
+    names = {n: i for i, n in enumerate(sk.DOF_NAMES)}
+    q[1, 0:3] = torch.tensor([0.1, -0.05, 2.8], dtype=dtype)
+    q[1, names["l_humerus_abd"]] = 1.2
+    q[1, names["l_radius_flex"]] = 1.0
+    q[1, names["r_femur_flex"]] = 0.6
+    q[1, names["r_tibia_flex"]] = 0.9
+    q[1, names["lower_back_y"]] = 0.3
+    q[1, names["head_y"]] = 0.4
+    return q
+
+
+def test_pelvis_depth_golden_value():
+    body = BodyShape.default(torch.float64)
+    q = rest_pose(1, root_position=(0.0, 0.0, 2.5), dtype=torch.float64)
+    r = render_body(q, body, INTR)
+    # The optical axis meets the pelvis's front: root z minus the torso's depth semi-axis.
+    assert int(r.segment[0, 120, 160]) == 0
+    assert float(r.depth[0, 120, 160]) == pytest.approx(2.5 - float(body.radii[0, 1]), abs=1e-3)
+    assert bool(r.mask[0, 120, 160])
+
+
+def test_segment_ids_at_projected_centres():
+    body = BodyShape.default(torch.float64)
+    q = rest_pose(1, dtype=torch.float64)
+    r = render_body(q, body, INTR)
+    kin = r.kin
+    for seg, frac in ((4, 0.5), (2, 0.5), (9, 0.5), (10, 0.5), (13, 0.5), (14, 0.5)):
+        local = (
+            torch.as_tensor(sk.SEGMENT_AXIS[seg], dtype=torch.float64) * body.lengths[seg] * frac
+        )
+        p = segment_points_to_world(kin, local[None, None], torch.tensor([seg]))[0, 0]
+        u, v = _project(p, INTR)
+        assert int(r.segment[0, v, u]) == seg, sk.SEGMENT_NAMES[seg]
+    # Facing the camera, the person's left (body +x) is on the image's right.
+    u_left, _ = _project(kin.origins[0, 9], INTR)
+    assert u_left > INTR.cx
+    assert int(r.segment[0, 0, 0]) == -1 and float(r.depth[0, 0, 0]) == 0.0
+
+
+def test_local_points_round_trip_to_depth_points():
+    body = BodyShape.default(torch.float64)
+    q = _posed()
+    r = render_body(q, body, SMALL)
+    world = depth_to_points(r.depth, SMALL)  # (B, H, W, 3)
+    for b in range(2):
+        hit = r.mask[b]
+        seg = r.segment[b][hit]
+        back = segment_points_to_world(
+            forward_kinematics(q[b : b + 1], body), r.local_points[b][hit][None], seg
+        )[0]
+        assert torch.allclose(back, world[b][hit], atol=1e-9)
+    assert torch.equal(r.mask, r.depth > 0)
+    assert torch.equal(r.mask, r.segment >= 0)
+
+
+def test_rendered_points_lie_on_the_surface_and_normals_face_the_camera():
+    body = BodyShape.default(torch.float64)
+    q = _posed()
+    r = render_body(q, body, SMALL)
+    pts = depth_to_points(r.depth, SMALL)[r.mask].reshape(1, -1, 3)
+    b = torch.nonzero(r.mask)[:, 0]
+    for i in range(2):
+        mine = pts[:, b == i]
+        dist = surface_distance(mine, forward_kinematics(q[i : i + 1], body), body)
+        assert float(dist.max()) < 1e-6
+    n = r.normals[r.mask]
+    assert torch.allclose(n.norm(dim=-1), torch.ones(n.shape[0], dtype=n.dtype), atol=1e-9)
+    assert bool(((n * pts[0]).sum(-1) < 0).all())  # towards the camera
+    # Points off the surface: a point 5 cm in front of the pelvis is 5 cm away.
+    front = torch.tensor([[[0.0, 0.0, 2.5 - 0.11 - 0.05]]], dtype=torch.float64)
+    kin = forward_kinematics(rest_pose(1, dtype=torch.float64), body)
+    assert float(surface_distance(front, kin, body)[0, 0]) == pytest.approx(0.05, abs=1e-6)
+
+
+def test_box_culling_batching_and_dtypes_agree():
+    body = BodyShape.default(torch.float64)
+    q = _posed()
+    full = render_body(q, body, SMALL, box=False)
+    boxed = render_body(q, body, SMALL)
+    assert torch.equal(full.segment, boxed.segment)
+    assert torch.allclose(full.depth, boxed.depth)
+    single = render_body(q[1:], body, SMALL)
+    assert torch.equal(single.segment[0], boxed.segment[1])
+    f32 = render_body_depth(q.float(), BodyShape.default(), SMALL)
+    assert f32.dtype == torch.float32 and f32.shape == (2, 120, 160)
+    both = full.mask & (f32 > 0)
+    err = (f32.double() - full.depth)[both].abs()
+    # float32 loses a little at grazing hits (the quadratic's discriminant nears zero).
+    assert float(err.max()) < 1e-3 and float(err.median()) < 1e-5
+
+
+def test_caps_keep_the_stature():
+    body = BodyShape.default(torch.float64)
+    q = rest_pose(1, root_position=(0.0, 0.0, 3.0), dtype=torch.float64)
+    side = Intrinsics(200, 400, 300.0, 300.0, 100.0, 200.0)
+    r = render_body(q, body, side)
+    rows = torch.nonzero(r.mask[0].any(1))[:, 0]
+    top_px, bottom_px = int(rows.min()), int(rows.max())
+    kin = r.kin
+    # Sole (below the shank) and top of the head (above the head segment) in metres.
+    height_px = (bottom_px - top_px + 1) * 3.0 / side.fy
+    assert height_px == pytest.approx(float(body.stature()), abs=0.03)
+    assert kin.origins.shape == (1, 15, 3)
+
+
+def test_empty_when_the_body_is_behind_the_camera():
+    body = BodyShape.default()
+    q = rest_pose(1, root_position=(0.0, 0.0, -3.0))
+    r = render_body(q, body, INTR)
+    assert not bool(r.mask.any()) and float(r.depth.abs().sum()) == 0.0
+
+
+def test_geometry_spans():
+    body = BodyShape.default(torch.float64)
+    geom = segment_geometry(body, torch.zeros(1, dtype=torch.float64))
+    # The forearm's cap ends at the hand's end, the upper arm's cap bulges past the elbow.
+    cap = geom.scale[9, 2]
+    assert float(geom.span[9, 1] + cap) == pytest.approx(0.26 + 0.10)
+    assert float(geom.span[7, 1]) == pytest.approx(0.29)
+    assert math.isclose(float(geom.span[0, 0] - geom.scale[0, 2]), -0.08)
+
+
+@pytest.mark.gpu
+def test_cuda_matches_cpu():
+    body = BodyShape.default()
+    q = _posed(torch.float32)
+    cpu = render_body(q, body, INTR)
+    gpu = render_body(q.cuda(), body.to(device="cuda"), INTR)
+    assert (gpu.segment.cpu() != cpu.segment).float().mean() < 1e-3
+    both = cpu.mask & gpu.mask.cpu()
+    assert float((gpu.depth.cpu() - cpu.depth)[both].abs().max()) < 1e-4

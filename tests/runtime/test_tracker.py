@@ -1,0 +1,335 @@
+"""MAP tracker: Jacobians of every term, helpers, ablations, degenerate frames, and tracking a
+sequence rendered from the cylinder model itself (the issue's acceptance test)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+import torch
+
+from runtime.raycast import render_body
+from runtime.tracker import Tracker, TrackerConfig, TrackerError, track_sequence
+from runtime.tracker.benchmark import camera_motion
+from runtime.tracker.depth_term import depth_rows
+from runtime.tracker.extra_depth_term import closest_points, extra_rows, observed_candidates
+from runtime.tracker.gauss_newton import Rows, rows_jacobian, solve_step
+from runtime.tracker.observation import distance_to_mask, observe, pool_depth
+from runtime.tracker.prior_term import predict_pose, prior_residual, prior_system
+from runtime.tracker.regions import classify, rendered_points
+from runtime.tracker.silhouette_term import silhouette_rows
+from shared import skeleton as sk
+from shared.body import BodyShape
+from shared.camera import Intrinsics
+from shared.config import load_config
+from shared.kinematics import (
+    forward_kinematics,
+    named_joint_positions,
+    pose_update,
+    rest_pose,
+    segment_points_to_world,
+)
+
+REPO = Path(__file__).resolve().parents[2]
+INTR = Intrinsics.kinect_v1(320)
+D = {n: i for i, n in enumerate(sk.DOF_NAMES)}
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    # Many small ops: on a loaded 2-core machine a second torch thread stalls them badly.
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def _pose(dtype=torch.float64) -> torch.Tensor:
+    q = rest_pose(1, root_position=(0.05, 0.1, 2.4), dtype=dtype)
+    q[0, 3:6] = torch.tensor([3.0, 0.2, -0.1], dtype=dtype)
+    for name, value in (
+        ("l_humerus_abd", 0.7),
+        ("l_radius_flex", 0.9),
+        ("r_humerus_flex", 0.5),
+        ("r_femur_flex", 0.4),
+        ("r_tibia_flex", 0.6),
+        ("lower_back_y", 0.2),
+        ("l_femur_abd", 0.2),
+        ("head_y", 0.3),
+    ):
+        q[0, D[name]] = value
+    return q
+
+
+def _joint_error_mm(q_est: torch.Tensor, q_true: torch.Tensor, body: BodyShape) -> torch.Tensor:
+    a = named_joint_positions(forward_kinematics(q_est.double(), body.to(torch.float64)))
+    b = named_joint_positions(forward_kinematics(q_true.double(), body.to(torch.float64)))
+    return (a - b).norm(dim=-1) * 1e3
+
+
+# ---------------------------------------------------------------- Jacobians
+
+
+def test_rows_jacobian_matches_autograd():
+    body = BodyShape.default(torch.float64)
+    q = _pose()
+    g = torch.Generator().manual_seed(0)
+    seg = torch.randint(0, 15, (40,), generator=g)
+    local = torch.randn(1, 40, 3, generator=g, dtype=torch.float64) * 0.1
+    direction = torch.randn(40, 3, generator=g, dtype=torch.float64)
+    kin = forward_kinematics(q, body)
+    points = segment_points_to_world(kin, local, seg)[0]
+    rows = Rows(
+        torch.zeros(40, dtype=torch.long),
+        points,
+        seg,
+        direction,
+        torch.zeros(40, dtype=torch.float64),
+        torch.ones(40, dtype=torch.float64),
+    )
+    analytic = rows_jacobian(kin, rows)
+
+    def f(dq):
+        p = segment_points_to_world(forward_kinematics(pose_update(q, dq[None]), body), local, seg)
+        return (p[0] * direction).sum(-1)
+
+    numeric = torch.autograd.functional.jacobian(f, torch.zeros(34, dtype=torch.float64))
+    assert torch.allclose(analytic, numeric, atol=1e-9)
+
+
+def _frame(q: torch.Tensor, body: BodyShape, intr: Intrinsics = INTR):
+    depth = render_body(q, body, intr).depth
+    return observe(depth, depth > 0, intr, 2, 12.0)
+
+
+def test_depth_term_matches_finite_differences_of_the_rendering():
+    body = BodyShape.default(torch.float64)
+    q = _pose()
+    obs = _frame(q, body)
+    cfg = TrackerConfig(max_depth_pixels=100000, min_cosine=0.5)
+    render = render_body(q, body, obs.intr)
+    regions = classify(render, obs, 0.08, True)
+    # Interior pixels: the same segment in the 5x5 neighbourhood (no edge within reach).
+    seg = render.segment[0]
+    pad = torch.nn.functional.pad(seg, (2, 2, 2, 2), value=-1)
+    same = torch.stack(
+        [pad[i : i + seg.shape[0], j : j + seg.shape[1]] == seg for i in range(5) for j in range(5)]
+    ).all(0)
+    regions.good = regions.good & same[None]
+    rows = depth_rows(render, obs, regions, cfg)
+    keep = rows.weight > 0
+    jac = rows_jacobian(render.kin, rows)[keep]
+    # Rows are d(depth)/dq scaled by |cos| (residual along the normal): undo the scaling.
+    idx = regions.good.nonzero()[keep]
+    pts, _ = rendered_points(render, idx, obs.intr)
+    normal = render.normals[idx[:, 0], idx[:, 1], idx[:, 2]]
+    cos = ((normal * pts).sum(-1) / pts.norm(dim=-1)).abs()
+    eps = 1e-6
+    for dof in (0, 2, 4, D["lower_back_y"], D["l_humerus_abd"], D["r_femur_flex"], D["head_y"]):
+        dq = torch.zeros(1, 34, dtype=torch.float64)
+        dq[0, dof] = eps
+        plus = render_body(pose_update(q, dq), body, obs.intr).depth
+        minus = render_body(pose_update(q, -dq), body, obs.intr).depth
+        fd = (plus - minus)[idx[:, 0], idx[:, 1], idx[:, 2]] / (2 * eps)
+        assert torch.allclose(jac[:, dof] / cos, fd, atol=1e-4, rtol=1e-4), sk.DOF_NAMES[dof]
+
+
+def test_silhouette_rows_follow_the_projected_point():
+    body = BodyShape.default(torch.float64)
+    q = _pose()
+    shifted = q.clone()
+    shifted[0, 0] += 0.04  # observed person 4 cm to the right: the left edge spills over
+    obs = _frame(shifted, body)
+    render = render_body(q, body, obs.intr)
+    cfg = TrackerConfig(max_silhouette_pixels=100000)
+    rows = silhouette_rows(render, obs, cfg)
+    assert len(rows) > 20 and bool((rows.residual < 0).all())
+    jac = rows_jacobian(render.kin, rows)
+    # Moving the body right (+x) must reduce the distance of the spilled left edge.
+    assert float(jac[:, 0].mean()) < 0
+    # The row is grad(dist) . d(pixel)/dq of the surface point: compare with finite
+    # differences of the projected point, with the distance gradient at each row's pixel.
+    intr, pts, kin = obs.intr, rows.points, render.kin
+    u = torch.round(intr.fx * pts[:, 0] / pts[:, 2] + intr.cx).long()
+    v = torch.round(intr.fy * pts[:, 1] / pts[:, 2] + intr.cy).long()
+    grad = obs.distance_grad[0, v, u]
+    local = ((pts - kin.origins[0, rows.segment])[:, None] @ kin.rotations[0, rows.segment])[:, 0]
+
+    def pixels(dq):
+        p = segment_points_to_world(
+            forward_kinematics(pose_update(q, dq), body), local[None], rows.segment
+        )[0]
+        return torch.stack([intr.fx * p[:, 0] / p[:, 2], intr.fy * p[:, 1] / p[:, 2]], -1)
+
+    eps = 1e-6
+    for dof in (0, 1, 2, 5, D["lower_back_y"], D["l_humerus_abd"]):
+        dq = torch.zeros(1, 34, dtype=torch.float64)
+        dq[0, dof] = eps
+        fd = ((pixels(dq) - pixels(-dq)) * grad).sum(-1) / (2 * eps)
+        assert torch.allclose(jac[:, dof], fd, atol=1e-4, rtol=1e-4), sk.DOF_NAMES[dof]
+
+
+def test_extra_term_pulls_the_model_towards_the_observation():
+    body = BodyShape.default(torch.float64)
+    truth = _pose()
+    q = truth.clone()
+    q[0, D["l_humerus_abd"]] += 0.35  # arm 10 cm off: B1/B3 bands wider than the margin
+    obs = _frame(truth, body)
+    render = render_body(q, body, obs.intr)
+    regions = classify(render, obs, 0.08, True)
+    cfg = TrackerConfig()
+    extra = extra_rows(render, obs, regions, observed_candidates(obs, 5000), cfg, 1)
+    rows = extra.rows
+    assert len(rows) > 0 and bool((rows.weight > 0).any())
+    # Solving the extra term alone (plus damping) lowers the arm.
+    from runtime.tracker.gauss_newton import normal_equations
+
+    hess, grad = normal_equations(render.kin, rows, 1)
+    dq = solve_step(hess + 1e-2 * torch.eye(34, dtype=torch.float64), grad, q, 1e-3, True)
+    assert float(dq[0, D["l_humerus_abd"]]) < -0.05
+    assert float(extra.error_sum[0] / extra.count[0]) > 0.01
+
+
+def test_closest_points_respect_gate_and_batch():
+    query = torch.tensor([[0.0, 0.0, 2.0], [0.0, 0.0, 2.0], [1.0, 0.0, 2.0]])
+    qb = torch.tensor([0, 1, 0])
+    cand = torch.tensor([[0.01, 0.0, 2.0], [0.0, 0.0, 2.05], [0.0, 0.0, 2.5], [1.0, 0.0, 2.2]])
+    cb = torch.tensor([0, 1, 0, 0])
+    idx, found = closest_points(query, qb, cand, cb, depth_gate=0.08, max_distance=0.3)
+    assert idx[:2].tolist() == [0, 1] and found.tolist() == [True, True, False]
+
+
+# ---------------------------------------------------------------- helpers
+
+
+def test_distance_transform_matches_brute_force():
+    g = torch.Generator().manual_seed(1)
+    mask = torch.rand(2, 17, 23, generator=g) > 0.93
+    got = distance_to_mask(mask, 6.0)
+    v, u = torch.meshgrid(torch.arange(17.0), torch.arange(23.0), indexing="ij")
+    for b in range(2):
+        pts = mask[b].nonzero().float()
+        d = ((v[..., None] - pts[:, 0]) ** 2 + (u[..., None] - pts[:, 1]) ** 2).sqrt().amin(-1)
+        assert torch.allclose(got[b], d.clamp_max(6.0), atol=1e-5)
+    assert float(distance_to_mask(torch.zeros(1, 5, 5, dtype=torch.bool), 4.0).min()) == 4.0
+
+
+def test_pool_depth_takes_the_block_corner_and_fills_holes():
+    depth = torch.tensor([[[2.0, 2.1, 3.0, 3.0], [2.2, 2.3, 3.0, 3.0]]])
+    depth[0, 0, 2] = 0.0  # missing reading at a block's corner pixel
+    mask = depth > 0
+    pooled, sil = pool_depth(depth, mask, 2)
+    assert pooled.tolist() == [[[2.0, 0.0]]] and sil.tolist() == [[[True, False]]]
+    mask[0, 0, 2] = True
+    pooled, sil = pool_depth(depth, mask, 2)
+    assert pooled.tolist() == [[[2.0, 3.0]]] and sil.tolist() == [[[True, True]]]
+
+
+def test_prior_prediction_and_step():
+    q1, q2 = _pose(), _pose()
+    q2[0, 0] -= 0.02
+    q2[0, D["l_radius_flex"]] -= 0.1
+    q2[0, 3:6] = torch.tensor([3.0, 0.15, -0.1], dtype=torch.float64)
+    pred = predict_pose(q1, q2)
+    assert float(pred[0, 0] - q1[0, 0]) == pytest.approx(0.02)
+    assert float(pred[0, D["l_radius_flex"]] - q1[0, D["l_radius_flex"]]) == pytest.approx(0.1)
+    assert float(prior_residual(pred, pred).abs().max()) < 1e-9
+    # The prior alone moves the pose onto the prediction (up to the damping).
+    w2, rhs, _ = prior_system(q1, pred, 0.05, 0.02)
+    dq = solve_step(torch.diag_embed(w2), rhs, q1, 1e-6, True)
+    moved = pose_update(q1, dq)
+    assert float(prior_residual(moved, pred).abs().max()) < 1e-4
+
+
+def test_limits_active_set_keeps_joints_inside():
+    q = _pose()
+    q[0, D["l_radius_flex"]] = 0.0
+    hess = torch.eye(34, dtype=torch.float64)[None]
+    grad = torch.zeros(1, 34, dtype=torch.float64)
+    grad[0, D["l_radius_flex"]] = -0.5  # wants hyper-extension
+    grad[0, D["l_humerus_abd"]] = 0.1
+    dq = solve_step(hess, grad, q, 0.0, True)
+    assert float(dq[0, D["l_radius_flex"]]) == pytest.approx(0.0, abs=1e-12)
+    assert float(dq[0, D["l_humerus_abd"]]) == pytest.approx(0.1, rel=1e-6)
+
+
+def test_config_preset_loads():
+    cfg = load_config(TrackerConfig, REPO / "configs" / "tracker.yaml")
+    assert cfg == TrackerConfig()
+
+
+# ---------------------------------------------------------------- tracking
+
+
+def _sequence(name: str, frames: int, dtype=torch.float32):
+    body = BodyShape.default(dtype)
+    truth = camera_motion(name, frames, seed=0).to(dtype)
+    depth = render_body(truth, body, INTR).depth
+    return body, truth, depth, depth > 0
+
+
+@pytest.mark.parametrize("motion", ["walk", "wave"])
+def test_tracks_a_sequence_rendered_from_the_model(motion):
+    body, truth, depth, mask = _sequence(motion, 24)
+    tracker = Tracker(body, INTR, TrackerConfig())
+    q, results = track_sequence(depth, mask, truth[0], tracker)
+    err = _joint_error_mm(q, truth, body)
+    assert float(err.mean()) < 5.0, err.mean(1)
+    assert all(r.overlap > 0.95 and r.depth_error_cm < 1.0 for r in results)
+    assert all(0 <= r.surface_error_q97_mm < 20 for r in results)
+    assert q.shape == (24, 34) and all(r.iterations <= 5 for r in results)
+
+
+@pytest.mark.parametrize(
+    "flags",
+    [
+        {"use_depth": False},
+        {"use_extra_depth": False},
+        {"use_silhouette": False},
+        {"use_prior": False},
+        {"use_limits": False},
+        {"occlusion_handling": False},
+        {"init_from_prediction": True, "surface_error": False},
+        {"use_depth": False, "use_extra_depth": False, "use_silhouette": False, "use_prior": False},
+    ],
+)
+def test_ablations_run(flags):
+    body, truth, depth, mask = _sequence("wave", 4)
+    tracker = Tracker(body, INTR, dataclasses.replace(TrackerConfig(iterations=3), **flags))
+    q, results = track_sequence(depth, mask, truth[0], tracker)
+    assert bool(torch.isfinite(q).all())
+    assert all(0.0 <= r.overlap <= 1.0 for r in results)
+
+
+def test_empty_observation_neither_crashes_nor_gives_nan():
+    body, truth, depth, mask = _sequence("wave", 2)
+    tracker = Tracker(body, INTR)
+    empty = torch.zeros_like(depth[1])
+    res = tracker.step(empty, empty > 0, truth[1], truth[0])
+    assert bool(torch.isfinite(res.q).all())
+    assert res.overlap == 0.0 and res.depth_error_cm == pytest.approx(8.0, abs=1e-3)
+    assert res.surface_error_q97_mm == 0.0
+    # Body far out of view too: nothing rendered, nothing observed.
+    away = truth[1].clone()
+    away[2] = -5.0
+    res = tracker.step(empty, empty > 0, away, None)
+    assert bool(torch.isfinite(res.q).all()) and res.overlap == 0.0
+
+
+def test_bad_input_is_rejected_clearly():
+    tracker = Tracker(BodyShape.default(), INTR)
+    with pytest.raises(TrackerError, match="intrinsics"):
+        tracker.step(
+            torch.zeros(100, 100), torch.zeros(100, 100, dtype=torch.bool), rest_pose(1)[0]
+        )
+    with pytest.raises(TrackerError, match="q_prev"):
+        tracker.step(torch.zeros(240, 320), torch.zeros(240, 320, dtype=torch.bool), rest_pose(1))
+
+
+@pytest.mark.gpu
+def test_cuda_tracks_like_cpu():
+    body, truth, depth, mask = _sequence("wave", 6)
+    tracker = Tracker(body, INTR, device="cuda")
+    q, _ = track_sequence(depth.cuda(), mask.cuda(), truth[0].cuda(), tracker)
+    assert float(_joint_error_mm(q.cpu(), truth, body).mean()) < 5.0
