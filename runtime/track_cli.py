@@ -132,6 +132,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--mode", choices=MODES, default="hybrid", help="pose estimator")
     p.add_argument("--body", type=Path, help="body file (shared.body JSON); default: average")
+    p.add_argument(
+        "--config",
+        type=Path,
+        help="YAML of the mode's settings (e.g. configs/hybrid.yaml, configs/tracker.yaml)",
+    )
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto", help="torch device")
     g = p.add_argument_group("intrinsics (override the source's own)")
     g.add_argument("--width", type=int, help="image width, pixels")
@@ -189,6 +194,33 @@ def intrinsics_from_args(args: argparse.Namespace) -> Intrinsics | None:
     except ValueError as err:
         raise TrackError(f"invalid intrinsics: {err}") from None
     return intr
+
+
+def load_mode_config(path: Path | None) -> dict:
+    """The mode's settings from ``--config`` (a YAML mapping; checked by the mode itself)."""
+    if path is None:
+        return {}
+    import yaml
+
+    if not Path(path).is_file():
+        raise TrackError(f"config file not found: {path}")
+    try:
+        data = yaml.safe_load(Path(path).read_text()) or {}
+    except yaml.YAMLError as err:
+        raise TrackError(f"{path}: not valid YAML ({err})") from None
+    if not isinstance(data, dict):
+        raise TrackError(f"{path}: expected a mapping of settings")
+    return data
+
+
+def initial_pose(stream, start: int) -> np.ndarray | None:
+    """Ground-truth pose of the first frame when the input has one (recordings, demo)."""
+    gt = getattr(stream, "groundtruth", None)
+    if gt is None and hasattr(stream, "recording") and stream.recording.has_groundtruth:
+        gt = stream.recording.groundtruth()
+    if not gt or "q" not in gt or len(gt["q"]) <= start:
+        return None
+    return np.asarray(gt["q"][start], dtype=np.float64)
 
 
 def pick_device(name: str) -> str:
@@ -465,8 +497,11 @@ def _run(args: argparse.Namespace) -> int:
             fps=args.fps,
         )
         try:
+            mode_cfg = load_mode_config(args.config)
+            if args.mode == "tracker":
+                mode_cfg["initial_q"] = initial_pose(stream, args.start)
             estimator = make_estimator(
-                args.mode, args.model, body, stream.intrinsics, device=device
+                args.mode, args.model, body, stream.intrinsics, device=device, config=mode_cfg
             )
         except bad_input:
             raise

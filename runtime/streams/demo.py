@@ -35,11 +35,18 @@ _SIGMA_PER_Z2 = 1.5e-3
 
 
 def demo_poses(fps: float, seed: int = 0) -> np.ndarray:
-    """World poses (F, 34) of the demo (y up, floor y = 0, facing +z), F = 10 s at ``fps``."""
+    """World poses (F, 34) of the demo (y up, floor y = 0, facing +z): 12 s at ``fps``."""
     rng = np.random.default_rng(seed)
     frames = int(round(_SECONDS_PER_MOTION * fps))
     body = BodyShape.default(torch.float64)
-    q = np.concatenate([motion_poses(m, frames, fps, rng) for m in DEMO_MOTIONS])
+    parts = [motion_poses(m, frames, fps, rng) for m in DEMO_MOTIONS]
+    # Half a second of linear blend between motions: a person does not teleport between poses.
+    blend = int(round(0.5 * fps))
+    w = (np.arange(1, blend + 1) / (blend + 1))[:, None]
+    seq = [parts[0]]
+    for nxt in parts[1:]:
+        seq += [(1 - w) * seq[-1][-1] + w * nxt[0], nxt]
+    q = np.concatenate(seq)
     q[:, 0] = 0.0  # stay in place (walking on the spot keeps the person in view)
     q[:, 2] = 0.0
     return ground_poses(q, body)

@@ -2,6 +2,7 @@
 
 from .benchmark import benchmark_tracker
 from .config import TrackerConfig
+from .estimator import TrackerEstimator, create_estimator
 from .tracker import FrameFit, Tracker, TrackerError, TrackResult, fit_frames, track_sequence
 
 __all__ = [
@@ -13,4 +14,6 @@ __all__ = [
     "fit_frames",
     "track_sequence",
     "benchmark_tracker",
+    "TrackerEstimator",
+    "create_estimator",
 ]

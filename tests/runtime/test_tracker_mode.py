@@ -1,0 +1,32 @@
+"""``runtime-track --mode tracker``: the tracker alone, started from the input's ground truth."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from runtime.streams.demo import open_demo_stream
+from runtime.track_cli import main
+from shared.camera import Intrinsics
+from shared.poses_format import poses_to_arrays, read_poses_jsonl
+from shared.recording import RecordingWriter
+
+
+def test_tracker_mode_follows_the_demo(tmp_path, capsys):
+    out = tmp_path / "res"
+    assert main(["--input", "demo", "--mode", "tracker", "--output", str(out), "--stop", "6",
+                 "--device", "cpu", "-q"]) == 0  # fmt: skip
+    arrays = poses_to_arrays(read_poses_jsonl(out / "poses.jsonl").records)
+    assert list(arrays["status"]) == ["tracked"] * 6
+    gt = open_demo_stream().groundtruth["joints"][:6]
+    err = np.linalg.norm(arrays["joints"] - gt, axis=-1)
+    assert np.nanmean(err) < 0.03, err.mean(1)
+
+
+def test_tracker_mode_needs_ground_truth(tmp_path, capsys):
+    rec = tmp_path / "rec"
+    with RecordingWriter(rec, Intrinsics.kinect_v1(320)) as w:
+        w.write_frame(np.zeros((240, 320), np.uint16))
+    code = main(["--input", str(rec), "--mode", "tracker", "--output", str(tmp_path / "o"), "-q"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "ground truth" in err and "Traceback" not in err
