@@ -4,7 +4,7 @@ PY := .venv/bin/python
 SETUP_STAMP := .venv/.setup-stamp
 export PYTHONUNBUFFERED := 1
 
-.PHONY: setup test lint format bench clean synth dev-recordings
+.PHONY: setup test lint format bench clean synth dev-recordings train-forest train-forest-eval
 
 setup: ## create .venv, install system packages (root), torch and the project with all extras
 	@bash scripts/setup.sh
@@ -30,8 +30,16 @@ synth: $(SETUP_STAMP) ## the ~20k-frame training set into data/synth (resumable)
 dev-recordings: $(SETUP_STAMP) ## evaluation recordings from the HDM05 dev clips into data/dev
 	$(PY) -m train.dev_recordings --out data/dev
 
-bench: $(SETUP_STAMP) ## speed figures (printed, never asserted)
+train-forest: $(SETUP_STAMP) ## the body-part forest from data/synth into models/forest.npz
+	$(PY) -m train.forest.train_cli --data data/synth --out models/forest.npz --config configs/forest.yaml
+
+train-forest-eval: $(SETUP_STAMP) ## accuracy of models/forest.npz on the dev recordings
+	$(PY) -m train.forest.eval_cli --model models/forest.npz --data data/dev --out out/forest_eval
+
+bench: $(SETUP_STAMP) ## speed figures, then the accuracy table on data/dev (printed, never asserted)
 	$(PY) -m runtime.bench
+	@if [ -d data/dev ]; then $(PY) -m train.dev_benchmark --recordings data/dev; \
+	else echo "accuracy table skipped: no data/dev (run make dev-recordings)"; fi
 
 clean:
 	rm -rf .venv .pytest_cache .ruff_cache

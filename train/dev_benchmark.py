@@ -1,0 +1,148 @@
+"""``python -m train.dev_benchmark``: the accuracy table on the dev recordings (``make bench``).
+
+For every recording under ``--recordings`` (``make dev-recordings``) and every requested
+configuration, runs ``runtime-track`` in a subprocess (``train`` never imports ``runtime``),
+evaluates the result with :func:`train.evaluation.evaluate`, and prints one row per
+configuration averaged over the recordings (frame-weighted), as a Markdown table. Rows:
+
+- ``tracker`` (ground-truth start, ground-truth body), its ablations (``no occlusion``,
+  ``no silhouette``, ``no extra depth``) and ``tracker, default body``;
+- ``hybrid``, ``detector`` and ``shotton`` (no ground truth at run time; need the forest).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .evaluation.evaluate import evaluate
+
+# name -> (mode, body: "gt" | "default", tracker settings overriding configs/tracker.yaml)
+CONFIGS: dict[str, tuple[str, str, dict]] = {
+    "tracker": ("tracker", "gt", {}),
+    "tracker, no occlusion handling": ("tracker", "gt", {"occlusion_handling": False}),
+    "tracker, no silhouette term": ("tracker", "gt", {"use_silhouette": False}),
+    "tracker, no extra depth term": ("tracker", "gt", {"use_extra_depth": False}),
+    "tracker, default body": ("tracker", "default", {}),
+    "hybrid": ("hybrid", "gt", {}),
+    "detector": ("detector", "gt", {}),
+    "shotton": ("shotton", "gt", {}),
+}
+METRICS = (
+    "mean_joint_error_mm",
+    "mean_joint_error_offset_normalized_mm",
+    "precision_10cm",
+    "surface_error_q97_mm",
+    "tracking_failure_pct",
+    "system_failure_pct",
+    "fps",
+)
+
+
+def run_config(
+    name: str, rec: Path, out: Path, model: str, device: str, mode_config: Path | None
+) -> dict:
+    """Track ``rec`` with configuration ``name`` and evaluate; returns the report."""
+    import yaml
+
+    mode, body, overrides = CONFIGS[name]
+    out.mkdir(parents=True, exist_ok=True)
+    cmd = [sys.executable, "-m", "runtime.track_cli", "--input", str(rec), "-q",
+           "--output", str(out / "result"), "--mode", mode, "--model", model,
+           "--device", device]  # fmt: skip
+    if body == "gt":
+        cmd += ["--body", str(rec / "body.json")]
+    cfg_path = mode_config
+    if overrides:
+        base = yaml.safe_load(mode_config.read_text()) if mode_config else {}
+        cfg_path = out / "mode_config.yaml"
+        cfg_path.write_text(yaml.safe_dump({**(base or {}), **overrides}))
+    if cfg_path is not None:
+        cmd += ["--config", str(cfg_path)]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed:\n{done.stderr.strip()[-2000:]}")
+    return evaluate(rec, out / "result").report
+
+
+def aggregate(reports: list[dict]) -> dict:
+    """Frame-weighted means of the metrics over recordings (None where all are None)."""
+    out = {}
+    for key in METRICS:
+        vals = [(r.get(key), r.get("frames") or 1) for r in reports]
+        vals = [(v, w) for v, w in vals if v is not None]
+        out[key] = (
+            float(np.average([v for v, _ in vals], weights=[w for _, w in vals])) if vals else None
+        )
+    return out
+
+
+def format_row(name: str, agg: dict) -> str:
+    def f(key, digits=1, scale=1.0):
+        v = agg.get(key)
+        return "n/a" if v is None else f"{v * scale:.{digits}f}"
+
+    return (
+        f"| {name} | {f('mean_joint_error_mm')} | {f('mean_joint_error_offset_normalized_mm')} | "
+        f"{f('precision_10cm', 1, 100)}% | {f('surface_error_q97_mm')} | "
+        f"{f('tracking_failure_pct')}% | {f('system_failure_pct')}% | {f('fps')} |"
+    )
+
+
+HEADER = (
+    "| configuration | joint error mm | offset-normalized mm | precision 10 cm | "
+    "surface q97 mm | tracking failure | system failure | frames/s |\n"
+    "|---|---|---|---|---|---|---|---|"
+)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="train-dev-benchmark", description=__doc__.splitlines()[0])
+    p.add_argument("--recordings", default="data/dev", help="folder of dev recordings")
+    p.add_argument("--out", default="out/dev_benchmark", help="results and the JSON report")
+    p.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
+    p.add_argument("--model", default="models/forest.npz", help="forest for hybrid/detector")
+    p.add_argument("--device", default="cpu", help="cpu or cuda")
+    p.add_argument("--mode-config", type=Path, help="YAML of mode settings for every run")
+    p.add_argument("--limit", type=int, help="use only the first N recordings")
+    args = p.parse_args(argv)
+    recs = sorted(d for d in Path(args.recordings).glob("*") if (d / "groundtruth.npz").is_file())
+    if args.limit:
+        recs = recs[: args.limit]
+    if not recs:
+        print(f"no dev recordings in {args.recordings}: run `make dev-recordings`", file=sys.stderr)
+        return 2
+    print(f"{len(recs)} dev recordings from {args.recordings}\n")
+    print(HEADER)
+    results = {}
+    for name in args.configs:
+        t0 = time.perf_counter()
+        reports = []
+        try:
+            for rec in recs:
+                slug = name.replace(", ", "_").replace(" ", "_")
+                reports.append(
+                    run_config(name, rec, Path(args.out) / slug / rec.name, args.model,
+                               args.device, args.mode_config)
+                )  # fmt: skip
+        except RuntimeError as err:
+            print(f"| {name} | failed: {str(err).splitlines()[-1][:80]} |||||||")
+            continue
+        agg = aggregate(reports)
+        results[name] = {"mean": agg, "per_recording": dict(zip([r.name for r in recs], reports))}
+        print(format_row(name, agg), flush=True)
+        results[name]["seconds"] = time.perf_counter() - t0
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    (Path(args.out) / "report.json").write_text(json.dumps(results, indent=1))
+    print(f"\nfull report: {Path(args.out) / 'report.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
