@@ -23,7 +23,7 @@ from shared.kinematics import (
 )
 from shared.skeleton import DOF_LIMITS, JOINT_FRACTION, JOINT_SEGMENT
 
-__all__ = ["time_call", "bench_kinematics", "main"]
+__all__ = ["time_call", "bench_kinematics", "bench_tracker", "main"]
 
 
 def time_call(fn: Callable[[], object], repeats: int = 20, warmup: int = 3) -> float:
@@ -98,6 +98,19 @@ def bench_kinematics(batch: int, device: str, dtype=torch.float32) -> list[tuple
     ]
 
 
+def bench_tracker(device: str) -> list[tuple[str, float, str]]:
+    """Tracker frame time and ray-cast time; rows of (what, ms, note)."""
+    from runtime.tracker import benchmark_tracker
+
+    r = benchmark_tracker(device=device, frames=60)
+    return [
+        ("tracker step (Gauss-Newton, all terms)", r["ms_per_frame"],
+         f"{r['frames_per_s']:.1f} frames/s, {r['iterations_mean']:.1f} iterations, "
+         f"joint error {r['joint_error_mm']:.1f} mm; target >= 30 frames/s"),
+        ("ray-cast of the body, 160x120", r["raycast_ms"], "baseline: one render per iteration"),
+    ]  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--batch", type=int, default=1000, help="poses per FK call")
@@ -112,6 +125,9 @@ def main(argv: list[str] | None = None) -> None:
         name = torch.cuda.get_device_name() if dev == "cuda" else "CPU"
         print(f"\n== kinematics on {name} ==")
         for what, ms, note in bench_kinematics(args.batch, dev):
+            print(f"  {what:<45s} {ms:9.3f} ms  {note}")
+        print(f"\n== tracker on {name} (cylinder-model walk, 320x240 in, 160x120 working) ==")
+        for what, ms, note in bench_tracker(dev):
             print(f"  {what:<45s} {ms:9.3f} ms  {note}")
 
 
