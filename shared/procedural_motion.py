@@ -99,6 +99,16 @@ def _turn(t, rng):
     return q
 
 
+def _t_pose(t, rng):
+    """Wei's calibration reference pose held (arms out sideways, legs apart), slight sway."""
+    q = _blank(len(t))
+    sway = 0.03 * np.sin(2 * math.pi * 0.3 * t + rng.uniform(0, 2 * math.pi))
+    for s in "lr":
+        q[:, D[f"{s}_humerus_abd"]] = math.radians(90.0) + sway
+        q[:, D[f"{s}_femur_abd"]] = math.radians(12.0)
+    return q
+
+
 MOTIONS: dict[str, Callable[[np.ndarray, np.random.Generator], np.ndarray]] = {
     "walk": _walk,
     "wave": _wave,
@@ -106,6 +116,7 @@ MOTIONS: dict[str, Callable[[np.ndarray, np.random.Generator], np.ndarray]] = {
     "kick": _kick,
     "arm_cross": _arm_cross,
     "turn": _turn,
+    "t_pose": _t_pose,
 }
 
 

@@ -2,7 +2,9 @@
 of the HDM05 dev actor) with ``train-synth --sequence``; skips recordings already there.
 
 Each recording: one clip, its first ``--frames`` frames at 30 fps, a random anny body (seeded
-by the clip's position in the list), a frontal camera, floor/background and Kinect noise.
+by the clip's position in the list), a frontal camera, floor/background and Kinect noise. The
+same bodies also hold the calibration T-pose for one second (``--calibration-out``), for
+evaluating skeleton calibration and personalization against the known body.
 """
 
 from __future__ import annotations
@@ -36,6 +38,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", default="data/dev", help="folder of recordings to write")
     p.add_argument("--frames", type=int, default=150, help="frames per recording")
     p.add_argument("--count", type=int, default=len(DEV_CLIPS), help="number of clips")
+    p.add_argument(
+        "--calibration-out",
+        default="data/dev_calib",
+        help="also render each dev body holding the calibration T-pose (1 s) here",
+    )
     args = p.parse_args(argv)
     folder = Path(args.clips)
     if not folder.is_dir():
@@ -49,6 +56,12 @@ def main(argv: list[str] | None = None) -> int:
             str(folder / name), out, frames=args.frames, seed=100 + seed, overwrite=True
         )
         print(f"wrote {out}")
+    for seed, name in enumerate(DEV_CLIPS[: args.count]):
+        # Same seed -> same anny body as the dev recording of that name.
+        out = Path(args.calibration_out) / Path(name).stem
+        if args.calibration_out and not (out / "groundtruth.npz").is_file():
+            render_sequence("t_pose", out, frames=30, seed=100 + seed, overwrite=True)
+            print(f"wrote {out}")
     return 0
 
 
