@@ -6,6 +6,7 @@ Examples::
     train-synth --config configs/synth_tiny.yaml --out /tmp/tiny
     train-synth --sequence --motion walk --out /tmp/rec --frames 60 --seed 3
     train-synth --sequence --motion HDM_mm_squat1Reps_037_120.amc --asf HDM_mm.asf --out rec
+    train-synth --calibration-views --out /tmp/subject --seed 4   # runtime-personalize input
 """
 
 from __future__ import annotations
@@ -31,6 +32,12 @@ def build_parser() -> argparse.ArgumentParser:
     seq.add_argument("--asf", help="ASF skeleton of an .amc clip (default: found beside it)")
     seq.add_argument("--fps", type=float, default=30.0, help="frame rate of the recording")
     seq.add_argument("--overwrite", action="store_true", help="replace an existing recording")
+    cal = p.add_argument_group("calibration views (personalization, Helten III)")
+    cal.add_argument(
+        "--calibration-views",
+        action="store_true",
+        help="render a random body's front and back calibration views with its true shape",
+    )
     # --frames (from the config) also limits a sequence; unset there means the whole clip.
     add_cli_args(p, SynthConfig)
     return p
@@ -42,6 +49,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cfg = config_from_args(SynthConfig, args, load_config(SynthConfig, args.config))
         cfg.validate()
+        if args.calibration_views:
+            from .personalize_views import render_calibration_views
+
+            path = render_calibration_views(args.out, seed=cfg.seed, overwrite=args.overwrite)
+            print(f"calibration views written to {path}")
+            return 0
         if args.sequence:
             from .synth_sequence import render_sequence
 
