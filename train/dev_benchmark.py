@@ -23,13 +23,18 @@ import numpy as np
 
 from .evaluation.evaluate import evaluate
 
-# name -> (mode, body: "gt" | "default", tracker settings overriding configs/tracker.yaml)
+# name -> (mode, body, settings overriding the mode's config). Bodies: "gt" (the rendered
+# body's skeleton), "default" (average adult), "personalized" (runtime-personalize on the same
+# anny body's two calibration views, Helten III), "calibrated" (runtime-calibrate, Wei 6, on
+# the body holding the T-pose: data/dev_calib, forest labels).
 CONFIGS: dict[str, tuple[str, str, dict]] = {
     "tracker": ("tracker", "gt", {}),
     "tracker, no occlusion handling": ("tracker", "gt", {"occlusion_handling": False}),
     "tracker, no silhouette term": ("tracker", "gt", {"use_silhouette": False}),
     "tracker, no extra depth term": ("tracker", "gt", {"use_extra_depth": False}),
     "tracker, default body": ("tracker", "default", {}),
+    "tracker, personalized body": ("tracker", "personalized", {}),
+    "tracker, calibrated body": ("tracker", "calibrated", {}),
     "hybrid": ("hybrid", "gt", {}),
     "detector": ("detector", "gt", {}),
     "shotton": ("shotton", "gt", {}),
@@ -45,6 +50,38 @@ METRICS = (
 )
 
 
+def _run(cmd: list[str]) -> None:
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed:\n{done.stderr.strip()[-2000:]}")
+
+
+def body_file(kind: str, rec: Path, bodies: Path, model: str) -> Path:
+    """The body file of ``kind`` for recording ``rec``, made (once) when missing."""
+    if kind == "gt":
+        return rec / "body.json"
+    out = bodies / kind / rec.name
+    path = out / "body.json"
+    if path.is_file():
+        return path
+    out.mkdir(parents=True, exist_ok=True)
+    py = sys.executable
+    if kind == "personalized":
+        _run([py, "-m", "train.personalize_views", "--out", str(out / "views"), "--seed", "7",
+              "--phenotype-from", str(rec), "--overwrite"])  # fmt: skip
+        _run([py, "-m", "runtime.personalize_cli", "--input", str(out / "views"),
+              "--output", str(path)])  # fmt: skip
+    elif kind == "calibrated":
+        calib = rec.parent.parent / "dev_calib" / rec.name
+        if not calib.is_dir():
+            raise RuntimeError(f"{calib}: no calibration recording (run make dev-recordings)")
+        _run([py, "-m", "runtime.calibrate_cli", "--input", str(calib), "--output", str(path),
+              "--model", model, "-q"])  # fmt: skip
+    else:
+        raise ValueError(f"unknown body kind {kind}")
+    return path
+
+
 def run_config(
     name: str, rec: Path, out: Path, model: str, device: str, mode_config: Path | None
 ) -> dict:
@@ -56,8 +93,8 @@ def run_config(
     cmd = [sys.executable, "-m", "runtime.track_cli", "--input", str(rec), "-q",
            "--output", str(out / "result"), "--mode", mode, "--model", model,
            "--device", device]  # fmt: skip
-    if body == "gt":
-        cmd += ["--body", str(rec / "body.json")]
+    if body != "default":
+        cmd += ["--body", str(body_file(body, rec, out.parent.parent / "bodies", model))]
     cfg_path = mode_config
     if overrides:
         base = yaml.safe_load(mode_config.read_text()) if mode_config else {}
@@ -65,9 +102,7 @@ def run_config(
         cfg_path.write_text(yaml.safe_dump({**(base or {}), **overrides}))
     if cfg_path is not None:
         cmd += ["--config", str(cfg_path)]
-    done = subprocess.run(cmd, capture_output=True, text=True)
-    if done.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed:\n{done.stderr.strip()[-2000:]}")
+    _run(cmd)
     return evaluate(rec, out / "result").report
 
 
