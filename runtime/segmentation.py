@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from shared.camera import Intrinsics, depth_to_points
+from shared.camera import Intrinsics
 from shared.config import field_doc
 
 __all__ = ["SegmentationConfig", "segment_person", "fit_floor_plane", "depth_valid_mask"]
@@ -75,6 +75,9 @@ class SegmentationConfig:
     )
     ransac_samples: int = field_doc(1024, help="points sampled per image for the floor fit")
     ransac_hypotheses: int = field_doc(96, help="plane hypotheses per image")
+    ransac_score_samples: int = field_doc(
+        256, help="sampled points each hypothesis is scored on (the winner is refined on all)"
+    )
     edge_jump_m: float = field_doc(
         0.08, help="depth step between neighbours that separates surfaces, metres"
     )
@@ -118,30 +121,115 @@ def depth_valid_mask(depth_m: torch.Tensor, cfg: SegmentationConfig) -> torch.Te
     return torch.isfinite(depth_m) & (depth_m >= cfg.min_depth_m) & (depth_m <= cfg.max_depth_m)
 
 
-def _neighbours(x: torch.Tensor, fill: float | bool) -> torch.Tensor:
-    """4-neighbours of every pixel: (B, H, W) -> (B, 4, H, W) (up, down, left, right)."""
-    b, h, w = x.shape
-    pad = torch.full((b, h + 2, w + 2), fill, dtype=x.dtype, device=x.device)
-    pad[:, 1:-1, 1:-1] = x
-    return torch.stack(
-        [pad[:, :-2, 1:-1], pad[:, 2:, 1:-1], pad[:, 1:-1, :-2], pad[:, 1:-1, 2:]], dim=1
-    )
+def _valid_np(depth: np.ndarray, cfg: SegmentationConfig) -> np.ndarray:
+    """Numpy twin of :func:`depth_valid_mask` (comparisons with NaN are False)."""
+    return (depth >= cfg.min_depth_m) & (depth <= cfg.max_depth_m)
 
 
-def _orient_up(normal: torch.Tensor) -> torch.Tensor:
-    """Flip (..., 3) unit normals to point up in the camera frame (negative y)."""
-    sign = torch.where(normal[..., 1:2] > 0, -1.0, 1.0).to(normal.dtype)
-    return normal * sign
+def _orient_up(normal: np.ndarray) -> np.ndarray:
+    """Flip (..., 3) normals to point up in the camera frame (negative y)."""
+    return normal * np.where(normal[..., 1:2] > 0, -1.0, 1.0)
 
 
-def _plane_fit(pts: torch.Tensor, weight: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def _plane_fit(pts: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares planes of (B, N, 3) points with (B, N) weights: up normal (B, 3), centre."""
-    w = weight / weight.sum(1, keepdim=True).clamp_min(1.0)
+    w = weight / np.maximum(weight.sum(1, keepdims=True), 1.0)
     centre = (w[..., None] * pts).sum(1)
     diff = pts - centre[:, None]
-    cov = torch.einsum("bn,bni,bnj->bij", w, diff, diff)
-    cov = cov + torch.eye(3, dtype=pts.dtype, device=pts.device) * 1e-9  # nothing fitted
-    return _orient_up(torch.linalg.eigh(cov)[1][..., 0]), centre
+    cov = np.einsum("bn,bni,bnj->bij", w, diff, diff) + np.eye(3) * 1e-9  # nothing fitted
+    return _orient_up(np.linalg.eigh(cov)[1][..., 0]), centre
+
+
+def _sample_floor_pixels(
+    valid: np.ndarray, cfg: SegmentationConfig, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Uniform draws (with replacement) among the valid pixels of the lower image part.
+
+    One cumulative count over the whole batch turns uniform ranks into pixel indices, so no
+    image is visited in Python; every image uses the same uniform numbers, so an image gives
+    the same sample alone or in a batch.
+
+    Args:
+        valid: (B, H, W) bool.
+    Returns:
+        rows (B, N), cols (B, N) int pixel coordinates and count (B,) of candidate pixels
+        (rows/cols are meaningless where count is 0).
+    """
+    b, h, w = valid.shape
+    r0 = min(int(round((1.0 - cfg.floor_region) * h)), h)
+    region = valid[:, r0:].reshape(b, -1)
+    size = region.shape[1]
+    count = region.sum(1)
+    cum = np.cumsum(region.reshape(-1), dtype=np.int64)  # (B * S,)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]])  # candidates before each image
+    ranks = (rng.random(cfg.ransac_samples)[None] * count[:, None]).astype(np.int64)
+    flat = np.searchsorted(cum, first[:, None] + ranks + 1)  # (B, N): the rank-th candidate
+    local = np.clip(flat - np.arange(b)[:, None] * size, 0, max(size - 1, 0))
+    return r0 + local // w, local % w, count
+
+
+def _fit_floor_np(
+    pts: np.ndarray, count: np.ndarray, cfg: SegmentationConfig, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """RANSAC floor planes of (B, N, 3) sampled points drawn from ``count`` (B,) candidates.
+
+    Returns up normal (B, 3), centre (B, 3), found (B,) bool (see :func:`fit_floor_plane`).
+    """
+    b, n, _ = pts.shape
+    sample_ok = count >= 3
+    tri = rng.integers(0, n, (cfg.ransac_hypotheses, 3))  # shared by the batch (as above)
+    p = pts[:, tri]  # (B, K, 3, 3)
+    normal = np.cross(p[:, :, 1] - p[:, :, 0], p[:, :, 2] - p[:, :, 0])
+    length = np.linalg.norm(normal, axis=-1, keepdims=True)
+    normal = _orient_up(normal / np.maximum(length, 1e-12))
+    cos_max = math.cos(math.radians(cfg.floor_max_tilt_deg))
+    hyp_ok = sample_ok[:, None] & (length[..., 0] > 1e-8) & (-normal[..., 1] >= cos_max)
+    offset = (normal * p[:, :, 0]).sum(-1)  # (B, K)
+    # Hypotheses are scored on the first points only (the sample is random already), the
+    # winner's inliers are then taken among all. Single precision is plenty for centimetre
+    # bands; a batched matmul treats every image alone, so an image scores the same alone or
+    # in a batch.
+    m = max(3, min(cfg.ransac_score_samples, n))
+    signed = (
+        np.matmul(normal.astype(np.float32), pts[:, :m].astype(np.float32).transpose(0, 2, 1))
+        - offset.astype(np.float32)[..., None]
+    )  # (B, K, M)
+    below = np.count_nonzero(signed < -cfg.floor_band_m, axis=-1)
+    hyp_ok &= below <= cfg.floor_max_below * m
+    np.abs(signed, out=signed)
+    votes = np.where(hyp_ok, np.count_nonzero(signed < cfg.floor_band_m, axis=-1), 0)
+    best = votes.argmax(1)  # (B,)
+    rows = np.arange(b)
+    best_dist = ((pts - p[rows, best, 0][:, None]) * normal[rows, best][:, None]).sum(-1)
+    best_in = (np.abs(best_dist) < cfg.floor_band_m).astype(np.float64)  # (B, N)
+
+    # Least-squares refinement: the plane through the inliers' centroid, normal along the
+    # smallest principal axis; a second pass with half the band drops what merely touches the
+    # floor (feet, the bottom of a wall).
+    refined, centre = _plane_fit(pts, best_in)
+    near = np.abs(((pts - centre[:, None]) * refined[:, None]).sum(-1)) < 0.5 * cfg.floor_band_m
+    refined, centre = _plane_fit(pts, best_in * near)
+    n_in = best_in.sum(1).astype(np.int64)
+    z_in = np.sort(np.where(best_in > 0, pts[..., 2], np.inf), axis=1)
+    i05 = np.clip((0.05 * n_in).astype(np.int64), 0, n - 1)
+    i95 = np.clip((0.95 * n_in).astype(np.int64) - 1, 0, n - 1)
+    span = np.where(n_in > 0, z_in[rows, i95] - z_in[rows, i05], 0.0)
+    # A floor recedes continuously; inliers in separate depth clusters (a hand in front of
+    # the belly) are not one.
+    k = np.arange(n - 1)
+    inside = (k[None] >= i05[:, None]) & (k[None] < i95[:, None])
+    with np.errstate(invalid="ignore"):  # inf - inf outside the inliers, masked below
+        gap = np.where(inside, z_in[:, 1:] - z_in[:, :-1], 0.0).max(1, initial=0.0)
+    found = (
+        (span >= cfg.floor_min_depth_span_m)
+        & (gap <= cfg.floor_max_depth_gap_m)
+        & (count >= 50)
+        & (n_in >= cfg.floor_min_support * n)
+        & (-refined[:, 1] >= cos_max)
+        & hyp_ok[rows, best]
+        & (np.count_nonzero(best_dist < -cfg.floor_band_m, axis=1) <= cfg.floor_max_below * n)
+    )
+    return refined, centre, found
 
 
 def fit_floor_plane(
@@ -156,120 +244,208 @@ def fit_floor_plane(
         normal (B, 3) unit, pointing up (-y side); centre (B, 3) a point on the plane;
         found (B,) bool, False where no plane has enough support (ignore normal/centre there).
     """
-    b, h, w, _ = points.shape
-    dev, dt = points.device, points.dtype
-    gen = torch.Generator(device=dev).manual_seed(cfg.seed)
-    rows = torch.arange(h, device=dev) >= int(round((1.0 - cfg.floor_region) * h))
-    candidates = (valid & rows[None, :, None]).reshape(b, -1)
-    n = min(cfg.ransac_samples, h * w)
-    score = torch.rand(b, h * w, generator=gen, device=dev, dtype=dt)
-    score = torch.where(candidates, score, torch.full_like(score, -1.0))
-    top, idx = score.topk(n, dim=1)
-    sample_ok = top >= 0  # (B, N)
-    pts = points.reshape(b, -1, 3).gather(1, idx[..., None].expand(-1, -1, 3))  # (B, N, 3)
-
-    k = cfg.ransac_hypotheses
-    tri = torch.randint(0, n, (b, k, 3), generator=gen, device=dev)
-    p = pts.gather(1, tri.reshape(b, -1, 1).expand(-1, -1, 3)).reshape(b, k, 3, 3)
-    tri_ok = sample_ok.gather(1, tri.reshape(b, -1)).reshape(b, k, 3).all(-1)
-    normal = torch.linalg.cross(p[:, :, 1] - p[:, :, 0], p[:, :, 2] - p[:, :, 0])
-    length = normal.norm(dim=-1, keepdim=True)
-    normal = _orient_up(normal / length.clamp_min(1e-12))
-    cos_max = math.cos(math.radians(cfg.floor_max_tilt_deg))
-    hyp_ok = tri_ok & (length[..., 0] > 1e-8) & (-normal[..., 1] >= cos_max)  # (B, K)
-    signed = ((pts[:, None] - p[:, :, None, 0]) * normal[:, :, None]).sum(-1)  # (B, K, N)
-    inliers = (signed.abs() < cfg.floor_band_m) & sample_ok[:, None]
-    below = ((signed < -cfg.floor_band_m) & sample_ok[:, None]).sum(-1)
-    n_ok = sample_ok.sum(1, keepdim=True).clamp_min(1)
-    hyp_ok = hyp_ok & (below <= cfg.floor_max_below * n_ok)
-    count = torch.where(hyp_ok, inliers.sum(-1), torch.zeros_like(hyp_ok, dtype=torch.long))
-    best = count.argmax(1)  # (B,)
-    best_in = inliers.gather(1, best[:, None, None].expand(-1, 1, n))[:, 0].to(dt)  # (B, N)
-
-    # Least-squares refinement: the plane through the inliers' centroid, normal along the
-    # smallest principal axis; a second pass with half the band drops what merely touches the
-    # floor (feet, the bottom of a wall).
-    refined, centre = _plane_fit(pts, best_in)
-    near = ((pts - centre[:, None]) * refined[:, None]).sum(-1).abs() < 0.5 * cfg.floor_band_m
-    refined, centre = _plane_fit(pts, best_in * near.to(dt))
-    support = best_in.sum(1) / sample_ok.sum(1).clamp_min(1)
-    z_in = torch.where(best_in > 0, pts[..., 2], torch.full_like(pts[..., 2], math.inf)).sort(1)[0]
-    n_in = best_in.sum(1).long()
-    i05 = (0.05 * n_in).long().clamp(0, n - 1)
-    i95 = ((0.95 * n_in).long() - 1).clamp(0, n - 1)
-    span = z_in.gather(1, i95[:, None])[:, 0] - z_in.gather(1, i05[:, None])[:, 0]
-    span = torch.where(n_in > 0, span, torch.zeros_like(span))
-    # A floor recedes continuously; inliers in separate depth clusters (a hand in front of
-    # the belly) are not one.
-    step = z_in[:, 1:] - z_in[:, :-1]
-    k = torch.arange(n - 1, device=dev)
-    inside = (k[None] >= i05[:, None]) & (k[None] < i95[:, None])
-    gap = torch.where(inside, step, torch.zeros_like(step)).amax(1)
-    found = (
-        (span >= cfg.floor_min_depth_span_m)
-        & (gap <= cfg.floor_max_depth_gap_m)
-        & (sample_ok.sum(1) >= 50)
-        & (support >= cfg.floor_min_support)
-        & (-refined[:, 1] >= cos_max)
-        & hyp_ok.gather(1, best[:, None])[:, 0]
+    rng = np.random.default_rng(cfg.seed)
+    rows, cols, count = _sample_floor_pixels(valid.detach().cpu().numpy(), cfg, rng)
+    pts = points.detach().cpu().double().numpy()[np.arange(points.shape[0])[:, None], rows, cols]
+    normal, centre, found = _fit_floor_np(pts, count, cfg, rng)
+    like = dict(dtype=points.dtype, device=points.device)
+    return (
+        torch.as_tensor(normal, **like),
+        torch.as_tensor(centre, **like),
+        torch.as_tensor(found, device=points.device),
     )
-    return refined, centre, found
 
 
-def _components(keep: torch.Tensor) -> tuple[torch.Tensor, int]:
-    """4-connected components of (B, H, W) bool masks in one OpenCV call.
+def _remove_floor(
+    z: np.ndarray, valid: np.ndarray, intr: Intrinsics, cfg: SegmentationConfig
+) -> np.ndarray:
+    """(B, H, W) valid pixels of depth ``z`` without those within the floor band."""
+    b, h, w = z.shape
+    rng = np.random.default_rng(cfg.seed)
+    rows, cols, count = _sample_floor_pixels(valid, cfg, rng)
+    zs = z[np.arange(b)[:, None], rows, cols].astype(np.float64)
+    pts = np.stack([(cols - intr.cx) / intr.fx * zs, (rows - intr.cy) / intr.fy * zs, zs], -1)
+    normal, centre, found = _fit_floor_np(pts, count, cfg, rng)
+    if not found.any():
+        return valid
+    # Height above the plane of every pixel: z * (n . ray) - n . centre, ray = (x/z, y/z, 1).
+    n = normal.astype(np.float32)[:, :, None, None]
+    ray_dot = (
+        n[:, 0] * ((np.arange(w, dtype=np.float32) - intr.cx) / intr.fx)[None, None]
+        + n[:, 1] * ((np.arange(h, dtype=np.float32) - intr.cy) / intr.fy)[None, :, None]
+        + n[:, 2]
+    )  # (B, H, W)
+    level = (normal * centre).sum(1).astype(np.float32)[:, None, None]
+    floor = (z * ray_dot - level < cfg.floor_band_m) & found[:, None, None]
+    return valid & ~floor
 
-    Returns (B, H, W) int64 labels (0 = not kept), unique across the batch, and their count
-    (labels run from 1 to count - 1).
-    """
+
+class _Canvas:
+    """The batch as one 2-D image for OpenCV: each (H, W) image sits below ``pad`` blank rows
+    and between ``pad`` blank columns, so filters of radius ``pad`` and 4-neighbour look-ups
+    at flat index +-1, +-width never mix images (blank = no reading)."""
+
+    def __init__(self, b: int, h: int, w: int, pad: int):
+        self.b, self.h, self.w, self.pad = b, h, w, pad
+        self.shape = (pad + b * (h + pad), w + 2 * pad)
+
+    def images(self, canvas: np.ndarray) -> np.ndarray:
+        """(B, H, W) view of the images on a canvas."""
+        p = self.pad
+        return canvas[p:].reshape(self.b, self.h + p, -1)[:, : self.h, p : p + self.w]
+
+    def place(self, images: np.ndarray) -> np.ndarray:
+        """A blank canvas with the (B, H, W) ``images`` on it."""
+        canvas = np.zeros(self.shape, dtype=images.dtype)
+        self.images(canvas)[:] = images
+        return canvas
+
+    def image_of(self, labels: np.ndarray, comp_pixels: np.ndarray) -> np.ndarray:
+        """(count,) batch index of each component of a label canvas (0 for label 0)."""
+        if self.b == 1:
+            return np.zeros(len(comp_pixels), dtype=np.intp)
+        rows = np.clip((np.arange(self.shape[0]) - self.pad) // (self.h + self.pad), 0, None)
+        index = np.broadcast_to(rows[:, None], self.shape).reshape(-1)
+        # Every pixel of a component lies in one image: the mean index is that image's.
+        total = np.bincount(labels.reshape(-1), index, minlength=len(comp_pixels))
+        return np.rint(total / np.maximum(comp_pixels, 1)).astype(np.intp)
+
+
+def _segment_np(depth: np.ndarray, intr: Intrinsics, cfg: SegmentationConfig) -> np.ndarray:
+    """:func:`segment_person` on (B, H, W) float32 metres in numpy/OpenCV -> (B, H, W) bool."""
     import cv2
 
-    b, h, w = keep.shape
-    stacked = np.zeros((b, h + 1, w), dtype=np.uint8)  # a blank row keeps images apart
-    stacked[:, :h] = keep.detach().cpu().numpy()
-    count, labels = cv2.connectedComponents(stacked.reshape(b * (h + 1), w), connectivity=4)
-    labels = torch.from_numpy(labels.reshape(b, h + 1, w)[:, :h].astype(np.int64))
-    return labels.to(keep.device), int(count)
+    b, h, w = depth.shape
+    valid = _valid_np(depth, cfg)
+    z_img = np.where(valid, depth, np.float32(0.0))
+    if cfg.remove_floor:
+        valid = _remove_floor(z_img, valid, intr, cfg)
+
+    r = max(cfg.merge_radius_px, 0)
+    cv = _Canvas(b, h, w, max(r, 1))
+    valid = cv.place(valid)
+    z = np.where(valid, cv.place(z_img), np.float32(0.0))
+    zf, width = z.reshape(-1), cv.shape[1]
+
+    # Cut the far side of depth discontinuities: a 4-neighbour nearer by more than the jump
+    # (the nearest neighbour is a cross-shaped erosion; where a neighbour is unusable the pixel
+    # stays: silhouettes against "no reading" are not cuts).
+    z2 = z * z
+    jump = cfg.edge_jump_m + cfg.edge_jump_per_m2 * z2
+    cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+    nearest = cv2.erode(np.where(valid, z, np.float32(np.inf)), cross)
+    cut = (z - nearest > jump) & valid
+    count, labels = cv2.connectedComponents(
+        (valid & ~cut).view(np.uint8), connectivity=4, ltype=cv2.CV_32S
+    )
+    labels = labels.astype(np.intp)  # bincount and fancy indexing want intp
+    lf = labels.reshape(-1)
+
+    # Per-component metric statistics; label 0 (background) is never chosen.
+    # Metric area each pixel sees, facing the camera: z^2 / (fx fy).
+    comp_pixels = np.bincount(lf, minlength=count)
+    comp_area = np.bincount(lf, z2.reshape(-1), minlength=count) / (intr.fx * intr.fy)
+    comp_depth = np.bincount(lf, zf, minlength=count) / np.maximum(comp_pixels, 1)
+    image_of = cv.image_of(labels, comp_pixels)
+    extent = _extents(z, labels, count, cv, intr)
+
+    # Cut pixels and their 4 neighbours: what is seen behind what, and where the person's
+    # own self-occlusion edges are.
+    cut_px = np.flatnonzero(cut)
+    nb = cut_px[:, None] + np.array([-width, width, -1, 1])  # (M, 4), never off the canvas
+    lab_nb, z_nb = lf[nb], zf[nb]
+    step = zf[cut_px, None] - z_nb
+    jump_c = jump.reshape(-1)[cut_px, None]
+
+    behind = _occluded_by_large(lab_nb, step, jump_c, comp_area, count, cfg.occluder_min_area_m2)
+    plausible = (
+        ~behind
+        & (comp_area >= cfg.min_area_m2)
+        & (extent[:, 0] <= cfg.max_width_m)
+        & (extent[:, 1] <= cfg.max_height_m)
+        & (extent[:, 2] <= cfg.max_depth_extent_m)
+    )
+    plausible[0] = False
+    score = np.where(plausible, comp_area, -1.0)
+    per_image = np.where(image_of[None] == np.arange(b)[:, None], score[None], -1.0)  # (B, C)
+    best = per_image.argmax(1)
+    in_person = np.zeros(count, dtype=bool)
+    in_person[best[per_image[np.arange(b), best] > 0]] = True
+    in_person = _join_nearby_parts(
+        in_person, labels, comp_pixels, comp_depth, comp_area, image_of, b, cfg, cv2
+    )
+    mask = in_person[labels]
+
+    # Add back cut pixels that join the person at a smooth step (self-occlusion inside it).
+    smooth = (mask.reshape(-1)[nb] & (np.abs(step) <= jump_c)).any(1)
+    mask.reshape(-1)[cut_px[smooth]] = True
+    return cv.images(mask)
+
+
+def _extents(
+    z: np.ndarray, labels: np.ndarray, count: int, cv: _Canvas, intr: Intrinsics
+) -> np.ndarray:
+    """(count, 3) metric x, y, z extents of the components of a canvas (0 where empty).
+
+    Measured on every second row and column: a pixel or two (centimetres) matters nothing
+    against the metre-scale plausibility limits, and it is a quarter of the work.
+    """
+    rows, cols = np.nonzero(labels[::2, ::2])
+    rows, cols = 2 * rows, 2 * cols
+    zs = z[rows, cols]
+    xs = (cols - cv.pad - intr.cx) / intr.fx * zs
+    ys = ((rows - cv.pad) % (cv.h + cv.pad) - intr.cy) / intr.fy * zs
+    # One 1-D scatter-max over (max x, y, z, -min x, -min y, -min z) is numpy's fast path.
+    signed = np.stack([xs, ys, zs, -xs, -ys, -zs], 1).astype(np.float32)  # (N, 6)
+    slots = labels[rows, cols][:, None] * 6 + np.arange(6)
+    top = np.full(count * 6, -np.inf, dtype=np.float32)
+    np.maximum.at(top, slots.reshape(-1), signed.reshape(-1))
+    top = top.reshape(count, 6)
+    return np.maximum(top[:, :3] + top[:, 3:], 0.0)  # -inf + -inf (no sample) gives 0
 
 
 def _occluded_by_large(
-    labels: torch.Tensor,
-    z: torch.Tensor,
-    cut: torch.Tensor,
-    jump: torch.Tensor,
-    comp_area: torch.Tensor,
+    lab_nb: np.ndarray,
+    step: np.ndarray,
+    jump: np.ndarray,
+    comp_area: np.ndarray,
+    count: int,
     min_area: float,
-) -> torch.Tensor:
+) -> np.ndarray:
     """(count,) bool: components seen behind a nearer component of at least ``min_area``.
 
     Every cut pixel sits on the far side of a depth step: its similar-depth neighbours name
     the hidden component, its much nearer neighbours the occluder.
+
+    Args:
+        lab_nb: (M, 4) component labels of the 4-neighbours of the M cut pixels (0 = none).
+        step: (M, 4) cut pixel's depth minus its neighbours'.
+        jump: (M, 1) depth step that separates surfaces at each cut pixel.
     """
-    lab_nb = _neighbours(labels, 0)  # (B, 4, H, W)
-    z_nb = _neighbours(z, 0.0)
-    nearer = (z[:, None] - z_nb > jump[:, None]) & (lab_nb > 0)
-    similar = ((z[:, None] - z_nb).abs() <= jump[:, None]) & (lab_nb > 0)
-    hidden = torch.where(similar, lab_nb, torch.zeros_like(lab_nb)).amax(1)
+    labelled = lab_nb > 0
+    nearer = (step > jump) & labelled
+    similar = (np.abs(step) <= jump) & labelled
+    hidden = np.where(similar, lab_nb, 0).max(1, initial=0)
     # A step inside one component (chin over neck) is self-occlusion, not background.
     other = nearer & (lab_nb != hidden[:, None])
-    occluder_area = torch.where(other, comp_area[lab_nb], torch.zeros_like(z_nb)).amax(1)
-    pick = cut & (hidden > 0)
-    worst = torch.zeros_like(comp_area).scatter_reduce(
-        0, hidden[pick], occluder_area[pick], "amax", include_self=True
-    )
-    return worst >= min_area
+    occluder_area = np.where(other, comp_area[lab_nb], 0.0).max(1, initial=0.0)
+    behind = np.zeros(count, dtype=bool)
+    behind[hidden[(hidden > 0) & (occluder_area >= min_area)]] = True
+    return behind
 
 
 def _join_nearby_parts(
-    mask: torch.Tensor,
-    labels: torch.Tensor,
-    z: torch.Tensor,
-    pixel_area: torch.Tensor,
-    comp_area: torch.Tensor,
-    image_of: torch.Tensor,
+    in_person: np.ndarray,
+    labels: np.ndarray,
+    comp_pixels: np.ndarray,
+    comp_depth: np.ndarray,
+    comp_area: np.ndarray,
+    image_of: np.ndarray,
+    b: int,
     cfg: SegmentationConfig,
-) -> torch.Tensor:
-    """Grow (B, H, W) person masks by the components that touch them and lie in front.
+    cv2,
+) -> np.ndarray:
+    """Grow the (count,) bool person components by those that touch them and lie in front.
 
     Limbs pointing at the camera are foreshortened, so their depth changes faster between
     pixels than the cut threshold and hands come out as separate components. They are never
@@ -278,39 +454,42 @@ def _join_nearby_parts(
     person's, at most ``merge_max_front_m`` in front of it (arm reach), and small
     (``merge_max_area_fraction`` of the person: a hand, not a second person).
     """
-    count = comp_area.shape[0]
-    flat = labels.reshape(-1)
-    zeros = torch.zeros(count, dtype=z.dtype, device=z.device)
-    n_pix = zeros.index_add(0, flat, torch.ones_like(z).reshape(-1))
-    comp_depth = zeros.index_add(0, flat, z.reshape(-1)) / n_pix.clamp_min(1)
     r = cfg.merge_radius_px
-    for _ in range(cfg.merge_rounds if r > 0 else 0):
-        m = mask.to(z.dtype)
-        person_depth = (m * z).sum((1, 2)) / m.sum((1, 2)).clamp_min(1)  # (B,)
-        person_area = (m * pixel_area).sum((1, 2))  # (B,)
-        # Separable square dilation (two 1-D max pools cost far less than one 2-D window).
-        near = torch.nn.functional.max_pool2d(m[:, None], (1, 2 * r + 1), 1, (0, r))
-        near = torch.nn.functional.max_pool2d(near, (2 * r + 1, 1), 1, (r, 0))[:, 0] > 0
-        touching = torch.zeros(count, dtype=torch.bool, device=z.device)
-        touching[flat[(near & ~mask).reshape(-1)]] = True
+    if r <= 0 or cfg.merge_rounds <= 0 or not in_person.any():
+        return in_person
+    kernel = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
+    for _ in range(cfg.merge_rounds):
+        # The person is a union of whole components: its statistics come from theirs.
+        weight = in_person * comp_pixels
+        person_depth = np.bincount(image_of, weight * comp_depth, minlength=b) / np.maximum(
+            np.bincount(image_of, weight, minlength=b), 1
+        )
+        person_area = np.bincount(image_of, in_person * comp_area, minlength=b)
+        mask = in_person[labels]
+        near = cv2.dilate(mask.view(np.uint8), kernel).view(bool)
+        touching = np.zeros_like(in_person)
+        touching[labels[near & ~mask]] = True
         join = (
             touching
+            & ~in_person
             & (comp_depth <= person_depth[image_of] + cfg.merge_depth_margin_m)
             & (comp_depth >= person_depth[image_of] - cfg.merge_max_front_m)
             & (comp_area <= cfg.merge_max_area_fraction * person_area[image_of])
         )
         join[0] = False
-        grown = mask | join[labels]
-        if torch.equal(grown, mask):
+        if not join.any():
             break
-        mask = grown
-    return mask
+        in_person = in_person | join
+    return in_person
 
 
 def segment_person(
     depth_m: torch.Tensor, intr: Intrinsics, cfg: SegmentationConfig | None = None
 ) -> torch.Tensor:
     """Mask of the person in depth frames (module docstring).
+
+    Runs on the CPU in numpy/OpenCV whatever the input device (single frames are far too
+    small for a GPU to pay off); the mask comes back on the input's device.
 
     Args:
         depth_m: (H, W) or (B, H, W) metric depth; 0 or NaN where there is no reading.
@@ -327,64 +506,6 @@ def segment_person(
             f"depth must be (H, W) or (B, H, W) with H x W = {intr.height}x{intr.width}, "
             f"got {tuple(depth_m.shape)}"
         )
-    if not depth.is_floating_point():
-        depth = depth.to(torch.get_default_dtype())
-    valid = depth_valid_mask(depth, cfg)
-    z = torch.where(valid, depth, torch.zeros_like(depth))
-    points = depth_to_points(z, intr)  # (B, H, W, 3)
-
-    if cfg.remove_floor:
-        normal, centre, found = fit_floor_plane(points, valid, cfg)
-        height = ((points - centre[:, None, None]) * normal[:, None, None]).sum(-1)
-        valid = valid & ~(found[:, None, None] & (height < cfg.floor_band_m))
-
-    # Cut the far side of depth discontinuities (and where a neighbour is unusable the pixel
-    # stays: silhouettes against "no reading" are not cuts).
-    z_nb = _neighbours(torch.where(valid, z, torch.full_like(z, math.inf)), math.inf)
-    jump = cfg.edge_jump_m + cfg.edge_jump_per_m2 * z * z
-    cut = ((z[:, None] - z_nb) > jump[:, None]).any(1) & valid
-    labels, count = _components(valid & ~cut)
-
-    # Per-component metric statistics; label 0 (background) is never chosen.
-    flat = labels.reshape(-1)
-    pixel_area = z * z / (intr.fx * intr.fy)  # metric area each pixel sees, facing the camera
-    comp_area = torch.zeros(count, dtype=z.dtype, device=z.device).index_add_(
-        0, flat, pixel_area.reshape(-1)
-    )
-    pts = points.reshape(-1, 3)
-    big = torch.full((count, 3), math.inf, dtype=z.dtype, device=z.device)
-    lo = big.scatter_reduce(0, flat[:, None].expand(-1, 3), pts, "amin", include_self=True)
-    hi = (-big).scatter_reduce(0, flat[:, None].expand(-1, 3), pts, "amax", include_self=True)
-    extent = hi - lo
-    image_of = torch.zeros(count, dtype=torch.long, device=z.device).scatter_reduce(
-        0,
-        flat,
-        torch.arange(depth.shape[0], device=z.device).repeat_interleave(z[0].numel()),
-        "amax",
-        include_self=False,
-    )
-    behind = _occluded_by_large(labels, z, cut, jump, comp_area, cfg.occluder_min_area_m2)
-    plausible = (
-        ~behind
-        & (comp_area >= cfg.min_area_m2)
-        & (extent[:, 0] <= cfg.max_width_m)
-        & (extent[:, 1] <= cfg.max_height_m)
-        & (extent[:, 2] <= cfg.max_depth_extent_m)
-    )
-    plausible[0] = False
-    score = torch.where(plausible, comp_area, torch.full_like(comp_area, -1.0))
-    per_image = torch.where(
-        image_of[None] == torch.arange(depth.shape[0], device=z.device)[:, None],
-        score[None],
-        torch.full_like(score[None], -1.0),
-    )  # (B, count)
-    best_score, best = per_image.max(1)
-    mask = (labels == best[:, None, None]) & (best_score > 0)[:, None, None]
-    mask = _join_nearby_parts(mask, labels, z, pixel_area, comp_area, image_of, cfg)
-
-    # Add back cut pixels that join the person at a smooth step (self-occlusion inside it).
-    mask_nb = _neighbours(mask, False)
-    zm_nb = _neighbours(torch.where(mask, z, torch.full_like(z, math.inf)), math.inf)
-    smooth = (mask_nb & ((z[:, None] - zm_nb).abs() <= jump[:, None])).any(1)
-    mask = mask | (cut & smooth)
+    depth_np = np.ascontiguousarray(depth.detach().to("cpu", torch.float32).numpy())
+    mask = torch.from_numpy(_segment_np(depth_np, intr, cfg).copy()).to(depth_m.device)
     return mask[0] if single else mask

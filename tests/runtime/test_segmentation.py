@@ -171,3 +171,18 @@ def test_real_kinect_frames(shared_data):
         assert 0.2 * 640 < cols.mean() < 0.8 * 640, f"{f.name}: person not central"
         # Person height in the image: upper bodies reach well up (not a floor strip).
         assert rows.min() < 0.4 * 480, f"{f.name}: no head in the mask"
+
+
+def test_no_floor_plane_in_a_floorless_scene():
+    depth, _, _ = scene(floor=False, wall_z=3.5)
+    points = depth_to_points(depth[None], INTR)
+    _, _, found = fit_floor_plane(points, depth[None] > 0, SegmentationConfig())
+    assert not found.any()
+
+
+def test_benchmark_reports_positive_times():
+    from runtime.segmentation_benchmark import benchmark_segmentation
+
+    times = benchmark_segmentation(frames=2, stride=1)
+    assert set(times) == {"segment_person_ms", "segment_person_batch_ms"}
+    assert all(math.isfinite(t) and t > 0 for t in times.values())
