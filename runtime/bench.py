@@ -126,6 +126,12 @@ def main(argv: list[str] | None = None) -> None:
         print(f"\n== kinematics on {name} ==")
         for what, ms, note in bench_kinematics(args.batch, dev):
             print(f"  {what:<45s} {ms:9.3f} ms  {note}")
+        if dev == "cpu":
+            from runtime.segmentation_benchmark import benchmark_segmentation
+
+            seg = benchmark_segmentation()
+            print("\n== person segmentation (CPU, numpy/OpenCV), 320x240 demo frames ==")
+            print(f"  {'segment_person, one frame':<45s} {seg['segment_person_ms']:9.3f} ms")
         print(f"\n== tracker on {name} (cylinder-model walk, 320x240 in, 160x120 working) ==")
         for what, ms, note in bench_tracker(dev):
             print(f"  {what:<45s} {ms:9.3f} ms  {note}")
