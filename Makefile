@@ -1,16 +1,27 @@
-# depthmocap: the two commands a newcomer needs are `make demo` (once the runtime lands:
-# set up, then run the main job) and `make test`. Everything runs from the repo's .venv.
+# depthmocap: the two commands a newcomer needs are `make demo` (sets up, then runs the main
+# job on a built-in synthetic sequence) and `make test`. Everything runs from the repo's .venv.
 PY := .venv/bin/python
 SETUP_STAMP := .venv/.setup-stamp
 export PYTHONUNBUFFERED := 1
 
-.PHONY: setup test lint format bench clean synth dev-recordings train-forest train-forest-eval
+.PHONY: setup demo test lint format bench clean synth dev-recordings train-forest train-forest-eval
 
 setup: ## create .venv, install system packages (root), torch and the project with all extras
 	@bash scripts/setup.sh
 
 $(SETUP_STAMP): pyproject.toml scripts/setup.sh
 	@bash scripts/setup.sh
+
+DEMO := out/demo
+demo: $(SETUP_STAMP) ## set up if needed; render a demo recording, track it, evaluate it
+	$(PY) -m train.synth_cli --sequence --motion wave --frames 120 --seed 1 --overwrite \
+		--quiet --out $(DEMO)/recording
+	$(PY) -m runtime.track_cli --input $(DEMO)/recording --output $(DEMO)/result \
+		--mode hybrid --config configs/hybrid.yaml --save-overlays
+	$(PY) -m train.eval_cli --recording $(DEMO)/recording --result $(DEMO)/result \
+		--json $(DEMO)/metrics.json
+	@echo "demo outputs: $(DEMO)/result (poses.jsonl, motion.bvh, summary.json, overlays/),"
+	@echo "  metrics $(DEMO)/metrics.json, plot $(DEMO)/result/evaluation.png"
 
 test: $(SETUP_STAMP) ## lint, then the whole test suite
 	$(PY) -m ruff check .
