@@ -1,0 +1,283 @@
+"""Per-pixel body-part posteriors from a trained forest (Wei 2012 section 4.1, eq. 13).
+
+Which pixels: those in the person ``mask`` (from ``runtime.segmentation``) that have a depth
+reading. Every probe that lands outside the mask, on a pixel without a reading, or off the
+image reads the forest's background constant (10 m), as in training. Posteriors are the mean
+over trees of the leaf class distributions; ``labels`` is their arg-max (0 = background outside
+the mask).
+
+Backends:
+
+- ``torch`` (CPU or CUDA, follows ``device``): all (pixel, tree) pairs descend together, one
+  level per step, with one row gather from the node table (:func:`shared.forest_format.
+  traversal_table`) and one depth gather per step. Leaves point to themselves, so there is no
+  per-pixel test; every few levels the pairs that reached a leaf are dropped (cheap on the CPU,
+  where work is proportional to the pairs).
+- ``onnxruntime``: the ONNX graph stored in the artifact (``train-forest`` embeds it; see
+  ``train/forest/onnx_export.py``) with the node and leaf tables fed as inputs; CPU execution.
+  Same arithmetic, same labels.
+
+Another camera: the artifact records the focal lengths it was trained for. Pass the runtime
+camera's ``intrinsics`` and offsets are scaled by ``(fx'/fx, fy'/fy)`` so that each probe keeps
+its metric distance in the scene (e.g. a 320x240 forest on a 640x480 stream). Accuracy is best at
+the trained resolution; ``stride`` > 1 classifies every stride-th pixel in both directions (the
+detector needs part centroids, not every pixel), a 4x saving at stride 2.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from shared.camera import Intrinsics
+from shared.forest_format import Forest, load_forest, traversal_table
+
+__all__ = ["ForestClassifier", "traverse", "load_classifier"]
+
+_COMPACT_EVERY = 4  # levels between dropping (pixel, tree) pairs that sit on a leaf
+
+
+def traverse(
+    table: torch.Tensor,
+    roots: torch.Tensor,
+    padded_flat: torch.Tensor,
+    lin0: torch.Tensor,
+    invd4: torch.Tensor,
+    base4: torch.Tensor,
+    hi4: torch.Tensor,
+    wp: int,
+    levels: int,
+    is_leaf: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """Leaf node reached by every (pixel, tree) pair.
+
+    Args:
+        table: (Nn, 8) float32 node table (``traversal_table``).
+        roots: (T,) int64 root nodes.
+        padded_flat: flattened (B, H + 2, W + 2) float32 depth, background outside the person.
+        lin0: (N,) int64 flat index of each pixel's frame origin in ``padded_flat``.
+        invd4: (N, 4) float32 (sx / D, sy / D, sx / D, sy / D) at each pixel.
+        base4: (N, 4) float32 (x + 1.5, y + 1.5, x + 1.5, y + 1.5) at each pixel (padded
+            coordinates plus 0.5 for rounding to the nearest pixel).
+        hi4: (4,) float32 (W + 1, H + 1, W + 1, H + 1), the last padded column/row.
+        wp: padded row length W + 2.
+        levels: steps to take (the forest's max depth).
+        is_leaf: (Nn,) bool; when given, pairs that reached a leaf are dropped every few levels
+            (pays off on the CPU, where the work is proportional to the pairs).
+    Returns:
+        (N, T) int32 leaf node of each pair.
+    """
+    n, t = lin0.shape[0], roots.shape[0]
+    m = n * t
+    node = roots.to(torch.int32).repeat(n)  # pair p * T + tree
+    inv = invd4.repeat_interleave(t, dim=0)
+    base = base4.repeat_interleave(t, dim=0)
+    # Frame offsets are added after the float part, so any batch size is exact.
+    l0 = None if not bool(lin0.any()) else lin0.repeat_interleave(t).view(-1, 1)
+    out = torch.empty(m, dtype=torch.int32, device=node.device)
+    slot = torch.arange(m, device=node.device)
+    for level in range(levels):
+        row = table.index_select(0, node)  # (M, 8)
+        c = torch.minimum((row[:, 0:4] * inv + base).clamp_(min=0.0), hi4).floor_()
+        lin = (c[:, 1::2] * wp).add_(c[:, 0::2])  # (M, 2) exact integers in float32 (< 2**24)
+        lin = lin.to(torch.int64) if l0 is None else lin.to(torch.int64) + l0
+        d = padded_flat.index_select(0, lin.view(-1)).view(-1, 2)
+        node = torch.where(d[:, 0] - d[:, 1] > row[:, 4], row[:, 6], row[:, 5]).to(torch.int32)
+        if is_leaf is not None and (level + 1) % _COMPACT_EVERY == 0 and level + 1 < levels:
+            moving = ~is_leaf[node]
+            if not bool(moving.all()):
+                done = ~moving
+                out[slot[done]] = node[done]
+                node, slot = node[moving], slot[moving]
+                inv, base = inv[moving], base[moving]
+                l0 = None if l0 is None else l0[moving]
+                if node.numel() == 0:
+                    break
+    out[slot] = node
+    return out.view(n, t)
+
+
+class ForestClassifier:
+    """Per-pixel posteriors of a forest; see the module docstring.
+
+    Args:
+        forest: a loaded :class:`Forest`.
+        device: torch device of the torch backend (inputs are moved to it).
+        backend: ``"torch"`` or ``"onnxruntime"``.
+        intrinsics: runtime camera; offsets are rescaled when its focal lengths differ from the
+            trained camera's.
+        threads: CPU threads of the onnxruntime session (torch uses its global setting).
+    """
+
+    def __init__(
+        self,
+        forest: Forest,
+        device: str | torch.device = "cpu",
+        backend: str = "torch",
+        intrinsics: Intrinsics | None = None,
+        threads: int = 2,
+    ) -> None:
+        if backend not in ("torch", "onnxruntime"):
+            raise ValueError(f"backend must be 'torch' or 'onnxruntime', not {backend!r}")
+        self.forest = forest
+        self.backend = backend
+        self.device = torch.device(device)
+        self.levels = forest.max_depth
+        if intrinsics is None:
+            self.scale = (1.0, 1.0)
+        else:
+            self.scale = forest.offset_scale(intrinsics.fx, intrinsics.fy)
+        self.background = float(forest.background_m)
+        table = traversal_table(forest)
+        self._table_np = table
+        self.table = torch.from_numpy(table).to(self.device)
+        self.is_leaf = torch.from_numpy(forest.left < 0).to(self.device)
+        self.roots = torch.from_numpy(forest.roots.astype(np.int64)).to(self.device)
+        self.leaf_dist = torch.from_numpy(forest.leaf_dist.astype(np.float32)).to(self.device)
+        self._session = None
+        if backend == "onnxruntime":
+            self._session = self._make_session(threads)
+
+    @property
+    def num_classes(self) -> int:
+        return self.forest.num_classes
+
+    # ---------------------------------------------------------------- onnxruntime backend
+
+    def _make_session(self, threads: int):
+        if self.forest.onnx_graph is None:
+            raise ValueError(
+                "this forest artifact has no embedded ONNX graph; re-save it with train-forest "
+                "(or use backend='torch')"
+            )
+        try:
+            import onnxruntime as ort
+        except ImportError as exc:
+            raise ValueError(
+                "backend 'onnxruntime' needs the onnxruntime package (pip install onnxruntime)"
+            ) from exc
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = threads
+        opts.inter_op_num_threads = 1
+        return ort.InferenceSession(
+            self.forest.onnx_graph, opts, providers=["CPUExecutionProvider"]
+        )
+
+    def _onnx_posteriors(self, depth: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        feeds = {
+            "depth": depth.astype(np.float32, copy=False),
+            "mask": mask.astype(bool, copy=False),
+            "offset_scale": np.asarray(self.scale, dtype=np.float32),
+            "node_table": self._table_np,
+            "leaf_dist": self.forest.leaf_dist,
+            "roots": self.forest.roots.astype(np.int64),
+        }
+        return self._session.run(["posteriors"], feeds)[0]
+
+    # ---------------------------------------------------------------- public API
+
+    def _prepare(self, depth_m: torch.Tensor, mask: torch.Tensor, stride: int):
+        depth_m = torch.as_tensor(depth_m)
+        mask = torch.as_tensor(mask)
+        if depth_m.ndim not in (2, 3) or mask.shape != depth_m.shape:
+            raise ValueError(
+                f"depth (H, W) or (B, H, W) and a mask of the same shape expected, got "
+                f"{tuple(depth_m.shape)} and {tuple(mask.shape)}"
+            )
+        single = depth_m.ndim == 2
+        depth_m = depth_m.to(self.device, torch.float32)
+        mask = mask.to(self.device, torch.bool)
+        if single:
+            depth_m, mask = depth_m[None], mask[None]
+        valid = mask & (depth_m > 0) & torch.isfinite(depth_m)
+        if stride > 1:
+            sub = torch.zeros_like(valid)
+            sub[:, ::stride, ::stride] = True
+            valid &= sub
+        return depth_m, valid, single
+
+    def pixel_posteriors(
+        self, depth_m: torch.Tensor, mask: torch.Tensor, stride: int = 1
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Posteriors of the classified pixels.
+
+        Args:
+            depth_m: (H, W) or (B, H, W) depth in metres, 0 = no reading.
+            mask: bool person mask of the same shape.
+            stride: classify only pixels whose row and column are multiples of ``stride``.
+        Returns:
+            pixels (N, 3) int64 (frame, row, col) in row-major order, posteriors (N, C) float32.
+        """
+        depth, valid, _ = self._prepare(depth_m, mask, stride)
+        b, h, w = depth.shape
+        pix = torch.nonzero(valid)
+        if pix.shape[0] == 0:
+            return pix, torch.zeros(0, self.num_classes, device=self.device)
+        if self.backend == "onnxruntime":
+            probs = [
+                torch.from_numpy(
+                    self._onnx_posteriors(depth[i].cpu().numpy(), valid[i].cpu().numpy())
+                )
+                for i in range(b)  # one image per ONNX call: the graph takes (H, W)
+            ]
+            return pix, torch.cat(probs).to(self.device)
+        return pix, self._torch_posteriors(depth, valid, pix)
+
+    def _torch_posteriors(self, depth, valid, pix) -> torch.Tensor:
+        b, h, w = depth.shape
+        hp, wp = h + 2, w + 2
+        dev = self.device
+        person = torch.where(valid, depth, self.background)
+        padded = torch.nn.functional.pad(person, (1, 1, 1, 1), value=self.background)
+        pf = pix.to(torch.float32)
+        dx = depth[pix[:, 0], pix[:, 1], pix[:, 2]]
+        scale = torch.tensor(self.scale, dtype=torch.float32, device=dev)
+        invd2 = scale.view(1, 2) / dx.view(-1, 1)
+        invd4 = invd2.repeat(1, 2)
+        base2 = torch.stack([pf[:, 2], pf[:, 1]], dim=1) + 1.5
+        base4 = base2.repeat(1, 2)
+        hi4 = torch.tensor([w + 1, h + 1, w + 1, h + 1], dtype=torch.float32, device=dev)
+        lin0 = pix[:, 0] * (hp * wp)
+        leaves = traverse(
+            self.table, self.roots, padded.reshape(-1), lin0, invd4, base4, hi4, wp,
+            self.levels, self.is_leaf if dev.type == "cpu" else None,
+        )  # fmt: skip
+        rows = self.table[:, 7].index_select(0, leaves.view(-1)).to(torch.int64)
+        return self.leaf_dist.index_select(0, rows).view(*leaves.shape, -1).mean(1)
+
+    def posteriors(self, depth_m: torch.Tensor, mask: torch.Tensor, stride: int = 1):
+        """Dense posteriors: (C, H, W) for an (H, W) input, (B, C, H, W) for (B, H, W); zero at
+        pixels that were not classified."""
+        pix, probs = self.pixel_posteriors(depth_m, mask, stride)
+        shape = torch.as_tensor(depth_m).shape
+        single = len(shape) == 2
+        b, h, w = (1, *shape) if single else shape
+        out = torch.zeros(b, h, w, self.num_classes, device=self.device)
+        out[pix[:, 0], pix[:, 1], pix[:, 2]] = probs
+        out = out.permute(0, 3, 1, 2)
+        return out[0] if single else out
+
+    def labels(self, depth_m: torch.Tensor, mask: torch.Tensor, stride: int = 1) -> torch.Tensor:
+        """Arg-max class per pixel: (H, W) or (B, H, W) int64, 0 where not classified."""
+        pix, probs = self.pixel_posteriors(depth_m, mask, stride)
+        shape = torch.as_tensor(depth_m).shape
+        single = len(shape) == 2
+        b, h, w = (1, *shape) if single else shape
+        out = torch.zeros(b, h, w, dtype=torch.int64, device=self.device)
+        out[pix[:, 0], pix[:, 1], pix[:, 2]] = probs.argmax(1)
+        return out[0] if single else out
+
+
+def load_classifier(
+    path: str | Path,
+    device: str | torch.device = "cpu",
+    backend: str = "torch",
+    intrinsics: Intrinsics | None = None,
+    expected_classes: tuple[str, ...] | None = None,
+) -> ForestClassifier:
+    """:func:`load_forest` (clear errors for bad artifacts) and a :class:`ForestClassifier`."""
+    return ForestClassifier(
+        load_forest(path, expected_classes), device=device, backend=backend, intrinsics=intrinsics
+    )

@@ -1,0 +1,173 @@
+"""Forest inference: torch and onnxruntime backends agree with each other and with training's
+reference predictor, across save/load and ONNX export; batches, strides, camera scaling."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from runtime.forest.benchmark import benchmark_forest, person_frame
+from runtime.forest.inference import ForestClassifier, load_classifier
+from shared.camera import Intrinsics
+from shared.forest_format import ForestFormatError, save_forest
+from shared.labels import PART_NAMES
+from train.forest.config import ForestConfig
+from train.forest.onnx_export import embedded_graph, export_onnx
+from train.forest.predict import predict_posteriors
+from train.forest.trainer import train_forest
+from train.trainset import Shard, TrainSet, write_manifest, write_shard
+
+INTR = Intrinsics(80, 60, 62.0, 62.0, 39.5, 29.5)
+
+
+def frames(n: int, seed: int):
+    """Blobs of 19 part classes in random layouts (not separable: exercises deep trees)."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:60, 0:80]
+    depth = np.zeros((n, 60, 80), np.uint16)
+    labels = np.zeros((n, 60, 80), np.uint8)
+    for i in range(n):
+        z = rng.uniform(1.8, 3.0)
+        cx, cy = rng.uniform(25, 55), rng.uniform(20, 40)
+        body = ((xx - cx) / 14) ** 2 + ((yy - cy) / 22) ** 2 < 1
+        part = 1 + ((np.arctan2(yy - cy, xx - cx) + np.pi) / (2 * np.pi) * 19).astype(int) % 19
+        d = z + 0.05 * np.cos((xx - cx) / 5) + 0.01 * rng.standard_normal((60, 80))
+        depth[i] = np.where(body, d * 1000, 3500).astype(np.uint16)
+        labels[i] = np.where(body, part, 0)
+        depth[i, rng.integers(0, 60, 20), rng.integers(0, 80, 20)] = 0  # missing readings
+    return depth, labels
+
+
+@pytest.fixture(scope="module")
+def forest(tmp_path_factory):
+    root = tmp_path_factory.mktemp("set")
+    depth, labels = frames(24, 0)
+    shards = []
+    for k in range(2):
+        s = slice(12 * k, 12 * k + 12)
+        sh = Shard(depth[s], labels[s], np.zeros((12, 16, 3), np.float32),
+                   np.zeros((12, 34), np.float32), np.zeros(12, np.int32),
+                   np.array([INTR.fx, INTR.fy, INTR.cx, INTR.cy]))  # fmt: skip
+        shards.append(
+            {"file": f"s{k}.npz", "frames": 12, "sha256": write_shard(root / f"s{k}.npz", sh)}
+        )
+    write_manifest(root, INTR, shards, np.bincount(labels.ravel(), minlength=20), 0, {})
+    cfg = ForestConfig(
+        trees=3, max_depth=12, min_samples=2, feature_pool=48, candidates_per_node=24,
+        thresholds_per_candidate=16, pixels_per_frame=300, threads=1, device="cpu",
+    )  # fmt: skip
+    f = train_forest(TrainSet(root), cfg, log=None)
+    f.onnx_graph = embedded_graph(f)
+    return f
+
+
+@pytest.fixture(scope="module")
+def test_frames():
+    depth, labels = frames(4, 7)
+    return torch.from_numpy(depth.astype(np.float32) / 1000.0), torch.from_numpy(labels) > 0
+
+
+def test_torch_backend_matches_training_reference(forest, test_frames):
+    d, m = test_frames
+    clf = ForestClassifier(forest, "cpu")
+    pix, post = clf.pixel_posteriors(d, m)
+    ref_pix, ref_post = predict_posteriors(forest, d, m)
+    assert torch.equal(pix, ref_pix) and torch.equal(post, ref_post)
+    assert len(pix) == int((m & (d > 0)).sum()) and forest.max_depth > 6
+
+
+def test_batch_single_dense_and_labels_agree(forest, test_frames):
+    d, m = test_frames
+    clf = ForestClassifier(forest)
+    dense = clf.posteriors(d, m)
+    assert dense.shape == (4, 20, 60, 80)
+    single = clf.posteriors(d[1], m[1])
+    assert single.shape == (20, 60, 80) and torch.equal(single, dense[1])
+    lab = clf.labels(d, m)
+    valid = m & (d > 0)
+    assert torch.equal(lab[valid], dense.argmax(1)[valid]) and (lab[~valid] == 0).all()
+
+
+def test_onnxruntime_backend_gives_the_same_labels(forest, test_frames):
+    pytest.importorskip("onnxruntime")
+    d, m = test_frames
+    pix_t, post_t = ForestClassifier(forest).pixel_posteriors(d, m)
+    pix_o, post_o = ForestClassifier(forest, backend="onnxruntime", threads=1).pixel_posteriors(
+        d, m
+    )
+    assert torch.equal(pix_t, pix_o)
+    assert torch.equal(post_t.argmax(1), post_o.argmax(1))
+    assert torch.allclose(post_t, post_o, atol=1e-6)
+
+
+def test_standalone_onnx_file_and_save_load_round_trip(forest, test_frames, tmp_path):
+    ort = pytest.importorskip("onnxruntime")
+    d, m = test_frames
+    save_forest(tmp_path / "f.npz", forest)
+    clf = load_classifier(tmp_path / "f.npz", expected_classes=PART_NAMES)
+    pix, post = ForestClassifier(forest).pixel_posteriors(d, m)
+    pix2, post2 = clf.pixel_posteriors(d, m)
+    assert torch.equal(pix, pix2) and torch.equal(post, post2)
+    export_onnx(clf.forest, tmp_path / "f.onnx")
+    sess = ort.InferenceSession(str(tmp_path / "f.onnx"), providers=["CPUExecutionProvider"])
+    frame0 = pix[:, 0] == 0
+    probs, labels, pixels = sess.run(None, {"depth": d[0].numpy(), "mask": m[0].numpy()})
+    assert np.array_equal(pixels, pix[frame0, 1:].numpy())
+    assert np.array_equal(labels, post[frame0].argmax(1).numpy())
+    assert np.allclose(probs, post[frame0].numpy(), atol=1e-6)
+
+
+def test_bad_artifact_gives_clear_error(tmp_path):
+    (tmp_path / "f.npz").write_bytes(b"PK\x03\x04 broken")
+    with pytest.raises(ForestFormatError, match="truncated or corrupt"):
+        load_classifier(tmp_path / "f.npz")
+
+
+def test_stride_and_camera_scaling(forest, test_frames):
+    d, m = test_frames
+    clf = ForestClassifier(forest)
+    pix, _ = clf.pixel_posteriors(d, m, stride=2)
+    assert (pix[:, 1:] % 2 == 0).all() and len(pix) > 0
+    # The same scene seen by a camera of twice the resolution (and focal length): offsets are
+    # scaled to the same metric displacement, so labels carry over far better than unscaled.
+    big = Intrinsics(160, 120, 124.0, 124.0, 79.5, 59.5)
+    clf2 = ForestClassifier(forest, intrinsics=big)
+    assert clf2.scale == (2.0, 2.0)
+    up_d = d.repeat_interleave(2, 1).repeat_interleave(2, 2)
+    up_m = m.repeat_interleave(2, 1).repeat_interleave(2, 2)
+    lab = clf.labels(d, m)
+    lab2 = clf2.labels(up_d, up_m)[:, ::2, ::2]
+    unscaled = clf.labels(up_d, up_m)[:, ::2, ::2]
+    valid = m & (d > 0)
+    agree = (lab2[valid] == lab[valid]).float().mean()
+    assert agree > 0.5 and agree > (unscaled[valid] == lab[valid]).float().mean() + 0.1
+
+
+def test_empty_mask_and_bad_shapes(forest):
+    clf = ForestClassifier(forest)
+    pix, post = clf.pixel_posteriors(torch.ones(60, 80), torch.zeros(60, 80, dtype=torch.bool))
+    assert pix.shape == (0, 3) and post.shape == (0, 20)
+    with pytest.raises(ValueError, match="same shape"):
+        clf.labels(torch.ones(60, 80), torch.ones(60, 81, dtype=torch.bool))
+    with pytest.raises(ValueError, match="backend"):
+        ForestClassifier(forest, backend="tensorrt")
+
+
+def test_benchmark_reports_milliseconds(forest, tmp_path):
+    save_forest(tmp_path / "f.npz", forest)
+    res = benchmark_forest(tmp_path / "f.npz", threads=1, repeats=2)
+    assert res["torch_cpu_ms"] > 0 and res["torch_cpu_stride2_ms"] > 0 and res["pixels"] > 1000
+    assert "onnxruntime_ms" in res
+    assert benchmark_forest(tmp_path / "missing.npz") == {}
+    depth, mask = person_frame()
+    assert depth.shape == (240, 320) and (depth[mask] > 2).all() and (depth[~mask] == 0).all()
+
+
+def test_default_model_path_points_into_models():
+    from runtime.forest.benchmark import DEFAULT_MODEL
+
+    assert (
+        DEFAULT_MODEL.parent.name == "models"
+        and DEFAULT_MODEL.parent.parent == Path(__file__).resolve().parents[2]
+    )
