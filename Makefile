@@ -13,11 +13,14 @@ $(SETUP_STAMP): pyproject.toml scripts/setup.sh
 	@bash scripts/setup.sh
 
 DEMO := out/demo
-demo: $(SETUP_STAMP) ## set up if needed; render a demo recording, track it, evaluate it
+demo: $(SETUP_STAMP) ## set up if needed; render a person, personalize their body, track, evaluate
 	$(PY) -m train.synth_cli --sequence --motion wave --frames 120 --seed 1 --overwrite \
 		--quiet --out $(DEMO)/recording
+	$(PY) -m train.personalize_views --out $(DEMO)/views --phenotype-from $(DEMO)/recording \
+		--seed 7 --overwrite
+	$(PY) -m runtime.personalize_cli --input $(DEMO)/views --output $(DEMO)/body.json
 	$(PY) -m runtime.track_cli --input $(DEMO)/recording --output $(DEMO)/result \
-		--mode hybrid --config configs/hybrid.yaml --save-overlays
+		--mode hybrid --config configs/hybrid.yaml --body $(DEMO)/body.json --save-overlays
 	$(PY) -m train.eval_cli --recording $(DEMO)/recording --result $(DEMO)/result \
 		--json $(DEMO)/metrics.json
 	@echo "demo outputs: $(DEMO)/result (poses.jsonl, motion.bvh, summary.json, overlays/),"
