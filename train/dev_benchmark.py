@@ -95,9 +95,9 @@ def run_config(
            "--device", device]  # fmt: skip
     if body != "default":
         cmd += ["--body", str(body_file(body, rec, out.parent.parent / "bodies", model))]
-    cfg_path = mode_config
+    cfg_path = mode_config if mode == "hybrid" else None  # the hybrid's thresholds preset
     if overrides:
-        base = yaml.safe_load(mode_config.read_text()) if mode_config else {}
+        base = yaml.safe_load(cfg_path.read_text()) if cfg_path else {}
         cfg_path = out / "mode_config.yaml"
         cfg_path.write_text(yaml.safe_dump({**(base or {}), **overrides}))
     if cfg_path is not None:
@@ -144,7 +144,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
     p.add_argument("--model", default="models/forest.npz", help="forest for hybrid/detector")
     p.add_argument("--device", default="cpu", help="cpu or cuda")
-    p.add_argument("--mode-config", type=Path, help="YAML of mode settings for every run")
+    p.add_argument(
+        "--mode-config",
+        type=Path,
+        default=Path("configs/hybrid.yaml"),
+        help="YAML of the hybrid's settings (thresholds)",
+    )
     p.add_argument("--limit", type=int, help="use only the first N recordings")
     args = p.parse_args(argv)
     recs = sorted(d for d in Path(args.recordings).glob("*") if (d / "groundtruth.npz").is_file())
