@@ -132,6 +132,21 @@ def main(argv: list[str] | None = None) -> None:
             seg = benchmark_segmentation()
             print("\n== person segmentation (CPU, numpy/OpenCV), 320x240 demo frames ==")
             print(f"  {'segment_person, one frame':<45s} {seg['segment_person_ms']:9.3f} ms")
+            from runtime.forest.benchmark import benchmark_forest
+
+            fr = benchmark_forest(threads=args.threads)
+            if fr:
+                print(
+                    f"\n== forest inference (models/forest.npz: {fr['trees']:.0f} trees, depth "
+                    f"{fr['depth']:.0f}), {fr['pixels']:.0f} person pixels of a 320x240 frame =="
+                )
+                for key, what in (
+                    ("torch_cpu_ms", "torch CPU, every person pixel"),
+                    ("torch_cpu_stride2_ms", "torch CPU, every 2nd pixel (detector)"),
+                    ("onnxruntime_ms", "onnxruntime CPU, every person pixel"),
+                ):
+                    if key in fr:
+                        print(f"  {what:<45s} {fr[key]:9.3f} ms  target <= 10 ms")
         print(f"\n== tracker on {name} (cylinder-model walk, 320x240 in, 160x120 working) ==")
         for what, ms, note in bench_tracker(dev):
             print(f"  {what:<45s} {ms:9.3f} ms  {note}")
