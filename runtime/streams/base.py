@@ -118,16 +118,19 @@ class DepthStream(ABC):
     """
 
     source: str = "unknown"
+    # Set by every subclass's constructor.
+    _intrinsics: Intrinsics
+    _fps: float
 
     @property
-    @abstractmethod
     def intrinsics(self) -> Intrinsics:
         """Camera of every frame of this stream."""
+        return self._intrinsics
 
     @property
-    @abstractmethod
     def fps(self) -> float:
         """Nominal frames per second (pacing in real time, BVH frame time)."""
+        return self._fps
 
     @property
     def frame_count(self) -> int | None:

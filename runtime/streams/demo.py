@@ -94,7 +94,7 @@ class DemoStream(DepthStream):
         fps: float | None = None,
         seed: int = 0,
     ) -> None:
-        self._intr = intrinsics or Intrinsics.kinect_v1(320)
+        self._intrinsics = intrinsics or Intrinsics.kinect_v1(320)
         self._fps = float(fps or 30.0)
         self.body = BodyShape.default(torch.float64)
         rot, trans = _camera_from_world()
@@ -110,14 +110,6 @@ class DemoStream(DepthStream):
         self._seed = seed
 
     @property
-    def intrinsics(self) -> Intrinsics:
-        return self._intr
-
-    @property
-    def fps(self) -> float:
-        return self._fps
-
-    @property
     def frame_count(self) -> int:
         return len(self._range)
 
@@ -131,14 +123,14 @@ class DemoStream(DepthStream):
         for start in range(0, len(idx), 16):
             chunk = idx[start : start + 16]
             q = self._q[chunk].to(torch.float32)
-            depth = render_body_depth(q, body, self._intr)
+            depth = render_body_depth(q, body, self._intrinsics)
             if floor is None:
-                floor = _floor_depth(self._intr, depth)
+                floor = _floor_depth(self._intrinsics, depth)
             nearer = (floor > 0) & ((depth == 0) | (floor < depth))
             depth = torch.where(nearer, floor.expand_as(depth), depth)
             depth_mm = (kinect_like(depth, gen) * 1000.0).round().clamp(0, 65535)
             for i, d in zip(chunk, depth_mm.to(torch.int32).numpy().astype(np.uint16)):
-                yield DepthFrame(i, i / self._fps, d, self._intr)
+                yield DepthFrame(i, i / self._fps, d, self._intrinsics)
 
 
 def open_demo_stream(

@@ -134,14 +134,6 @@ class ImageFolderStream(DepthStream):
         return check_frame_shape(image, self._intrinsics, str(path))
 
     @property
-    def intrinsics(self) -> Intrinsics:
-        return self._intrinsics
-
-    @property
-    def fps(self) -> float:
-        return self._fps
-
-    @property
     def frame_count(self) -> int:
         return len(self._indices)
 

@@ -188,14 +188,6 @@ class OpenNIStream(DepthStream):
         return Intrinsics.kinect_v1(640).resized(w, h)
 
     @property
-    def intrinsics(self) -> Intrinsics:
-        return self._intrinsics
-
-    @property
-    def fps(self) -> float:
-        return self._fps
-
-    @property
     def frame_count(self) -> int | None:
         if self._count is None:
             return None

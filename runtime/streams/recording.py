@@ -38,16 +38,9 @@ class RecordingStream(DepthStream):
                 )
             own = intrinsics
         self._intrinsics = own
+        self._fps = self.recording.fps
         self._indices = frame_range.clip(len(self.recording))
         self.source = f"recording:{Path(path).resolve()}"
-
-    @property
-    def intrinsics(self) -> Intrinsics:
-        return self._intrinsics
-
-    @property
-    def fps(self) -> float:
-        return self.recording.fps
 
     @property
     def frame_count(self) -> int:
