@@ -204,7 +204,8 @@ def _cast(
     zab = (geom.span / geom.scale[..., 2:]).expand(B, -1, -1)
     table = torch.cat([m.reshape(B, K, 9), o, zab], -1)  # (B, K, 14)
     # Channel-first gather: every component below is a contiguous (B, P) tensor.
-    row = table.index_select(1, seg).permute(2, 0, 1).contiguous()  # (14, B, P)
+    # Transposing the small table first makes the gather write channel-first rows directly.
+    row = table.permute(2, 0, 1).contiguous().index_select(2, seg)  # (14, B, P)
     rx, ry, rz = rays.unbind(-1)
     dx = row[0] * rx + row[1] * ry + row[2] * rz
     dy = row[3] * rx + row[4] * ry + row[5] * rz
@@ -251,7 +252,7 @@ def _hit_details(
         [a_mat.reshape(B, K, 9), kin.origins, scale, span, basis.reshape(B, K, 9)], -1
     )  # (B, K, 26)
     flat = (segment + K * torch.arange(B, device=points.device)[:, None]).reshape(-1)
-    row = table.reshape(B * K, -1).index_select(0, flat).T.contiguous().reshape(-1, B, N)
+    row = table.reshape(B * K, -1).T.contiguous().index_select(1, flat).reshape(-1, B, N)
     a_r = row[0:9]
     rel = points.permute(2, 0, 1) - row[9:12]  # (3, B, N)
     coords = torch.stack(
