@@ -243,13 +243,38 @@ def detect_pose(
     q, refined = q_ik, None
     if tracker is not None and getattr(tracker.cfg, "iterations", 1) > 0:
         ref_mask = use if mask is None else mask.to(device=dev, dtype=torch.bool)
-        refined = tracker.step(depth, ref_mask, q_ik, None)
+        # The forest confuses left and right limbs (about a fifth of forearm and shank pixels),
+        # which IK turns into crossed legs or arms; refine the pose with each pair of limbs
+        # swapped too and keep the one that explains the depth best.
+        for cand in limb_swaps(q_ik):
+            res = tracker.step(depth, ref_mask, cand, None)
+            if refined is None or (res.depth_error_cm, -res.overlap) < (
+                refined.depth_error_cm, -refined.overlap
+            ):
+                refined = res
         q = refined.q.to(q_ik)
     joints = named_joint_positions(forward_kinematics(q[None], body))[0]
     return DetectionResult(
         True, q, q_ik, joints, cen.targets, cen.weights, cen.counts, float(ik.rms[best]),
         kept, n_lab, refined,
     )  # fmt: skip
+
+
+# Left/right DoF slots of each limb pair (right-side axes mirror the left ones, so equal
+# angles are mirror motions and swapping the slots swaps the limbs).
+_LEG_SLOTS = ([26, 27, 28, 32], [29, 30, 31, 33])
+_ARM_SLOTS = ([14, 15, 18, 19, 20, 24], [16, 17, 21, 22, 23, 25])
+
+
+def limb_swaps(q: torch.Tensor) -> list[torch.Tensor]:
+    """``q`` (34,) and its variants with the legs, the arms, or both swapped left/right."""
+    out = [q]
+    for slots in (_LEG_SLOTS, _ARM_SLOTS, None):
+        swapped = q.clone()
+        for left, right in ((_LEG_SLOTS, _ARM_SLOTS) if slots is None else (slots,)):
+            swapped[left], swapped[right] = q[right], q[left]
+        out.append(swapped)
+    return out
 
 
 class Detector:

@@ -197,3 +197,15 @@ def test_modes_need_a_model(tmp_path):
     for mode in ("detector", "shotton"):
         with pytest.raises(ValueError):
             make_estimator(mode, tmp_path / "missing.npz", BODY, INTR)
+
+
+def test_limb_swaps_mirror_legs_and_arms():
+    from runtime.detector.detect import limb_swaps
+
+    q = torch.arange(34, dtype=torch.float64)
+    base, legs, arms, both = limb_swaps(q)
+    assert torch.equal(base, q)
+    assert legs[26] == 29 and legs[29] == 26 and legs[32] == 33 and legs[18] == 18
+    assert arms[18] == 21 and arms[25] == 24 and arms[26] == 26
+    assert both[26] == 29 and both[21] == 18
+    assert torch.equal(limb_swaps(both)[3], q)  # swapping twice is the identity
