@@ -94,6 +94,7 @@ def _forest_error_types() -> tuple[type[BaseException], ...]:
 def _input_errors() -> tuple[type[BaseException], ...]:
     """Exception types that mean bad input (exit 2, one line)."""
     from .estimator import EstimatorUnavailable
+    from .live_view import LiveViewError
 
     try:
         from .export.results import ResultDirError
@@ -107,6 +108,7 @@ def _input_errors() -> tuple[type[BaseException], ...]:
         RecordingError,
         ConfigError,
         EstimatorUnavailable,
+        LiveViewError,
         *_forest_error_types(),
         *extra,
     )
@@ -162,6 +164,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="write OUTPUT/overlays/NNNNNN.png: depth, part labels or mask, skeleton",
     )
     o.add_argument("--quiet", "-q", action="store_true", help="no progress line")
+    o.add_argument(
+        "--view",
+        nargs="?",
+        const="",
+        metavar="FILE.rrd",
+        help="live 3D view in rerun (needs rerun-sdk); with a file name, save the .rrd instead",
+    )
     s = p.add_argument_group("person segmentation")
     s.add_argument("--segmentation-config", type=Path, help="YAML preset of the options below")
     add_cli_args(s, SegmentationConfig)
@@ -388,6 +397,7 @@ def track(
     progress: Progress | None = None,
     stop: threading.Event | None = None,
     stats: TrackStats | None = None,
+    view=None,
 ) -> TrackStats:
     """Run the pipeline over ``stream``, writing every frame to ``writer``.
 
@@ -430,6 +440,8 @@ def track(
             stats.frames += 1
             stats.status_counts[est.status] = stats.status_counts.get(est.status, 0) + 1
             stats.last_index = frame.index
+            if view is not None:
+                view.log_frame(frame, mask, est)
             if overlay_dir is not None:
                 import cv2
 
@@ -509,6 +521,11 @@ def _run(args: argparse.Namespace) -> int:
             raise TrackError(str(err)) from None
         from .export.results import ResultWriter
 
+        view = None
+        if args.view is not None:
+            from .live_view import LiveView
+
+            view = LiveView(args.view or None)
         writer = ResultWriter(
             args.output, body, stream.fps, stream.intrinsics, args.mode, stream.source
         )
@@ -545,6 +562,7 @@ def _run(args: argparse.Namespace) -> int:
                     progress=progress,
                     stop=stop,
                     stats=stats,
+                    view=view,
                 )
             if stop.is_set():
                 note = "interrupted"
