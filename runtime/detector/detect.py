@@ -249,7 +249,8 @@ def detect_pose(
         for cand in limb_swaps(q_ik):
             res = tracker.step(depth, ref_mask, cand, None)
             if refined is None or (res.depth_error_cm, -res.overlap) < (
-                refined.depth_error_cm, -refined.overlap
+                refined.depth_error_cm,
+                -refined.overlap,
             ):
                 refined = res
         q = refined.q.to(q_ik)
@@ -271,7 +272,7 @@ def limb_swaps(q: torch.Tensor) -> list[torch.Tensor]:
     out = [q]
     for slots in (_LEG_SLOTS, _ARM_SLOTS, None):
         swapped = q.clone()
-        for left, right in ((_LEG_SLOTS, _ARM_SLOTS) if slots is None else (slots,)):
+        for left, right in (_LEG_SLOTS, _ARM_SLOTS) if slots is None else (slots,):
             swapped[left], swapped[right] = q[right], q[left]
         out.append(swapped)
     return out
