@@ -36,6 +36,7 @@ CONFIGS: dict[str, tuple[str, str, dict]] = {
     "tracker, personalized body": ("tracker", "personalized", {}),
     "tracker, calibrated body": ("tracker", "calibrated", {}),
     "hybrid": ("hybrid", "gt", {}),
+    "hybrid, personalized body": ("hybrid", "personalized", {}),
     "detector": ("detector", "gt", {}),
     "shotton": ("shotton", "gt", {}),
 }
