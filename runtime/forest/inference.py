@@ -33,70 +33,9 @@ import torch
 
 from shared.camera import Intrinsics
 from shared.forest_format import Forest, load_forest, traversal_table
+from shared.forest_walk import traverse, walk_posteriors
 
 __all__ = ["ForestClassifier", "traverse", "load_classifier"]
-
-_COMPACT_EVERY = 4  # levels between dropping (pixel, tree) pairs that sit on a leaf
-
-
-def traverse(
-    table: torch.Tensor,
-    roots: torch.Tensor,
-    padded_flat: torch.Tensor,
-    lin0: torch.Tensor,
-    invd4: torch.Tensor,
-    base4: torch.Tensor,
-    hi4: torch.Tensor,
-    wp: int,
-    levels: int,
-    is_leaf: torch.Tensor | None = None,
-) -> torch.Tensor:
-    """Leaf node reached by every (pixel, tree) pair.
-
-    Args:
-        table: (Nn, 8) float32 node table (``traversal_table``).
-        roots: (T,) int64 root nodes.
-        padded_flat: flattened (B, H + 2, W + 2) float32 depth, background outside the person.
-        lin0: (N,) int64 flat index of each pixel's frame origin in ``padded_flat``.
-        invd4: (N, 4) float32 (sx / D, sy / D, sx / D, sy / D) at each pixel.
-        base4: (N, 4) float32 (x + 1.5, y + 1.5, x + 1.5, y + 1.5) at each pixel (padded
-            coordinates plus 0.5 for rounding to the nearest pixel).
-        hi4: (4,) float32 (W + 1, H + 1, W + 1, H + 1), the last padded column/row.
-        wp: padded row length W + 2.
-        levels: steps to take (the forest's max depth).
-        is_leaf: (Nn,) bool; when given, pairs that reached a leaf are dropped every few levels
-            (pays off on the CPU, where the work is proportional to the pairs).
-    Returns:
-        (N, T) int32 leaf node of each pair.
-    """
-    n, t = lin0.shape[0], roots.shape[0]
-    m = n * t
-    node = roots.to(torch.int32).repeat(n)  # pair p * T + tree
-    inv = invd4.repeat_interleave(t, dim=0)
-    base = base4.repeat_interleave(t, dim=0)
-    # Frame offsets are added after the float part, so any batch size is exact.
-    l0 = None if not bool(lin0.any()) else lin0.repeat_interleave(t).view(-1, 1)
-    out = torch.empty(m, dtype=torch.int32, device=node.device)
-    slot = torch.arange(m, device=node.device)
-    for level in range(levels):
-        row = table.index_select(0, node)  # (M, 8)
-        c = torch.minimum((row[:, 0:4] * inv + base).clamp_(min=0.0), hi4).floor_()
-        lin = (c[:, 1::2] * wp).add_(c[:, 0::2])  # (M, 2) exact integers in float32 (< 2**24)
-        lin = lin.to(torch.int64) if l0 is None else lin.to(torch.int64) + l0
-        d = padded_flat.index_select(0, lin.view(-1)).view(-1, 2)
-        node = torch.where(d[:, 0] - d[:, 1] > row[:, 4], row[:, 6], row[:, 5]).to(torch.int32)
-        if is_leaf is not None and (level + 1) % _COMPACT_EVERY == 0 and level + 1 < levels:
-            moving = ~is_leaf[node]
-            if not bool(moving.all()):
-                done = ~moving
-                out[slot[done]] = node[done]
-                node, slot = node[moving], slot[moving]
-                inv, base = inv[moving], base[moving]
-                l0 = None if l0 is None else l0[moving]
-                if node.numel() == 0:
-                    break
-    out[slot] = node
-    return out.view(n, t)
 
 
 class ForestClassifier:
@@ -226,26 +165,12 @@ class ForestClassifier:
         return pix, self._torch_posteriors(depth, valid, pix)
 
     def _torch_posteriors(self, depth, valid, pix) -> torch.Tensor:
-        b, h, w = depth.shape
-        hp, wp = h + 2, w + 2
-        dev = self.device
-        person = torch.where(valid, depth, self.background)
-        padded = torch.nn.functional.pad(person, (1, 1, 1, 1), value=self.background)
-        pf = pix.to(torch.float32)
-        dx = depth[pix[:, 0], pix[:, 1], pix[:, 2]]
-        scale = torch.tensor(self.scale, dtype=torch.float32, device=dev)
-        invd2 = scale.view(1, 2) / dx.view(-1, 1)
-        invd4 = invd2.repeat(1, 2)
-        base2 = torch.stack([pf[:, 2], pf[:, 1]], dim=1) + 1.5
-        base4 = base2.repeat(1, 2)
-        hi4 = torch.tensor([w + 1, h + 1, w + 1, h + 1], dtype=torch.float32, device=dev)
-        lin0 = pix[:, 0] * (hp * wp)
-        leaves = traverse(
-            self.table, self.roots, padded.reshape(-1), lin0, invd4, base4, hi4, wp,
-            self.levels, self.is_leaf if dev.type == "cpu" else None,
+        # Dropping finished pairs pays off on the CPU, where work is proportional to pairs.
+        is_leaf = self.is_leaf if self.device.type == "cpu" else None
+        return walk_posteriors(
+            self.table, self.roots, self.leaf_dist, self.levels, self.background, depth, valid,
+            pix, self.scale, is_leaf,
         )  # fmt: skip
-        rows = self.table[:, 7].index_select(0, leaves.view(-1)).to(torch.int64)
-        return self.leaf_dist.index_select(0, rows).view(*leaves.shape, -1).mean(1)
 
     def posteriors(self, depth_m: torch.Tensor, mask: torch.Tensor, stride: int = 1):
         """Dense posteriors: (C, H, W) for an (H, W) input, (B, C, H, W) for (B, H, W); zero at
