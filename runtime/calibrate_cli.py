@@ -32,12 +32,11 @@ from .detector import (
     load_forest_labeler,
 )
 from .detector.detect import detect_pose
+from .forest.inference import DEFAULT_MODEL
 from .segmentation import segment_person
 from .streams import FrameRange, StreamError, describe_sources, open_stream
 
 __all__ = ["main", "build_parser", "CalibrateError"]
-
-DEFAULT_MODEL = Path(__file__).resolve().parents[1] / "models" / "forest.npz"
 
 
 class CalibrateError(ValueError):

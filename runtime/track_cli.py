@@ -38,6 +38,7 @@ from shared.recording import RecordingError
 from shared.skeleton import JOINT_NAMES
 
 from .estimator import MODES, MODES_NEEDING_MODEL, PoseEstimate, PoseEstimator, make_estimator
+from .forest.inference import DEFAULT_MODEL
 from .segmentation import SegmentationConfig, segment_person
 from .streams import (
     DepthStream,
@@ -58,7 +59,7 @@ __all__ = [
     "DEFAULT_MODEL",
 ]
 
-DEFAULT_MODEL = Path(__file__).resolve().parents[1] / "models" / "forest.npz"
+
 # Skeleton lines of the overlay images, between named joints.
 _BONES = (
     ("head", "neck"),

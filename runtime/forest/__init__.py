@@ -4,6 +4,6 @@
 person mask (torch on CPU/CUDA, or onnxruntime); ``benchmark_forest`` times both backends.
 """
 
-from .inference import ForestClassifier, load_classifier, traverse
+from .inference import DEFAULT_MODEL, ForestClassifier, load_classifier, traverse
 
-__all__ = ["ForestClassifier", "load_classifier", "traverse"]
+__all__ = ["DEFAULT_MODEL", "ForestClassifier", "load_classifier", "traverse"]

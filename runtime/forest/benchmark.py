@@ -18,11 +18,9 @@ import torch
 
 from shared.forest_format import load_forest
 
-from .inference import ForestClassifier
+from .inference import DEFAULT_MODEL, ForestClassifier
 
 __all__ = ["DEFAULT_MODEL", "person_frame", "benchmark_forest"]
-
-DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "forest.npz"
 
 
 def person_frame(width: int = 320, height: int = 240) -> tuple[np.ndarray, np.ndarray]:

@@ -35,7 +35,10 @@ from shared.camera import Intrinsics
 from shared.forest_format import Forest, load_forest, traversal_table
 from shared.forest_walk import traverse, walk_posteriors
 
-__all__ = ["ForestClassifier", "traverse", "load_classifier"]
+__all__ = ["DEFAULT_MODEL", "ForestClassifier", "traverse", "load_classifier"]
+
+# The forest shipped in the repository (models/README.md), used when no --model is given.
+DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "forest.npz"
 
 
 class ForestClassifier:
