@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["traverse", "walk_posteriors"]
+__all__ = ["traverse", "walk_leaf_rows", "walk_posteriors"]
 
 _COMPACT_EVERY = 4  # levels between dropping (pixel, tree) pairs that sit on a leaf
 
@@ -75,10 +75,9 @@ def traverse(
     return out.view(n, t)
 
 
-def walk_posteriors(
+def walk_leaf_rows(
     table: torch.Tensor,
     roots: torch.Tensor,
-    leaf_dist: torch.Tensor,
     levels: int,
     background: float,
     depth: torch.Tensor,
@@ -87,13 +86,16 @@ def walk_posteriors(
     scale: tuple[float, float] = (1.0, 1.0),
     is_leaf: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """Posteriors (N, C) of pixels ``pix`` (N, 3) (frame, row, col) averaged over the trees.
+    """Leaf row (index into ``leaf_dist``) reached by pixels ``pix`` (N, 3) in every tree.
 
     Args:
-        table, roots, levels, is_leaf: as in :func:`traverse`; leaf_dist: (L, C) float32.
+        table, roots, levels, is_leaf: as in :func:`traverse`.
         background: depth read by probes outside ``valid`` or off the image, metres.
         depth: (B, H, W) float32 metres; valid: (B, H, W) bool pixels that are the person.
+        pix: (N, 3) int64 (frame, row, col).
         scale: offset scale (fx'/fx, fy'/fy) of the camera against the trained one.
+    Returns:
+        (N, T) int64 leaf rows.
     """
     b, h, w = depth.shape
     hp, wp = h + 2, w + 2
@@ -111,5 +113,25 @@ def walk_posteriors(
     leaves = traverse(
         table, roots, padded.reshape(-1), lin0, invd4, base4, hi4, wp, levels, is_leaf
     )
-    rows = table[:, 7].index_select(0, leaves.view(-1)).to(torch.int64)
-    return leaf_dist.index_select(0, rows).view(*leaves.shape, -1).mean(1)
+    return table[:, 7].index_select(0, leaves.view(-1)).to(torch.int64).view(leaves.shape)
+
+
+def walk_posteriors(
+    table: torch.Tensor,
+    roots: torch.Tensor,
+    leaf_dist: torch.Tensor,
+    levels: int,
+    background: float,
+    depth: torch.Tensor,
+    valid: torch.Tensor,
+    pix: torch.Tensor,
+    scale: tuple[float, float] = (1.0, 1.0),
+    is_leaf: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """Posteriors (N, C) of pixels ``pix`` (N, 3) (frame, row, col) averaged over the trees.
+
+    Args:
+        leaf_dist: (L, C) float32; the others as in :func:`walk_leaf_rows`.
+    """
+    rows = walk_leaf_rows(table, roots, levels, background, depth, valid, pix, scale, is_leaf)
+    return leaf_dist.index_select(0, rows.view(-1)).view(*rows.shape, -1).mean(1)

@@ -162,3 +162,23 @@ def test_level_frame_matches_pitch_only_floor():
     rolled[:3, :3] = axis_rotations(2, np.array([0.1]))[0] @ cam[:3, :3]
     d = floor_depth(intr, 1.2, 0.0, level_from_camera(rolled))
     assert abs(d[200, 10] - d[200, 310]) > 0.05
+
+
+def _thread_env(_):
+    import os
+
+    return [os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")]
+
+
+def test_rendering_workers_run_native_libraries_single_threaded(monkeypatch):
+    import os
+
+    from train.synth import _single_threaded_pool
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "7")
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    with _single_threaded_pool(2) as pool:
+        seen = pool.map(_thread_env, range(2))
+    assert seen == [["1", "1"], ["1", "1"]]
+    # The caller's environment is left as it was.
+    assert os.environ["OMP_NUM_THREADS"] == "7" and "OPENBLAS_NUM_THREADS" not in os.environ

@@ -54,6 +54,14 @@ class ForestConfig:
     unary_fraction: float = field_doc(
         0.25, "fraction of offset pairs with v = 0, i.e. f = D(x + u/D(x)) - D(x)"
     )
+    refit_pixels_per_frame: int = field_doc(
+        0,
+        "after growing, re-estimate the leaf distributions from this many class-balanced person "
+        "pixels of every training frame (train/forest/refit.py); 0 = keep the grown ones",
+    )
+    refit_prior: float = field_doc(
+        2.0, "weight, in pixels, of a leaf's grown distribution in its re-estimate"
+    )
     background_m: float = field_doc(
         DEFAULT_BACKGROUND_M,
         "depth read by probes off the image, off the person, or on pixels without a reading (m)",
@@ -88,6 +96,8 @@ class ForestConfig:
             raise ValueError("balance_power must be in [0, 1]")
         if not 0.0 < self.background_m < 32.0:
             raise ValueError("background_m must be in (0, 32) m (int16 millimetre features)")
+        if self.refit_pixels_per_frame < 0 or self.refit_prior < 0:
+            raise ValueError("refit_pixels_per_frame and refit_prior must be >= 0")
         if self.trees_per_pass < 0:
             raise ValueError("trees_per_pass must be >= 0")
         if self.threads < 1 or self.histogram_budget < 1:

@@ -16,6 +16,9 @@
 4. **Growing** (:mod:`train.forest.grow`), then the trees' split features become offset pairs
    and their bin thresholds become metres; leaves keep their normalized class counts as float16
    distributions.
+5. **Leaf re-estimation** (optional, :mod:`train.forest.refit`): one more pass pushes
+   ``refit_pixels_per_frame`` pixels of every frame down the grown trees and re-estimates the
+   leaf distributions from them.
 """
 
 from __future__ import annotations
@@ -299,15 +302,37 @@ def train_forest(trainset, cfg: ForestConfig, log=print, max_frames: int | None 
             log(f"tree {t + 1}: {st}")
             del d, grown
     merged = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    t_refit, refit_stats = 0.0, {}
+    if cfg.refit_pixels_per_frame > 0:
+        from .refit import leaf_class_counts, refit_leaves
+
+        t1 = time.perf_counter()
+        log(f"re-estimating leaves from {cfg.refit_pixels_per_frame} pixels of every frame")
+        grown = Forest(
+            **merged, roots=np.asarray(roots, dtype=np.int32), class_names=tuple(class_names),
+            camera=intr.as_dict(), background_m=cfg.background_m,
+        )  # fmt: skip
+        shards, _ = _limited(trainset, max_frames)
+        gen = torch.Generator().manual_seed(cfg.seed * 1009 + 7)
+        weights = class_weights(np.asarray(counts), cfg)
+        leaf_counts = leaf_class_counts(
+            grown, shards, weights, cfg.refit_pixels_per_frame, gen, device, log
+        )
+        refit = refit_leaves(grown, leaf_counts, cfg.refit_prior)
+        merged["leaf_dist"] = refit.leaf_dist
+        refit_stats = {"leaf_refit": refit.stats["leaf_refit"]}
+        t_refit = time.perf_counter() - t1
     stats = {
         "frames": frames,
         "content_hash": trainset.manifest.get("content_hash"),
         "feature_seconds": round(t_features, 2),
+        "refit_seconds": round(t_refit, 2),
         "total_seconds": round(time.perf_counter() - t0, 2),
         "cpu_seconds": round(time.process_time() - cpu0, 2),
         "device": str(device),
         "threads": cfg.threads,
         "trees": tree_stats,
+        **refit_stats,
     }
     return Forest(
         **merged,
