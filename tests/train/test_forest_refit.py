@@ -3,14 +3,13 @@ training with it on the separable toy problem."""
 
 import numpy as np
 import torch
+from test_forest import tiny_config, toy_forest, toy_set  # noqa: F401  (fixtures)
 
 from shared.forest_format import Forest
 from train.forest.predict import predict_posteriors
 from train.forest.refit import leaf_class_counts, refit_leaves
 from train.forest.trainer import train_forest
 from train.trainset import TrainSet
-
-from test_forest import tiny_config, toy_forest, toy_set  # noqa: F401  (fixtures)
 
 
 def _walk_one(forest: Forest, depth_m: np.ndarray, person: np.ndarray, f, r, c, tree) -> int:
