@@ -220,7 +220,7 @@ def render_shard(task: dict) -> dict:
 
     Returns the manifest entry of the shard plus its class pixel counts and timing.
     """
-    from .synth_frames import body_for_index, place_on_floor, render_frame
+    from .synth_frames import body_for_index, face_forward, place_on_floor, render_frame
     from .trainset import Shard
     from .viewpoints import sample_viewpoint_in_view
 
@@ -230,6 +230,7 @@ def render_shard(task: dict) -> dict:
     intr, renderer = state["intr"], state["renderer"]
     rng = np.random.default_rng([cfg.seed, 3, task["shard"]])
     n = len(task["poses"])
+    poses = face_forward(task["poses"], frames=None)  # view yaw is relative to the person
     h, w = intr.height, intr.width
     depth = np.zeros((n, h, w), np.uint16)
     labels = np.zeros((n, h, w), np.uint8)
@@ -241,7 +242,7 @@ def render_shard(task: dict) -> dict:
         if b not in state["bodies"]:
             state["bodies"][b] = body_for_index(cfg.seed, b)
         body = state["bodies"][b]
-        placed = place_on_floor(body, task["poses"][k][None], per_frame=True)
+        placed = place_on_floor(body, poses[k][None], per_frame=True)
         view = None
         for _ in range(8):
             view = sample_viewpoint_in_view(
@@ -280,9 +281,15 @@ def render_shard(task: dict) -> dict:
     }
 
 
+# Bumped whenever the frames rendered for a config change, so a resumed run never mixes
+# shards of two generator versions. 2: poses turned to face +z before the view is drawn.
+GENERATOR_VERSION = 2
+
+
 def _config_fingerprint(cfg: SynthConfig) -> str:
     data = config_to_dict(cfg)
     data.pop("workers", None)  # does not change the output
+    data["generator_version"] = GENERATOR_VERSION
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -298,7 +305,8 @@ def synthesize_set(cfg: SynthConfig, out: Path, progress: bool = True, log=print
         old = json.loads(manifest_path.read_text())
         if old.get("config_fingerprint") != fingerprint:
             raise TrainSetError(
-                f"{out} holds a set made with another config; choose another --out or delete it"
+                f"{out} holds a set made with another config or generator version; choose "
+                "another --out or delete it"
             )
         for entry in old.get("shards", []):
             if (out / entry["file"]).is_file() and file_sha256(out / entry["file"]) == entry[

@@ -13,6 +13,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from shared import skeleton as sk
 from shared.camera import Intrinsics
 from shared.config import field_doc
 from shared.kinematics import transform_pose
@@ -35,6 +36,7 @@ __all__ = [
     "PlacedBody",
     "SynthFrame",
     "body_for_index",
+    "face_forward",
     "place_on_floor",
     "render_frame",
 ]
@@ -91,6 +93,39 @@ class SynthFrame(NamedTuple):
 def body_for_index(seed: int, index: int) -> AnnyBody:
     """The ``index``-th random body of a run: a pure function of (seed, index)."""
     return make_body(sample_phenotype(np.random.default_rng([seed, 7919, index])))
+
+
+def face_forward(q: np.ndarray, frames: int | None = 10) -> np.ndarray:
+    """Turn world poses (F, 34) about the vertical so the person faces +z, the direction the
+    viewpoint yaw is measured from (:mod:`train.viewpoints`).
+
+    Mocap clips face anywhere; without this the sampled view yaw adds to the clip's own
+    heading and the front/side/back mix of the config is lost (uniform yaw instead).
+
+    Args:
+        frames: turn the whole sequence by one angle, the heading of the hip line averaged over
+            its first ``frames`` frames (sequences: the person may then turn); None: turn every
+            pose by its own heading (independent training poses).
+    """
+    from shared.body import BodyShape
+    from shared.kinematics import forward_kinematics, named_joint_positions
+
+    qt = torch.as_tensor(q, dtype=torch.float64)
+    used = qt if frames is None else qt[:frames]
+    j = named_joint_positions(forward_kinematics(used, BodyShape.default(torch.float64)))
+    left = j[:, sk.JOINT_NAMES.index("l_hip")] - j[:, sk.JOINT_NAMES.index("r_hip")]
+    if frames is not None:
+        left = left.mean(0, keepdim=True)
+    up = torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64).expand_as(left)
+    forward = torch.linalg.cross(left, up)
+    yaw = torch.atan2(forward[:, 0], forward[:, 2])
+    c, s = torch.cos(-yaw), torch.sin(-yaw)
+    zero, one = torch.zeros_like(c), torch.ones_like(c)
+    rot = torch.stack(
+        [torch.stack([c, zero, s], -1), torch.stack([zero, one, zero], -1),
+         torch.stack([-s, zero, c], -1)], -2,
+    ).expand(qt.shape[0], 3, 3)  # fmt: skip
+    return transform_pose(qt, rot, torch.zeros(3, dtype=torch.float64)).numpy()
 
 
 def place_on_floor(body: AnnyBody, q: np.ndarray, per_frame: bool) -> PlacedBody:

@@ -23,9 +23,15 @@ from shared.camera import Intrinsics
 from shared.procedural_motion import MOTIONS, ground_poses, motion_poses
 from shared.recording import RecordingWriter
 
-from .synth_frames import SceneConfig, body_for_index, place_on_floor, render_frame
+from .synth_frames import (
+    SceneConfig,
+    body_for_index,
+    face_forward,
+    place_on_floor,
+    render_frame,
+)
 
-__all__ = ["sequence_poses", "face_forward", "render_sequence"]
+__all__ = ["sequence_poses", "render_sequence"]
 
 
 def sequence_poses(
@@ -50,22 +56,6 @@ def sequence_poses(
     joints = seq.joints[:frames] if frames else seq.joints
     q, _ = retarget_joints(joints, body_from_named_joints(seq.joints), passes=2)
     return q, str(path)
-
-
-def face_forward(q: np.ndarray, frames: int = 10) -> np.ndarray:
-    """Turn world poses (F, 34) about the vertical so the person faces +z over the first
-    ``frames`` frames (clips start facing anywhere; the camera is placed relative to +z)."""
-    from shared.body import BodyShape
-    from shared.kinematics import forward_kinematics, named_joint_positions, transform_pose
-
-    qt = torch.as_tensor(q, dtype=torch.float64)
-    j = named_joint_positions(forward_kinematics(qt[:frames], BodyShape.default(torch.float64)))
-    left = (j[:, sk.JOINT_NAMES.index("l_hip")] - j[:, sk.JOINT_NAMES.index("r_hip")]).mean(0)
-    forward = torch.linalg.cross(left, torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64))
-    yaw = torch.atan2(forward[0], forward[2])
-    c, s = torch.cos(-yaw), torch.sin(-yaw)
-    rot = torch.tensor([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]], dtype=torch.float64)
-    return transform_pose(qt, rot, torch.zeros(3, dtype=torch.float64)).numpy()
 
 
 def render_sequence(

@@ -182,3 +182,41 @@ def test_rendering_workers_run_native_libraries_single_threaded(monkeypatch):
     assert seen == [["1", "1"], ["1", "1"]]
     # The caller's environment is left as it was.
     assert os.environ["OMP_NUM_THREADS"] == "7" and "OPENBLAS_NUM_THREADS" not in os.environ
+
+
+def _facing_deg(q: np.ndarray) -> np.ndarray:
+    """Heading of each pose's hip line normal (the person's forward) about +y, degrees."""
+    j = named_joint_positions(forward_kinematics(torch.as_tensor(q), BodyShape.default()))
+    left = j[:, sk.JOINT_NAMES.index("l_hip")] - j[:, sk.JOINT_NAMES.index("r_hip")]
+    fwd = torch.linalg.cross(left, torch.tensor([0.0, 1.0, 0.0], dtype=left.dtype).expand_as(left))
+    return np.degrees(np.arctan2(fwd[:, 0].numpy(), fwd[:, 2].numpy()))
+
+
+def test_face_forward_turns_each_pose_or_the_whole_sequence():
+    from shared.procedural_motion import motion_poses
+    from train.synth_frames import face_forward
+
+    rng = np.random.default_rng(0)
+    q = np.asarray(motion_poses("walk", 12, 30.0, rng), dtype=np.float64)
+    headings = np.radians(rng.uniform(-180, 180, len(q)))
+    turned = []
+    for k, a in enumerate(headings):  # every pose facing somewhere else, as mocap clips do
+        c, s = math.cos(a), math.sin(a)
+        rot = torch.tensor([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]], dtype=torch.float64)
+        turned.append(transform_pose_np(q[k : k + 1], rot))
+    scattered = np.concatenate(turned)
+    assert np.abs(_facing_deg(scattered)).max() > 90
+    each = face_forward(scattered, frames=None)
+    assert np.abs(_facing_deg(each)).max() < 1e-6
+    # Joint angles are untouched; only the root turns.
+    assert np.allclose(each[:, 6:], scattered[:, 6:])
+    # Sequence mode: one angle for the whole clip, so the person's own turning is kept.
+    seq = face_forward(scattered, frames=1)
+    rel = (_facing_deg(seq) - _facing_deg(scattered) + 180) % 360 - 180
+    assert np.allclose(rel, rel[0], atol=1e-6) and abs(_facing_deg(seq)[0]) < 1e-6
+
+
+def transform_pose_np(q: np.ndarray, rot: torch.Tensor) -> np.ndarray:
+    from shared.kinematics import transform_pose
+
+    return transform_pose(torch.as_tensor(q), rot, torch.zeros(3, dtype=torch.float64)).numpy()
