@@ -98,6 +98,11 @@ class TrackerConfig:
         0.05, "prior noise scale of joint angles and root rotation (rad per frame^2)"
     )
     sigma_prior_m: float = field_doc(0.02, "prior noise scale of the root position (m per frame^2)")
+    prior_velocity_gain: float = field_doc(
+        1.0,
+        "prediction q_prev + gain (q_prev - q_prev2) the prior pulls towards: 1 = Wei's "
+        "constant velocity, 0 = the previous pose",
+    )
     # ---------------- sampling caps (speed) ----------------
     max_depth_pixels: int = field_doc(
         1200, "depth term: at most this many G pixels per iteration (strided subsample)"

@@ -15,16 +15,22 @@ from shared.so3 import matrix_to_rotvec, rotvec_to_matrix
 __all__ = ["predict_pose", "prior_residual", "prior_system"]
 
 
-def predict_pose(q_prev: torch.Tensor, q_prev2: torch.Tensor | None) -> torch.Tensor:
-    """Constant-velocity prediction 2 q_prev - q_prev2 (root rotation on SO(3)): (B, 34).
+def predict_pose(
+    q_prev: torch.Tensor, q_prev2: torch.Tensor | None, velocity_gain: float = 1.0
+) -> torch.Tensor:
+    """Prediction ``q_prev + g (q_prev - q_prev2)`` (root rotation on SO(3)): (B, 34).
 
-    Without ``q_prev2`` the prediction is ``q_prev`` (zero velocity).
+    ``g = 1`` is Wei's constant velocity (the prior then penalizes acceleration); ``g < 1``
+    lets velocity decay, so degrees of freedom the data hardly constrain (a cylinder's twist)
+    do not keep drifting at the velocity they once had. Without ``q_prev2`` the prediction is
+    ``q_prev`` (zero velocity).
     """
-    if q_prev2 is None:
+    if q_prev2 is None or velocity_gain == 0.0:
         return q_prev.clone()
-    pred = 2 * q_prev - q_prev2
+    pred = q_prev + velocity_gain * (q_prev - q_prev2)
     r1, r2 = rotvec_to_matrix(q_prev[:, 3:6]), rotvec_to_matrix(q_prev2[:, 3:6])
-    pred[:, 3:6] = matrix_to_rotvec(r1 @ r2.transpose(-1, -2) @ r1)
+    step = matrix_to_rotvec(r1 @ r2.transpose(-1, -2)) * velocity_gain
+    pred[:, 3:6] = matrix_to_rotvec(rotvec_to_matrix(step) @ r1)
     return clamp_to_limits(pred)
 
 

@@ -99,7 +99,7 @@ def fit_frames(
             prior then predicts no motion).
     """
     B = q_prev.shape[0]
-    q_pred = predict_pose(q_prev, q_prev2)
+    q_pred = predict_pose(q_prev, q_prev2, cfg.prior_velocity_gain)
     q = q_pred.clone() if cfg.init_from_prediction else q_prev.clone()
     observed = observed_candidates(obs, cfg.max_candidates) if cfg.use_extra_depth else None
     converged = torch.zeros(B, dtype=torch.bool, device=q.device)
