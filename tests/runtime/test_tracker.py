@@ -242,6 +242,26 @@ def test_prior_prediction_and_step():
     assert float(prior_residual(moved, pred).abs().max()) < 1e-4
 
 
+def test_prior_prediction_velocity_gain():
+    from shared.so3 import rotvec_to_matrix
+
+    q1, q2 = _pose(), _pose()
+    q2[0, 0] -= 0.02
+    q2[0, D["l_radius_flex"]] -= 0.1
+    q2[0, 3:6] = torch.tensor([3.0, 0.15, -0.1], dtype=torch.float64)
+    r1, r2 = rotvec_to_matrix(q1[:, 3:6]), rotvec_to_matrix(q2[:, 3:6])
+    # Gain 1 is Wei's constant velocity: root rotation R1 R2^T R1.
+    full = predict_pose(q1, q2, 1.0)
+    assert torch.allclose(rotvec_to_matrix(full[:, 3:6]), r1 @ r2.transpose(-1, -2) @ r1)
+    assert torch.equal(predict_pose(q1, q2, 0.0), q1)
+    half = predict_pose(q1, q2, 0.5)
+    assert float(half[0, 0] - q1[0, 0]) == pytest.approx(0.01)
+    assert float(half[0, D["l_radius_flex"]] - q1[0, D["l_radius_flex"]]) == pytest.approx(0.05)
+    # Half the rotation step: applying it twice gives the full prediction.
+    step = rotvec_to_matrix(half[:, 3:6]) @ r1.transpose(-1, -2)
+    assert torch.allclose(step @ step @ r1, rotvec_to_matrix(full[:, 3:6]), atol=1e-9)
+
+
 def test_limits_active_set_keeps_joints_inside():
     q = _pose()
     q[0, D["l_radius_flex"]] = 0.0
