@@ -4,7 +4,8 @@ PY := .venv/bin/python
 SETUP_STAMP := .venv/.setup-stamp
 export PYTHONUNBUFFERED := 1
 
-.PHONY: setup demo test lint format bench clean synth dev-recordings train-forest train-forest-eval
+.PHONY: setup demo test lint format bench clean synth dev-recordings train-forest train-forest-eval \
+	synth-calib train-forest-calib
 
 setup: ## create .venv, install system packages (root), torch and the project with all extras
 	@bash scripts/setup.sh
@@ -46,6 +47,13 @@ dev-recordings: $(SETUP_STAMP) ## evaluation recordings from the HDM05 dev clips
 
 train-forest: $(SETUP_STAMP) ## the body-part forest from data/synth into models/forest.npz
 	$(PY) -m train.forest.train_cli --data data/synth --out models/forest.npz --config configs/forest.yaml
+
+synth-calib: $(SETUP_STAMP) ## the calibration-pose training set (T-pose only) into data/synth_calib
+	$(PY) -m train.synth_cli --config configs/synth_calib.yaml --out data/synth_calib
+
+train-forest-calib: $(SETUP_STAMP) ## the calibration forest from data/synth_calib into models/
+	$(PY) -m train.forest.train_cli --data data/synth_calib --out models/forest_calib.npz \
+		--config configs/forest_calib.yaml
 
 train-forest-eval: $(SETUP_STAMP) ## accuracy of models/forest.npz on the dev recordings
 	$(PY) -m train.forest.eval_cli --model models/forest.npz --data data/dev --out out/forest_eval

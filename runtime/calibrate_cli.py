@@ -32,7 +32,7 @@ from .detector import (
     load_forest_labeler,
 )
 from .detector.detect import detect_pose
-from .forest.inference import DEFAULT_MODEL
+from .forest.inference import DEFAULT_CALIBRATION_MODEL, DEFAULT_MODEL
 from .segmentation import segment_person
 from .streams import FrameRange, StreamError, describe_sources, open_stream
 
@@ -51,7 +51,20 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--input", "-i", required=True, help=f"depth source: {describe_sources()}")
     p.add_argument("--output", "-o", required=True, type=Path, help="body file to write (JSON)")
-    p.add_argument("--model", type=Path, default=DEFAULT_MODEL, help="forest artifact")
+    p.add_argument(
+        "--model",
+        type=Path,
+        default=DEFAULT_CALIBRATION_MODEL,
+        help="forest labelling the reference pose for calibration (default: the shipped "
+        "calibration-pose forest, trained on that pose only as in Wei section 6)",
+    )
+    p.add_argument(
+        "--detect-model",
+        type=Path,
+        default=DEFAULT_MODEL,
+        help="general forest for the automatic pose check (the calibration forest labels every "
+        "pose as if it were the reference pose, so it cannot tell whether the pose is held)",
+    )
     p.add_argument(
         "--labels",
         choices=("forest", "recording"),
@@ -69,11 +82,12 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _labeler(args, intr):
-    if args.labels == "forest":
-        if not args.model.is_file():
-            raise CalibrateError(f"model file not found: {args.model}")
-        return load_forest_labeler(args.model, "cpu", intr)
+def _labeler(args, intr, model: Path | None = None):
+    if args.labels == "forest" or model is not None:
+        model = args.model if model is None else model
+        if not model.is_file():
+            raise CalibrateError(f"model file not found: {model}")
+        return load_forest_labeler(model, "cpu", intr)
     try:
         rec = Recording(args.input)
     except RecordingError as err:
@@ -98,6 +112,9 @@ def run(args: argparse.Namespace) -> BodyShape:
     with open_stream(args.input, frame_range=FrameRange(args.start, args.stop)) as stream:
         intr = stream.intrinsics
         labeler = _labeler(args, intr)
+        # Ground-truth labels serve both; forest labels: the general forest for the pose check.
+        check_with_forest = args.labels == "forest" and not args.no_pose_check
+        detect_labeler = _labeler(args, intr, args.detect_model) if check_with_forest else None
         for frame in stream:
             depth = depth_frame_to_metres(frame.depth_mm)
             mask = segment_person(depth, intr)
@@ -111,7 +128,10 @@ def run(args: argparse.Namespace) -> BodyShape:
             if args.no_pose_check:
                 watcher.frames.append((depth, labels))
             else:
-                det = detect_pose(depth, labels, intr, template, det_cfg, mask=mask)
+                det_labels = (
+                    labels if detect_labeler is None else labels_from(detect_labeler(depth, mask))
+                )
+                det = detect_pose(depth, det_labels, intr, template, det_cfg, mask=mask)
                 watcher.update(det.q if det.found else None, depth, labels)
             if not args.quiet:
                 print(f"frame {frame.index}: held {len(watcher.frames)}/{args.frames}",

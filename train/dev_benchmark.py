@@ -76,9 +76,10 @@ def body_file(kind: str, rec: Path, bodies: Path, model: str) -> Path:
         calib = rec.parent.parent / "dev_calib" / rec.name
         if not calib.is_dir():
             raise RuntimeError(f"{calib}: no calibration recording (run make dev-recordings)")
-        # The recording is known to hold the pose: skip the automatic pose check.
+        # The recording is known to hold the pose: skip the automatic pose check. Labels come
+        # from runtime-calibrate's default, the calibration-pose forest.
         _run([py, "-m", "runtime.calibrate_cli", "--input", str(calib), "--output", str(path),
-              "--model", model, "--no-pose-check", "-q"])  # fmt: skip
+              "--no-pose-check", "-q"])  # fmt: skip
     else:
         raise ValueError(f"unknown body kind {kind}")
     return path

@@ -88,15 +88,40 @@ def mocap_library(folders: list[str | Path], fps: float) -> list[MotionSequence]
 
 
 def procedural_library(
-    rng: np.random.Generator, fps: float, random_count: int = 2000
+    rng: np.random.Generator,
+    fps: float,
+    random_count: int = 2000,
+    motions: list[str] | tuple[str, ...] = (),
+    jitter_rad: float = 0.0,
 ) -> list[MotionSequence]:
-    """The parametric motions (several variations) plus grounded random poses."""
+    """The parametric motions (several variations) plus grounded random poses.
+
+    Args:
+        motions: keep only these parametric motions (empty: all), e.g. ``["t_pose"]`` for a
+            forest restricted to the calibration pose (Wei section 6).
+        jitter_rad: uniform random offset in [-jitter, jitter] added to every joint angle of
+            every parametric pose (then clamped to the limits): variety for small motion sets.
+    """
+    from shared.kinematics import clamp_to_limits
+    from shared.procedural_motion import MOTIONS, ground_poses
+
+    unknown = set(motions) - set(MOTIONS)
+    if unknown:
+        raise ValueError(f"unknown procedural motions {sorted(unknown)}; known: {list(MOTIONS)}")
     body = BodyShape.default(torch.float64)
     seqs: dict[str, np.ndarray] = {}
     for k in range(3):
         for name, q in procedural_sequences(rng, fps=fps, seconds=4.0, body=body).items():
+            if motions and name not in motions:
+                continue
+            if jitter_rad > 0:
+                q = q.copy()
+                q[:, 6:] += rng.uniform(-jitter_rad, jitter_rad, q[:, 6:].shape)
+                q = clamp_to_limits(torch.as_tensor(q)).numpy()
+                q = ground_poses(q, body)
             seqs[f"{name}_{k}"] = q
-    seqs["random"] = random_poses(random_count, rng)
+    if random_count > 0:
+        seqs["random"] = random_poses(random_count, rng)
     out = []
     for name, q in seqs.items():
         joints = named_joint_positions(forward_kinematics(torch.as_tensor(q), body)).numpy()

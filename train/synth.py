@@ -61,6 +61,12 @@ class SynthConfig:
     procedural_random_poses: int = field_doc(
         2000, "random poses added to the procedural motions (no mocap only)"
     )
+    procedural_motions: list[str] = field_doc(
+        [], "only these procedural motions (no mocap only; empty = all), e.g. [t_pose]"
+    )
+    procedural_jitter_rad: float = field_doc(
+        0.0, "uniform random offset (+-) on every joint angle of the procedural poses, radians"
+    )
     scene: SceneConfig = field_doc(
         default_factory=SceneConfig, help="floor/background, sensor noise, viewpoint ranges"
     )
@@ -85,6 +91,8 @@ def _poses_key(cfg: SynthConfig, clips: list[Path]) -> str:
         json.dumps(
             [cfg.motion_fps, cfg.min_pose_distance, cfg.max_poses, cfg.seed,
              cfg.procedural_random_poses]
+            + ([list(cfg.procedural_motions), cfg.procedural_jitter_rad]
+               if cfg.procedural_motions or cfg.procedural_jitter_rad else [])
         ).encode()
     )  # fmt: skip
     return h.hexdigest()[:16]
@@ -130,7 +138,10 @@ def prepare_poses(cfg: SynthConfig, cache_dir: Path, log=print) -> tuple[np.ndar
         source = "mocap"
     else:
         log("no mocap clips found: using the procedural motions")
-        lib = procedural_library(rng, cfg.motion_fps, cfg.procedural_random_poses)
+        lib = procedural_library(
+            rng, cfg.motion_fps, cfg.procedural_random_poses, cfg.procedural_motions,
+            cfg.procedural_jitter_rad,
+        )  # fmt: skip
         source = "procedural"
     counts = np.array([len(s.joints) for s in lib])
     starts = np.concatenate([[0], np.cumsum(counts)])
@@ -290,6 +301,9 @@ def _config_fingerprint(cfg: SynthConfig) -> str:
     data = config_to_dict(cfg)
     data.pop("workers", None)  # does not change the output
     data["generator_version"] = GENERATOR_VERSION
+    for key, default in (("procedural_motions", []), ("procedural_jitter_rad", 0.0)):
+        if data.get(key) == default:  # added later: sets made before keep their fingerprint
+            data.pop(key, None)
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
 
 

@@ -35,10 +35,18 @@ from shared.camera import Intrinsics
 from shared.forest_format import Forest, load_forest, traversal_table
 from shared.forest_walk import traverse, walk_posteriors
 
-__all__ = ["DEFAULT_MODEL", "ForestClassifier", "traverse", "load_classifier"]
+__all__ = [
+    "DEFAULT_MODEL",
+    "DEFAULT_CALIBRATION_MODEL",
+    "ForestClassifier",
+    "traverse",
+    "load_classifier",
+]
 
 # The forest shipped in the repository (models/README.md), used when no --model is given.
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "forest.npz"
+# Trained on the calibration T-pose only (Wei section 6): labels that pose more accurately.
+DEFAULT_CALIBRATION_MODEL = DEFAULT_MODEL.with_name("forest_calib.npz")
 
 
 class ForestClassifier:

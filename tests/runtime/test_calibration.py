@@ -121,6 +121,9 @@ def test_cli_errors(tmp_path, capsys):
     base = ["--input", str(tmp_path / "rec"), "--output", str(out), "--quiet"]
     assert main([*base, "--model", str(tmp_path / "none.npz")]) == 2
     assert "model file not found" in capsys.readouterr().err
+    # The pose check labels with the general forest, which must exist too.
+    assert main([*base, "--detect-model", str(tmp_path / "general.npz")]) == 2
+    assert "general.npz" in capsys.readouterr().err
     assert main([*base, "--labels", "recording", "--frames", "1"]) == 2
     assert "reference pose" in capsys.readouterr().err
     assert main(["--input", str(tmp_path / "nothing"), "--output", str(out)]) == 2

@@ -220,3 +220,21 @@ def transform_pose_np(q: np.ndarray, rot: torch.Tensor) -> np.ndarray:
     from shared.kinematics import transform_pose
 
     return transform_pose(torch.as_tensor(q), rot, torch.zeros(3, dtype=torch.float64)).numpy()
+
+
+def test_procedural_library_restricted_to_the_calibration_pose_with_jitter():
+    from shared.kinematics import clamp_to_limits
+    from train.motion_library import procedural_library
+
+    plain = procedural_library(np.random.default_rng(0), 10.0, 0, motions=["t_pose"])
+    assert {s.name.rsplit("_", 1)[0] for s in plain} == {"t_pose"} and len(plain) == 3
+    jittered = procedural_library(
+        np.random.default_rng(0), 10.0, 0, motions=["t_pose"], jitter_rad=0.1
+    )
+    # The first variation is drawn before any jitter, so the two differ by the jitter alone.
+    diff = np.abs(jittered[0].q[:, 6:] - plain[0].q[:, 6:])
+    assert 0.01 < diff.max() <= 0.1 + 1e-9
+    for b in jittered:  # jittered angles stay inside the limits
+        assert np.allclose(clamp_to_limits(torch.as_tensor(b.q)).numpy(), b.q)
+    with pytest.raises(ValueError, match="unknown procedural motions"):
+        procedural_library(np.random.default_rng(0), 10.0, 0, motions=["moonwalk"])
