@@ -82,12 +82,15 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _labeler(args, intr, model: Path | None = None):
-    if args.labels == "forest" or model is not None:
-        model = args.model if model is None else model
-        if not model.is_file():
-            raise CalibrateError(f"model file not found: {model}")
-        return load_forest_labeler(model, "cpu", intr)
+def _forest_labeler(model: Path, intr):
+    if not model.is_file():
+        raise CalibrateError(f"model file not found: {model}")
+    return load_forest_labeler(model, "cpu", intr)
+
+
+def _labeler(args, intr):
+    if args.labels == "forest":
+        return _forest_labeler(args.model, intr)
     try:
         rec = Recording(args.input)
     except RecordingError as err:
@@ -114,7 +117,7 @@ def run(args: argparse.Namespace) -> BodyShape:
         labeler = _labeler(args, intr)
         # Ground-truth labels serve both; forest labels: the general forest for the pose check.
         check_with_forest = args.labels == "forest" and not args.no_pose_check
-        detect_labeler = _labeler(args, intr, args.detect_model) if check_with_forest else None
+        detect_labeler = _forest_labeler(args.detect_model, intr) if check_with_forest else None
         for frame in stream:
             depth = depth_frame_to_metres(frame.depth_mm)
             mask = segment_person(depth, intr)

@@ -83,6 +83,14 @@ def _worker_count(cfg: SynthConfig) -> int:
     return cfg.workers if cfg.workers > 0 else max(1, os.cpu_count() or 1)
 
 
+def _procedural_options(cfg: SynthConfig) -> dict:
+    """The procedural-motion options added after the first sets were made, when not at their
+    defaults: keys and fingerprints of sets made before stay valid."""
+    opts = {"procedural_motions": list(cfg.procedural_motions),
+            "procedural_jitter_rad": cfg.procedural_jitter_rad}  # fmt: skip
+    return opts if cfg.procedural_motions or cfg.procedural_jitter_rad else {}
+
+
 def _poses_key(cfg: SynthConfig, clips: list[Path]) -> str:
     h = hashlib.sha256()
     for p in clips:
@@ -90,9 +98,7 @@ def _poses_key(cfg: SynthConfig, clips: list[Path]) -> str:
     h.update(
         json.dumps(
             [cfg.motion_fps, cfg.min_pose_distance, cfg.max_poses, cfg.seed,
-             cfg.procedural_random_poses]
-            + ([list(cfg.procedural_motions), cfg.procedural_jitter_rad]
-               if cfg.procedural_motions or cfg.procedural_jitter_rad else [])
+             cfg.procedural_random_poses, *_procedural_options(cfg).values()]
         ).encode()
     )  # fmt: skip
     return h.hexdigest()[:16]
@@ -301,9 +307,9 @@ def _config_fingerprint(cfg: SynthConfig) -> str:
     data = config_to_dict(cfg)
     data.pop("workers", None)  # does not change the output
     data["generator_version"] = GENERATOR_VERSION
-    for key, default in (("procedural_motions", []), ("procedural_jitter_rad", 0.0)):
-        if data.get(key) == default:  # added later: sets made before keep their fingerprint
-            data.pop(key, None)
+    for key in ("procedural_motions", "procedural_jitter_rad"):
+        data.pop(key, None)
+    data.update(_procedural_options(cfg))
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
 
 

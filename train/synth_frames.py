@@ -29,7 +29,7 @@ from .sensor_noise import (
     apply_kinect_noise,
     level_from_camera,
 )
-from .viewpoints import ViewpointConfig, Viewpoints, transform_points
+from .viewpoints import ViewpointConfig, Viewpoints, axis_rotations, transform_points
 
 __all__ = [
     "SceneConfig",
@@ -118,13 +118,8 @@ def face_forward(q: np.ndarray, frames: int | None = 10) -> np.ndarray:
         left = left.mean(0, keepdim=True)
     up = torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64).expand_as(left)
     forward = torch.linalg.cross(left, up)
-    yaw = torch.atan2(forward[:, 0], forward[:, 2])
-    c, s = torch.cos(-yaw), torch.sin(-yaw)
-    zero, one = torch.zeros_like(c), torch.ones_like(c)
-    rot = torch.stack(
-        [torch.stack([c, zero, s], -1), torch.stack([zero, one, zero], -1),
-         torch.stack([-s, zero, c], -1)], -2,
-    ).expand(qt.shape[0], 3, 3)  # fmt: skip
+    yaw = torch.atan2(forward[:, 0], forward[:, 2]).numpy()
+    rot = torch.as_tensor(axis_rotations(1, -yaw)).expand(qt.shape[0], 3, 3)
     return transform_pose(qt, rot, torch.zeros(3, dtype=torch.float64)).numpy()
 
 
