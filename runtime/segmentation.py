@@ -347,7 +347,7 @@ def _segment_np(depth: np.ndarray, intr: Intrinsics, cfg: SegmentationConfig) ->
     comp_area = np.bincount(lf, z2.reshape(-1), minlength=count) / (intr.fx * intr.fy)
     comp_depth = np.bincount(lf, zf, minlength=count) / np.maximum(comp_pixels, 1)
     image_of = cv.image_of(labels, comp_pixels)
-    extent = _extents(z, labels, count, cv, intr)
+    extent_box = _boxes(z, labels, count, cv, intr)
 
     # Cut pixels and their 4 neighbours: what is seen behind what, and where the person's
     # own self-occlusion edges are.
@@ -359,11 +359,7 @@ def _segment_np(depth: np.ndarray, intr: Intrinsics, cfg: SegmentationConfig) ->
 
     behind = _occluded_by_large(lab_nb, step, jump_c, comp_area, count, cfg.occluder_min_area_m2)
     plausible = (
-        ~behind
-        & (comp_area >= cfg.min_area_m2)
-        & (extent[:, 0] <= cfg.max_width_m)
-        & (extent[:, 1] <= cfg.max_height_m)
-        & (extent[:, 2] <= cfg.max_depth_extent_m)
+        ~behind & (comp_area >= cfg.min_area_m2) & _plausible_size(_box_sizes(extent_box), cfg)
     )
     plausible[0] = False
     score = np.where(plausible, comp_area, -1.0)
@@ -371,9 +367,8 @@ def _segment_np(depth: np.ndarray, intr: Intrinsics, cfg: SegmentationConfig) ->
     best = per_image.argmax(1)
     in_person = np.zeros(count, dtype=bool)
     in_person[best[per_image[np.arange(b), best] > 0]] = True
-    in_person = _join_nearby_parts(
-        in_person, labels, comp_pixels, comp_depth, comp_area, image_of, b, cfg, cv2
-    )
+    comps = _Components(labels, comp_pixels, comp_depth, comp_area, extent_box, image_of)
+    in_person = _join_nearby_parts(in_person, comps, b, cfg, cv2)
     mask = in_person[labels]
 
     # Add back cut pixels that join the person at a smooth step (self-occlusion inside it).
@@ -382,10 +377,11 @@ def _segment_np(depth: np.ndarray, intr: Intrinsics, cfg: SegmentationConfig) ->
     return cv.images(mask)
 
 
-def _extents(
+def _boxes(
     z: np.ndarray, labels: np.ndarray, count: int, cv: _Canvas, intr: Intrinsics
 ) -> np.ndarray:
-    """(count, 3) metric x, y, z extents of the components of a canvas (0 where empty).
+    """(count, 2, 3) metric bounding boxes (min, max of x, y, z) of a canvas's components;
+    empty components get (inf, -inf).
 
     Measured on every second row and column: a pixel or two (centimetres) matters nothing
     against the metre-scale plausibility limits, and it is a quarter of the work.
@@ -400,8 +396,36 @@ def _extents(
     slots = labels[rows, cols][:, None] * 6 + np.arange(6)
     top = np.full(count * 6, -np.inf, dtype=np.float32)
     np.maximum.at(top, slots.reshape(-1), signed.reshape(-1))
-    top = top.reshape(count, 6)
-    return np.maximum(top[:, :3] + top[:, 3:], 0.0)  # -inf + -inf (no sample) gives 0
+    top = top.reshape(count, 2, 3)
+    return np.stack([-top[:, 1], top[:, 0]], 1)
+
+
+def _box_sizes(box: np.ndarray) -> np.ndarray:
+    """(..., 3) extents of (..., 2, 3) boxes, 0 for empty ones."""
+    return np.maximum(box[..., 1, :] - box[..., 0, :], 0.0)
+
+
+def _plausible_size(size: np.ndarray, cfg: SegmentationConfig) -> np.ndarray:
+    """(...,) bool: (..., 3) metric extents fit a person."""
+    limits = np.array([cfg.max_width_m, cfg.max_height_m, cfg.max_depth_extent_m])
+    return (size <= limits).all(-1)
+
+
+def _extents_fit(
+    in_person: np.ndarray,
+    join: np.ndarray,
+    box: np.ndarray,
+    image_of: np.ndarray,
+    b: int,
+    cfg: SegmentationConfig,
+) -> np.ndarray:
+    """(count,) bool: joining each candidate keeps its image's person within plausible extents."""
+    lo = np.full((b, 3), np.inf)
+    hi = np.full((b, 3), -np.inf)
+    np.minimum.at(lo, image_of[in_person], box[in_person, 0])
+    np.maximum.at(hi, image_of[in_person], box[in_person, 1])
+    merged = np.stack([np.minimum(lo[image_of], box[:, 0]), np.maximum(hi[image_of], box[:, 1])], 1)
+    return ~join | _plausible_size(_box_sizes(merged), cfg)
 
 
 def _occluded_by_large(
@@ -434,49 +458,79 @@ def _occluded_by_large(
     return behind
 
 
+@dataclass
+class _Components:
+    """Connected components of a canvas and their statistics.
+
+    Attributes:
+        labels: canvas of component labels (0 = none); the arrays below are indexed by label.
+        pixels, depth, area: (count,) pixel count, mean depth (m), metric area (m^2).
+        box: (count, 2, 3) metric bounding boxes (see :func:`_boxes`).
+        image_of: (count,) batch index.
+    """
+
+    labels: np.ndarray
+    pixels: np.ndarray
+    depth: np.ndarray
+    area: np.ndarray
+    box: np.ndarray
+    image_of: np.ndarray
+
+
 def _join_nearby_parts(
-    in_person: np.ndarray,
-    labels: np.ndarray,
-    comp_pixels: np.ndarray,
-    comp_depth: np.ndarray,
-    comp_area: np.ndarray,
-    image_of: np.ndarray,
-    b: int,
-    cfg: SegmentationConfig,
-    cv2,
+    in_person: np.ndarray, comps: _Components, b: int, cfg: SegmentationConfig, cv2
 ) -> np.ndarray:
-    """Grow the (count,) bool person components by those that touch them and lie in front.
+    """Grow the (count,) bool person components by the parts of the body cut off from them.
 
     Limbs pointing at the camera are foreshortened, so their depth changes faster between
-    pixels than the cut threshold and hands come out as separate components. They are never
-    behind the body, while the background always is: join components within
-    ``merge_radius_px`` whose mean depth is at most ``merge_depth_margin_m`` behind the
-    person's, at most ``merge_max_front_m`` in front of it (arm reach), and small
-    (``merge_max_area_fraction`` of the person: a hand, not a second person).
+    pixels than the cut threshold and hands come out as separate components; and a limb
+    crossing in front of the body cuts off what lies behind it (an arm swung down in front of
+    the hips parts the legs from the trunk, a squat's thighs part the trunk from the feet).
+    Components within ``merge_radius_px`` of the person join when
+    - their depth range overlaps the person's, with ``merge_depth_margin_m`` to spare:
+      cut-off parts of the same body, of any size (the legs are half the body), as long as
+      the joined person keeps plausible extents (a wall behind lies beyond the person's
+      depths; a side wall or a floor reaching into them makes the person too large). An
+      object at the person's depth that touches it without a depth step was never cut from
+      it in the first place; or
+    - their mean depth is at most ``merge_depth_margin_m`` behind the person's and at most
+      ``merge_max_front_m`` in front of it (arm reach), and they are small
+      (``merge_max_area_fraction`` of the person: a hand, not a second person).
     """
     r = cfg.merge_radius_px
     if r <= 0 or cfg.merge_rounds <= 0 or not in_person.any():
         return in_person
+    c = comps
     kernel = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
+    margin = cfg.merge_depth_margin_m
     for _ in range(cfg.merge_rounds):
         # The person is a union of whole components: its statistics come from theirs.
-        weight = in_person * comp_pixels
-        person_depth = np.bincount(image_of, weight * comp_depth, minlength=b) / np.maximum(
-            np.bincount(image_of, weight, minlength=b), 1
+        weight = in_person * c.pixels
+        person_depth = np.bincount(c.image_of, weight * c.depth, minlength=b) / np.maximum(
+            np.bincount(c.image_of, weight, minlength=b), 1
         )
-        person_area = np.bincount(image_of, in_person * comp_area, minlength=b)
-        mask = in_person[labels]
+        person_area = np.bincount(c.image_of, in_person * c.area, minlength=b)
+        mask = in_person[c.labels]
         near = cv2.dilate(mask.view(np.uint8), kernel).view(bool)
         touching = np.zeros_like(in_person)
-        touching[labels[near & ~mask]] = True
-        join = (
-            touching
-            & ~in_person
-            & (comp_depth <= person_depth[image_of] + cfg.merge_depth_margin_m)
-            & (comp_depth >= person_depth[image_of] - cfg.merge_max_front_m)
-            & (comp_area <= cfg.merge_max_area_fraction * person_area[image_of])
+        touching[c.labels[near & ~mask]] = True
+
+        z_lo, z_hi = np.full(b, np.inf), np.full(b, -np.inf)
+        np.minimum.at(z_lo, c.image_of[in_person], c.box[in_person, 0, 2])
+        np.maximum.at(z_hi, c.image_of[in_person], c.box[in_person, 1, 2])
+        cut_off = (c.box[:, 0, 2] <= z_hi[c.image_of] + margin) & (
+            c.box[:, 1, 2] >= z_lo[c.image_of] - margin
         )
+        offset = c.depth - person_depth[c.image_of]
+        in_front = (
+            (offset >= -cfg.merge_max_front_m)
+            & (offset <= margin)
+            & (c.area <= cfg.merge_max_area_fraction * person_area[c.image_of])
+        )
+        join = touching & ~in_person & (cut_off | in_front)
         join[0] = False
+        if join.any():
+            join &= _extents_fit(in_person, join, c.box, c.image_of, b, cfg)
         if not join.any():
             break
         in_person = in_person | join

@@ -23,12 +23,15 @@ def scene(
     wall_z: float = 4.0,
     person_z: float = 2.5,
     floor: bool = True,
+    arm_across: bool = False,
 ):
     """Ray-cast a depth image (metres) and the true person pixels of a simple room.
 
     World frame = camera frame before the camera is pitched down by ``pitch_deg``: a floor at
     y = 1, a wall at z = ``wall_z``, a person slab 0.5 m wide standing on the floor with its
-    front at ``person_z``, a 12 cm hand held 40 cm in front of the chest.
+    front at ``person_z``, a 12 cm hand held 40 cm in front of the chest. ``arm_across``: a
+    forearm held 30 cm in front of the hips, the legs below it 8 cm behind the trunk (the
+    arm cuts them off from the trunk, and they are too large to count as a hand).
     """
     u, v = np.meshgrid(np.arange(INTR.width), np.arange(INTR.height))
     d = np.stack([(u - INTR.cx) / INTR.fx, (v - INTR.cy) / INTR.fy, np.ones(u.shape)], -1)
@@ -49,7 +52,11 @@ def scene(
             hit(CAM_HEIGHT / dw[..., 1], dw[..., 1] > 0, 2)
         hit(wall_z / dw[..., 2], dw[..., 2] > 0, 2)
         boxes = []
-        if person:
+        if person and arm_across:
+            boxes.append((person_z, (-0.25, 0.25), (-0.75, 0.2)))
+            boxes.append((person_z + 0.08, (-0.25, 0.25), (0.2, CAM_HEIGHT)))
+            boxes.append((person_z - 0.3, (-0.35, 0.35), (0.15, 0.25)))
+        elif person:
             boxes.append((person_z, (-0.25, 0.25), (-0.75, CAM_HEIGHT)))
         if person and hand:
             boxes.append((person_z - 0.4, (0.1, 0.22), (-0.1, 0.02)))
@@ -73,6 +80,14 @@ def test_person_found_floor_and_wall_excluded():
     # The hand in front of the chest is a separate component joined to the person.
     hand_px = truth & (depth < 2.2) & (depth > 0)
     assert hand_px.any() and mask[hand_px].all()
+
+
+def test_legs_cut_off_by_an_arm_in_front_stay_with_the_person():
+    depth, truth, height = scene(arm_across=True, hand=False)
+    mask = segment_person(depth, INTR)
+    assert not (mask & ~truth).any(), "floor or wall pixels in the mask"
+    body = truth & torch.as_tensor(height > 0.08)
+    assert (mask & body).sum() / body.sum() > 0.99
 
 
 @pytest.mark.parametrize("pitch", [0.0, 20.0])
