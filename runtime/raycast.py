@@ -9,7 +9,8 @@ segment's quadric, batched over poses x segments x pixels.
 Geometry of segment k (see :mod:`shared.body`): an elliptic cylinder with semi-axes
 ``radii[k]`` along ``cross_section_axes()[k]``, spanning ``-extents[k, 0]`` to
 ``lengths[k] + extents[k, 1]`` along ``SEGMENT_AXIS[k]``, closed by half-ellipsoid caps with
-the same cross-section and axial semi-axis ``cap = CAP_FRACTION[k] * min(radii[k])``:
+the same cross-section and axial semi-axis ``cap = CAP_FRACTION[k] * min(radii[k])``, its axis
+moved off the joint axis by ``offsets[k]`` (local coordinates of hits stay joint-relative):
 
 - at a *joint end* (where another segment attaches: every lower end except the root's, and
   upper ends with children) the cap is centred on the end of the cylinder and bulges
@@ -36,7 +37,7 @@ import numpy as np
 import torch
 
 from shared import skeleton as sk
-from shared.body import BodyShape, cross_section_axes
+from shared.body import FOOT_SEGMENTS, BodyShape, cross_section_axes
 from shared.camera import Intrinsics, pixel_grid
 from shared.kinematics import Kinematics, forward_kinematics
 
@@ -65,17 +66,29 @@ _NEAR = 1e-3  # hits closer than this to the camera (or behind it) are ignored, 
 
 @dataclass
 class SegmentGeometry:
-    """Per-segment capsule parameters in segment-local coordinates.
+    """Capsule parameters of the body's P primitives (15 segments, then the 2 feet) in the local
+    frames of the segments they ride on.
 
     Attributes:
-        basis: (15, 3, 3) rows: first and second cross-section axis, segment axis (local frame).
-        scale: (..., 15, 3) semi-axes (r1, r2, cap), metres.
-        span: (..., 15, 2) axial positions of the two cap centres (metres along the axis).
+        basis: (P, 3, 3) rows: first and second cross-section axis, capsule axis (local frame).
+        scale: (..., P, 3) semi-axes (r1, r2, cap), metres.
+        span: (..., P, 2) axial positions of the two cap centres (metres along the axis).
+        centre: (..., P, 3) the capsule axis's offset from the segment origin, local frame.
+        segment: (P,) int64 segment each primitive is rigid with.
     """
 
     basis: torch.Tensor
     scale: torch.Tensor
     span: torch.Tensor
+    centre: torch.Tensor
+    segment: torch.Tensor
+
+    def frames(self, kin: Kinematics) -> tuple[torch.Tensor, torch.Tensor]:
+        """Rotation (B, P, 3, 3) and camera-frame axis point at span 0 (B, P, 3) per primitive."""
+        B = kin.origins.shape[0]
+        rot = kin.rotations[:, self.segment]
+        origin = kin.origins[:, self.segment]
+        return rot, origin + (rot @ self.centre.expand(B, -1, -1)[..., None])[..., 0]
 
 
 @dataclass
@@ -104,7 +117,6 @@ def segment_geometry(body: BodyShape, like: torch.Tensor) -> SegmentGeometry:
     dtype, device = like.dtype, like.device
     axes = torch.as_tensor(cross_section_axes(), dtype=dtype, device=device)  # (15, 2, 3)
     seg_axis = torch.as_tensor(sk.SEGMENT_AXIS, dtype=dtype, device=device)
-    basis = torch.cat([axes, seg_axis[:, None]], 1)
     radii = body.radii.to(dtype=dtype, device=device)
     lengths = body.lengths.to(dtype=dtype, device=device)
     ext = body.extents.to(dtype=dtype, device=device)
@@ -115,7 +127,23 @@ def segment_geometry(body: BodyShape, like: torch.Tensor) -> SegmentGeometry:
     lo = -ext[..., 0] + torch.where(lower_free, cap, torch.zeros_like(cap))
     hi = lengths + ext[..., 1] - torch.where(upper_free, cap, torch.zeros_like(cap))
     hi = torch.maximum(hi, lo)
-    return SegmentGeometry(basis, torch.cat([radii, cap[..., None]], -1), torch.stack([lo, hi], -1))
+    centre = torch.einsum("...ki,kij->...kj", body.offsets.to(dtype=dtype, device=device), axes)
+    # Feet: capsules along the shank frame's forward axis (local z), lying on the sole (the
+    # shank's end) from the shank axis to the toe tip; cross-sections along local x and y.
+    feet = body.feet.to(dtype=dtype, device=device)  # (..., 2, 2)
+    fs = torch.as_tensor(FOOT_SEGMENTS, device=device)
+    r_f = feet[..., 1]
+    sole = lengths[..., fs] + ext[..., fs, 1] - r_f  # along the shank axis
+    foot_centre = sole[..., None] * seg_axis[fs] + centre[..., fs, :]
+    foot_span = torch.stack([torch.zeros_like(r_f), (feet[..., 0] - r_f).clamp_min(0)], -1)
+    eye = torch.eye(3, dtype=dtype, device=device)
+    basis = torch.cat([torch.cat([axes, seg_axis[:, None]], 1), eye.expand(2, 3, 3)], 0)
+    scale = torch.cat(
+        [torch.cat([radii, cap[..., None]], -1), r_f[..., None].expand(*r_f.shape, 3)], -2
+    )
+    span = torch.cat([torch.stack([lo, hi], -1), foot_span], -2)
+    segment = torch.cat([torch.arange(sk.NUM_SEGMENTS, device=device), fs])
+    return SegmentGeometry(basis, scale, span, torch.cat([centre, foot_centre], -2), segment)
 
 
 def _segment_boxes(
@@ -129,9 +157,10 @@ def _segment_boxes(
     (0, 0, 0, 0). This is the ray-caster's one host sync.
     """
     B = kin.origins.shape[0]
-    axis_w = torch.einsum("bkij,kj->bki", kin.rotations, geom.basis[:, 2])
+    rot, origin = geom.frames(kin)
+    axis_w = torch.einsum("bkij,kj->bki", rot, geom.basis[:, 2])
     span = geom.span.expand(B, -1, -1)
-    centres = kin.origins[:, :, None] + span[..., None] * axis_w[:, :, None]  # (B, K, 2, 3)
+    centres = origin[:, :, None] + span[..., None] * axis_w[:, :, None]  # (B, P, 2, 3)
     radius = geom.scale[..., :2].max(-1).values.expand(B, -1)[..., None]  # (B, K, 1)
     x, y, z = centres.unbind(-1)
     near, far = (z - radius).clamp_min(_NEAR), z + radius
@@ -196,11 +225,12 @@ def _cast(
     Returns:
         (B, P) depth, inf where the ray misses.
     """
-    B, K = kin.origins.shape[:2]
+    rot, origin = geom.frames(kin)
+    B, K = origin.shape[:2]
     # World -> scaled local: xi = diag(1/scale) @ basis @ R^T @ (x - o). One table row per
     # (pose, segment), gathered once per pair: 9 matrix entries, camera centre, cap centres.
-    m = (geom.basis @ kin.rotations.transpose(-1, -2)) / geom.scale.expand(B, -1, -1)[..., None]
-    o = -(m @ kin.origins[..., None])[..., 0]  # (B, K, 3): camera centre in scaled space
+    m = (geom.basis @ rot.transpose(-1, -2)) / geom.scale.expand(B, -1, -1)[..., None]
+    o = -(m @ origin[..., None])[..., 0]  # (B, K, 3): camera centre in scaled space
     zab = (geom.span / geom.scale[..., 2:]).expand(B, -1, -1)
     table = torch.cat([m.reshape(B, K, 9), o, zab], -1)  # (B, K, 14)
     # Channel-first gather: every component below is a contiguous (B, P) tensor.
@@ -232,26 +262,30 @@ def _cast(
 
 
 def _hit_details(
-    points: torch.Tensor, segment: torch.Tensor, kin: Kinematics, geom: SegmentGeometry
+    points: torch.Tensor, primitive: torch.Tensor, kin: Kinematics, geom: SegmentGeometry
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Local coordinates and camera-frame unit normals of points on their segments' surfaces.
+    """Segment-frame coordinates and camera-frame unit normals of points on their primitives'
+    surfaces.
 
     Args:
-        points: (B, N, 3) camera-frame points; segment: (B, N) int64 (clamped to >= 0).
+        points: (B, N, 3) camera-frame points; primitive: (B, N) int64 (clamped to >= 0).
     Returns:
         local (B, N, 3), normals (B, N, 3).
     """
     B, N = points.shape[:2]
-    K = kin.origins.shape[1]
+    rot, origin = geom.frames(kin)
+    K = origin.shape[1]
     # Camera -> section coordinates (r1-direction, r2-direction, axial), metres: c = A (p - o).
-    a_mat = geom.basis @ kin.rotations.transpose(-1, -2)  # (B, K, 3, 3)
+    a_mat = geom.basis @ rot.transpose(-1, -2)  # (B, P, 3, 3)
     scale = geom.scale.expand(B, -1, -1)
     span = geom.span.expand(B, -1, -1)
     basis = geom.basis.expand(B, -1, -1, -1)
+    centre = geom.centre.expand(B, -1, -1)
     table = torch.cat(
-        [a_mat.reshape(B, K, 9), kin.origins, scale, span, basis.reshape(B, K, 9)], -1
-    )  # (B, K, 26)
-    flat = (segment + K * torch.arange(B, device=points.device)[:, None]).reshape(-1)
+        [a_mat.reshape(B, K, 9), origin, scale, span, basis.reshape(B, K, 9), centre],
+        -1,
+    )  # (B, P, 29)
+    flat = (primitive + K * torch.arange(B, device=points.device)[:, None]).reshape(-1)
     row = table.reshape(B * K, -1).T.contiguous().index_select(1, flat).reshape(-1, B, N)
     a_r = row[0:9]
     rel = points.permute(2, 0, 1) - row[9:12]  # (3, B, N)
@@ -259,9 +293,12 @@ def _hit_details(
         [a_r[3 * i] * rel[0] + a_r[3 * i + 1] * rel[1] + a_r[3 * i + 2] * rel[2] for i in range(3)]
     )
     b_r = row[17:26]
-    # basis is orthonormal: local = basis^T c
+    # basis is orthonormal: local = basis^T c, plus the capsule's offset from the joint axis
     local = torch.stack(
-        [b_r[j] * coords[0] + b_r[3 + j] * coords[1] + b_r[6 + j] * coords[2] for j in range(3)]
+        [
+            b_r[j] * coords[0] + b_r[3 + j] * coords[1] + b_r[6 + j] * coords[2] + row[26 + j]
+            for j in range(3)
+        ]
     )
     axial = coords[2] - torch.minimum(torch.maximum(coords[2], row[15]), row[16])
     grad = torch.stack([coords[0], coords[1], axial]) / (row[12:15] * row[12:15])
@@ -300,8 +337,8 @@ def render_body(
     if box:
         boxes = _segment_boxes(kin, geom, intr)
     else:
-        boxes = [(0, W, 0, H)] * sk.NUM_SEGMENTS
-    pix, pseg, col, row = _pairs(boxes, W, q.device)
+        boxes = [(0, W, 0, H)] * geom.segment.shape[0]
+    pix, pseg, col, row = _pairs(boxes, W, q.device)  # pseg: primitive of each pair
     rays = torch.stack(
         [
             (col.to(q.dtype) - intr.cx) / intr.fx,
@@ -315,11 +352,12 @@ def render_body(
     zbuf = inf.scatter_reduce(1, pix.expand(B, -1), t, "amin")
     # Winner per pixel: the pair whose depth equals the z-buffer (ties: any of them).
     won = (t == zbuf[:, pix]) & torch.isfinite(t)
-    segment = torch.full((B, H * W), -1, dtype=torch.long, device=q.device)
-    flat_seg = torch.where(won, pseg.expand(B, -1), torch.full_like(t, -1, dtype=torch.long))
-    segment = segment.scatter_reduce(1, pix.expand(B, -1), flat_seg, "amax")
-    depth = torch.where(segment >= 0, zbuf, torch.zeros_like(zbuf)).reshape(B, H, W)
-    segment = segment.reshape(B, H, W)
+    prim = torch.full((B, H * W), -1, dtype=torch.long, device=q.device)
+    flat_prim = torch.where(won, pseg.expand(B, -1), torch.full_like(t, -1, dtype=torch.long))
+    prim = prim.scatter_reduce(1, pix.expand(B, -1), flat_prim, "amax")
+    depth = torch.where(prim >= 0, zbuf, torch.zeros_like(zbuf)).reshape(B, H, W)
+    prim = prim.reshape(B, H, W)
+    segment = torch.where(prim >= 0, geom.segment[prim.clamp_min(0)], prim)
     local = q.new_zeros(B, H, W, 3)
     normals = q.new_zeros(B, H, W, 3)
     # Surface coordinates only inside the union of the boxes (everything else is background).
@@ -327,7 +365,7 @@ def render_body(
     if live:
         u0, u1 = min(b[0] for b in live), max(b[1] for b in live)
         v0, v1 = min(b[2] for b in live), max(b[3] for b in live)
-        d, sg = depth[:, v0:v1, u0:u1], segment[:, v0:v1, u0:u1]
+        d, sg = depth[:, v0:v1, u0:u1], prim[:, v0:v1, u0:u1]
         u, v = pixel_grid(v1 - v0, u1 - u0, q.dtype, q.device)
         rays = torch.stack(
             [(u + u0 - intr.cx) / intr.fx, (v + v0 - intr.cy) / intr.fy, torch.ones_like(u)], -1
@@ -355,8 +393,9 @@ def surface_distance(points: torch.Tensor, kin: Kinematics, body: BodyShape) -> 
     """
     geom = segment_geometry(body, points)
     B = points.shape[0]
-    rel = points[:, :, None, :] - kin.origins[:, None]  # (B, N, K, 3)
-    local = (rel[..., None, :] @ kin.rotations[:, None])[..., 0, :]
+    rot, origin = geom.frames(kin)
+    rel = points[:, :, None, :] - origin[:, None]  # (B, N, P, 3)
+    local = (rel[..., None, :] @ rot[:, None])[..., 0, :]
     coords = torch.einsum("kij,bnkj->bnki", geom.basis, local)
     span = geom.span.expand(B, -1, -1)[:, None]
     scale = geom.scale.expand(B, -1, -1)[:, None]

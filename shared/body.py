@@ -3,7 +3,14 @@
 A body is what skeleton calibration (Wei section 6) and personalization (Helten section III)
 estimate, and what ``runtime-track --body`` loads. The geometry of segment k is an elliptic
 cylinder along the segment axis from ``-extent[k, 0]`` to ``length[k] + extent[k, 1]``, with
-semi-axes ``radii[k]`` along the two cross-section directions of ``cross_section_axes``.
+semi-axes ``radii[k]`` along the two cross-section directions of ``cross_section_axes``,
+centred ``offsets[k]`` away from the joint axis along those same directions: bones do not run
+through the middle of the flesh (the spine lies behind the trunk's centre, the femur inside
+the thigh's), so a body measured on a mesh needs both to put its joints where the skeleton's are.
+Each shank also carries a foot: a capsule rigid with the shank (no joint of its own), lying on
+the sole and reaching ``feet[side, 0]`` forward of the shank axis with radius ``feet[side, 1]``.
+Wei's 15 cylinders have no feet; without them a standing person's feet are depth the model
+cannot explain, and the data terms tilt the shanks forward to reach them (8 cm at the ankles).
 
 Defaults describe an average adult of about 1.75 m (rounded anthropometric figures):
 stature = ankle height + shank + thigh + pelvis + abdomen + chest + neck + head.
@@ -20,19 +27,26 @@ import torch
 
 from .skeleton import NUM_SEGMENTS, SEGMENT_AXIS, SEGMENT_NAMES
 
+# The segments that carry the feet (left, right): the shanks.
+FOOT_SEGMENTS = (SEGMENT_NAMES.index("l_shank"), SEGMENT_NAMES.index("r_shank"))
+
 __all__ = [
     "BodyShape",
     "DEFAULT_LENGTHS",
     "DEFAULT_RADII",
     "DEFAULT_EXTENTS",
     "DEFAULT_HIP_HALF_WIDTH",
+    "DEFAULT_FEET",
+    "FOOT_SEGMENTS",
     "cross_section_axes",
     "BODY_FORMAT",
     "BODY_VERSION",
 ]
 
 BODY_FORMAT = "depthmocap-body"
-BODY_VERSION = 1
+# Version 2 added section centre offsets and feet; version 1 files load with zero offsets and
+# the default feet scaled to the body's stature.
+BODY_VERSION = 2
 
 # Joint-to-joint lengths in metres, in SEGMENT_NAMES order.
 DEFAULT_LENGTHS = np.array(
@@ -81,6 +95,11 @@ DEFAULT_EXTENTS = np.array(
     ]
 )
 DEFAULT_HIP_HALF_WIDTH = 0.09
+L, E = DEFAULT_LENGTHS, DEFAULT_EXTENTS
+_DEFAULT_STATURE = float(L[11] + L[13] + E[13, 1] + L[:5].sum() + E[4, 1])  # as BodyShape.stature
+del L, E
+# Foot of each side (left, right): (toe tip forward of the shank axis, radius), metres.
+DEFAULT_FEET = np.array([[0.19, 0.035], [0.19, 0.035]])
 
 
 def cross_section_axes() -> np.ndarray:
@@ -105,12 +124,28 @@ class BodyShape:
         radii: (..., 15, 2) cross-section semi-axes of each segment, metres.
         extents: (..., 15, 2) geometry before the origin / beyond the end, metres.
         hip_half_width: (...) lateral distance of each hip joint from the hip centre, metres.
+        offsets: (..., 15, 2) centre of each cross-section relative to the joint axis, along
+            the two cross-section directions, metres (None: zeros, the cylinder on the axis).
+        feet: (..., 2, 2) left and right foot: (toe tip forward of the shank axis, radius),
+            metres (None: the default feet scaled by stature).
     """
 
     lengths: torch.Tensor
     radii: torch.Tensor
     extents: torch.Tensor
     hip_half_width: torch.Tensor
+    offsets: torch.Tensor | None = None
+    feet: torch.Tensor | None = None
+
+    def __post_init__(self) -> None:
+        if self.offsets is None:
+            self.offsets = torch.zeros_like(self.radii)
+        if self.feet is None:
+            default = torch.as_tensor(
+                DEFAULT_FEET, dtype=self.radii.dtype, device=self.radii.device
+            )
+            ratio = self.stature() / _DEFAULT_STATURE
+            self.feet = default * ratio[..., None, None]
 
     @classmethod
     def default(
@@ -130,7 +165,9 @@ class BodyShape:
         return BodyShape(*(x.to(device=device, dtype=dtype) for x in self._fields()))
 
     def _fields(self) -> tuple[torch.Tensor, ...]:
-        return (self.lengths, self.radii, self.extents, self.hip_half_width)
+        return (
+            self.lengths, self.radii, self.extents, self.hip_half_width, self.offsets, self.feet
+        )  # fmt: skip
 
     def scaled(self, factor: float | torch.Tensor) -> BodyShape:
         """Uniformly scaled body (every length and radius times ``factor``)."""
@@ -140,6 +177,8 @@ class BodyShape:
             self.radii * f[..., None, None],
             self.extents * f[..., None, None],
             self.hip_half_width * f,
+            self.offsets * f[..., None, None],
+            self.feet * f[..., None, None],
         )
 
     def stature(self) -> torch.Tensor:
@@ -155,16 +194,25 @@ class BodyShape:
             raise ValueError(
                 f"body lengths must end in {NUM_SEGMENTS}, got {tuple(self.lengths.shape)}"
             )
-        for name, x in (("radii", self.radii), ("extents", self.extents)):
+        for name, x in (
+            ("radii", self.radii),
+            ("extents", self.extents),
+            ("offsets", self.offsets),
+        ):
             if tuple(x.shape[-2:]) != (NUM_SEGMENTS, 2):
                 raise ValueError(
                     f"body {name} must end in ({NUM_SEGMENTS}, 2), got {tuple(x.shape)}"
                 )
-        for name, x in zip(("lengths", "radii", "extents", "hip_half_width"), self._fields()):
+        if tuple(self.feet.shape[-2:]) != (2, 2):
+            raise ValueError(f"body feet must end in (2, 2), got {tuple(self.feet.shape)}")
+        names = ("lengths", "radii", "extents", "hip_half_width", "offsets", "feet")
+        for name, x in zip(names, self._fields()):
             if not bool(torch.isfinite(x).all()):
                 raise ValueError(f"body {name} has non-finite values")
         if bool((self.lengths <= 0).any()) or bool((self.radii <= 0).any()):
             raise ValueError("body lengths and radii must be positive")
+        if bool((self.feet <= 0).any()):
+            raise ValueError("body feet must have positive lengths and radii")
         if bool((self.extents < 0).any()) or bool((self.hip_half_width <= 0).any()):
             raise ValueError("body extents must be >= 0 and hip_half_width > 0")
 
@@ -178,9 +226,12 @@ class BodyShape:
                 "length": float(self.lengths[k]),
                 "radii": [float(r) for r in self.radii[k]],
                 "extents": [float(e) for e in self.extents[k]],
+                "offsets": [float(o) for o in self.offsets[k]],
             }
             for k, name in enumerate(SEGMENT_NAMES)
         }
+        for side, k in enumerate(FOOT_SEGMENTS):
+            segs[SEGMENT_NAMES[k]]["foot"] = [float(f) for f in self.feet[side]]
         return {
             "format": BODY_FORMAT,
             "version": BODY_VERSION,
@@ -209,11 +260,16 @@ class BodyShape:
             extents = [
                 [float(e) for e in segs[n].get("extents", (0.0, 0.0))] for n in SEGMENT_NAMES
             ]
+            offsets = [
+                [float(o) for o in segs[n].get("offsets", (0.0, 0.0))] for n in SEGMENT_NAMES
+            ]
             hw = float(data["hip_half_width"])
+            feet = [segs[SEGMENT_NAMES[k]].get("foot") for k in FOOT_SEGMENTS]
+            feet = None if any(f is None for f in feet) else [[float(x) for x in f] for f in feet]
         except (KeyError, TypeError, ValueError) as err:
             raise ValueError(f"body file is malformed: {err}") from None
         t = lambda a: torch.tensor(a, dtype=dtype)  # noqa: E731
-        body = cls(t(lengths), t(radii), t(extents), t(hw))
+        body = cls(t(lengths), t(radii), t(extents), t(hw), t(offsets), feet and t(feet))
         body.validate()
         return body
 

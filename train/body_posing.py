@@ -18,7 +18,6 @@ from shared import skeleton as sk
 from shared.kinematics import forward_kinematics
 
 from .anny_body import AnnyBody, PosedBody, anatomical_joints, bone_segments, pose_body
-from .retarget import body_from_named_joints
 
 __all__ = ["rest_corrections", "pose_anny", "skeleton_body_of"]
 
@@ -78,5 +77,9 @@ def pose_anny(body: AnnyBody, q: np.ndarray) -> PosedBody:
 
 
 def skeleton_body_of(body: AnnyBody):
-    """The tracking skeleton's :class:`BodyShape` measured from an anny body's joints."""
-    return body_from_named_joints(anatomical_joints(body))
+    """The tracking skeleton's :class:`BodyShape` measured on an anny body's rest mesh: lengths
+    between its anatomical joints, section radii, centre offsets and extents from its vertices
+    (:func:`shared.body_from_mesh.body_from_mesh`)."""
+    from shared.body_from_mesh import body_from_mesh
+
+    return body_from_mesh(anatomical_joints(body), body.vertices, body.vertex_segment, body.faces)

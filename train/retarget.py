@@ -16,6 +16,7 @@ import torch
 
 from shared import skeleton as sk
 from shared.body import DEFAULT_LENGTHS, BodyShape
+from shared.body_from_mesh import segment_lengths_from_joints
 from shared.ik import fit_pose
 from shared.so3 import matrix_to_rotvec
 
@@ -95,36 +96,13 @@ def body_from_named_joints(joints: np.ndarray, template: BodyShape | None = None
 
     Args:
         joints: (F, J, 3) or (J, 3) named joints.
-        template: supplies radii, extents and the pelvis/abdomen and neck/head splits
-            (defaults to the average adult), scaled by the measured stature.
+        template: supplies radii and extents (defaults to the average adult), scaled by the
+            measured leg length.
     Returns:
         an unbatched float32 :class:`BodyShape`.
     """
-    j = np.asarray(joints, dtype=np.float64).reshape(-1, len(sk.JOINT_NAMES), 3)
-    J = {n: j[:, i] for i, n in enumerate(sk.JOINT_NAMES)}
-
-    def dist(a, b):
-        return float(np.median(np.linalg.norm(J[a] - J[b], axis=-1)))
-
     template = BodyShape.default(torch.float64) if template is None else template.to(torch.float64)
-    L = template.lengths.numpy().copy()
-    names = sk.SEGMENT_NAMES
-    for side in "lr":
-        L[names.index(f"{side}_upper_arm")] = dist(f"{side}_shoulder", f"{side}_elbow")
-        L[names.index(f"{side}_forearm")] = dist(f"{side}_elbow", f"{side}_wrist")
-        L[names.index(f"{side}_thigh")] = dist(f"{side}_hip", f"{side}_knee")
-        L[names.index(f"{side}_shank")] = dist(f"{side}_knee", f"{side}_ankle")
-        L[names.index(f"{side}_clavicle")] = dist(f"{side}_shoulder", "neck")
-    lower_trunk = dist("pelvis", "spine")
-    share = DEFAULT_LENGTHS[0] / (DEFAULT_LENGTHS[0] + DEFAULT_LENGTHS[1])
-    L[0], L[1] = share * lower_trunk, (1 - share) * lower_trunk
-    L[2] = dist("spine", "neck")
-    neck_to_head = dist("neck", "head")  # = neck + head fraction * head length
-    frac = sk.JOINT_FRACTION[sk.JOINT_NAMES.index("head")]
-    ratio = DEFAULT_LENGTHS[4] / DEFAULT_LENGTHS[3]
-    L[3] = neck_to_head / (1 + frac * ratio)
-    L[4] = L[3] * ratio
-    hip = 0.5 * dist("l_hip", "r_hip")
+    L, hip = segment_lengths_from_joints(joints)
     scale = (L[11] + L[13]) / (DEFAULT_LENGTHS[11] + DEFAULT_LENGTHS[13])
     body = BodyShape(
         torch.as_tensor(L),

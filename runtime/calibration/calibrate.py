@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from shared import skeleton as sk
-from shared.body import BodyShape
+from shared.body import FOOT_SEGMENTS, BodyShape
 from shared.camera import Intrinsics, depth_to_points
 from shared.config import field_doc
 from shared.kinematics import rest_pose
@@ -140,8 +140,14 @@ def measure_bones(
         if k in _TORSO and axis is None:
             continue
         rr = (cfg.radius_range[0] * float(r_t[k]), cfg.radius_range[1] * float(r_t[k]))
+        mask = masks[k]
+        if k in FOOT_SEGMENTS and int((mask & ok).sum()) > 0:
+            # The foot points at the camera in the reference pose: its pixels lie well in
+            # front of the shank's and would tilt the shank's cylinder towards the toes.
+            front = depth[mask & ok].median() - 1.5 * r_t[k]
+            mask = mask & ~(ok & (depth < front))
         fit = fit_cylinder(
-            depth, masks[k], intr, rr, cfg.samples, cfg.max_pixels, cfg.min_pixels, gen, axis
+            depth, mask, intr, rr, cfg.samples, cfg.max_pixels, cfg.min_pixels, gen, axis
         )
         if fit.found:
             lengths[k], radii[k] = fit.length, fit.radius

@@ -42,6 +42,13 @@ class TrackerConfig:
     damping: float = field_doc(
         1e-3, "Levenberg damping added to the Gauss-Newton diagonal, relative to its mean"
     )
+    max_step_rad: float = field_doc(
+        0.2,
+        "largest joint-angle change of one Gauss-Newton step, radians: longer steps are "
+        "shortened along their direction (a trust region; 0 = none). The data terms' "
+        "correspondences change as the model moves, so a full step can overshoot into a "
+        "wrong basin, and on the dev recordings unlimited steps diverged on a third of the clips",
+    )
     init_from_prediction: bool = field_doc(
         False,
         "start each frame from the constant-velocity prediction 2 q_prev - q_prev2 instead of "

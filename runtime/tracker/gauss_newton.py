@@ -28,6 +28,7 @@ __all__ = [
     "rows_jacobian",
     "normal_equations",
     "solve_step",
+    "limit_step",
     "apply_step",
 ]
 
@@ -120,6 +121,19 @@ def solve_step(
         rhs = torch.where(free, grad - (damped @ fixed_dq[..., None])[..., 0], fixed_dq)
         dq = torch.linalg.solve(reduced, rhs[..., None])[..., 0]
     return dq.to(q.dtype)
+
+
+def limit_step(dq: torch.Tensor, max_angle: float) -> torch.Tensor:
+    """Shorten each (B, 34) step along its direction so no joint angle (nor the root rotation)
+    changes by more than ``max_angle`` radians; ``max_angle <= 0`` leaves it unchanged.
+
+    Scaling towards zero keeps a step that respects the joint limits inside them (the limits
+    are a box around q).
+    """
+    if max_angle <= 0:
+        return dq
+    largest = dq[:, 3:].abs().amax(1, keepdim=True)
+    return dq * (max_angle / largest.clamp_min(1e-12)).clamp(max=1.0)
 
 
 def apply_step(q: torch.Tensor, dq: torch.Tensor, limits: bool) -> torch.Tensor:

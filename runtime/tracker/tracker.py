@@ -4,8 +4,9 @@ Per frame: pool the observation to the working resolution (once), then iterate: 
 model at the current pose (depth, silhouette, segment, surface coordinates), classify pixels
 (G, B1, B2, B3), build the linearized rows of the depth, extra depth and silhouette terms with
 analytic Jacobians, add the constant-acceleration prior, solve the 34x34 normal equations in
-float64 with a little damping and joint limits as an active set, and update q (root rotation
-on SO(3)); stop after ``cfg.iterations`` or when the update is small. A last ray-cast at the
+float64 with a little damping and joint limits as an active set, shorten the step to at most
+``cfg.max_step_rad`` per joint angle, and update q (root rotation on SO(3)); stop after
+``cfg.iterations`` or when the update is small. A last ray-cast at the
 result gives the failure signals of :mod:`runtime.tracker.signals` only with
 ``cfg.exact_signals`` and an unconverged last step; otherwise the last iteration's rendering (one
 step before the result) stands in for it, which saves a sixth of the frame time.
@@ -28,7 +29,7 @@ from shared.camera import Intrinsics
 from .config import TrackerConfig
 from .depth_term import depth_rows
 from .extra_depth_term import extra_rows, observed_candidates
-from .gauss_newton import apply_step, cat_rows, normal_equations, solve_step
+from .gauss_newton import apply_step, cat_rows, limit_step, normal_equations, solve_step
 from .observation import Observation, observe
 from .prior_term import predict_pose, prior_system
 from .regions import classify
@@ -125,7 +126,7 @@ def fit_frames(
             diag, rhs, _ = prior_system(q, q_pred, cfg.sigma_prior_rad, cfg.sigma_prior_m)
             hess = hess + torch.diag_embed(diag.double())
             grad = grad + rhs.double()
-        dq = solve_step(hess, grad, q, cfg.damping, cfg.use_limits)
+        dq = limit_step(solve_step(hess, grad, q, cfg.damping, cfg.use_limits), cfg.max_step_rad)
         q = apply_step(q, dq, cfg.use_limits)
         iterations += 1
         converged = _small(dq, cfg)

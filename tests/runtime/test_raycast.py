@@ -65,8 +65,48 @@ def test_segment_ids_at_projected_centres():
     assert int(r.segment[0, 0, 0]) == -1 and float(r.depth[0, 0, 0]) == 0.0
 
 
-def test_local_points_round_trip_to_depth_points():
+def _offset_body() -> BodyShape:
+    """The default body with its sections moved off the joint axes (as measured on meshes)."""
     body = BodyShape.default(torch.float64)
+    g = torch.Generator().manual_seed(3)
+    body.offsets = 0.03 * (2 * torch.rand(15, 2, generator=g, dtype=torch.float64) - 1)
+    return body
+
+
+BODIES = {"default": lambda: BodyShape.default(torch.float64), "offsets": _offset_body}
+
+
+def test_section_offset_moves_the_surface():
+    body = BodyShape.default(torch.float64)
+    body.offsets[0, 1] = 0.02  # pelvis centre 2 cm forward, towards the camera
+    q = rest_pose(1, root_position=(0.0, 0.0, 2.5), dtype=torch.float64)
+    r = render_body(q, body, INTR)
+    assert int(r.segment[0, 120, 160]) == 0
+    expected = 2.5 - float(body.radii[0, 1]) - 0.02
+    assert float(r.depth[0, 120, 160]) == pytest.approx(expected, abs=1e-3)
+
+
+def test_feet_ride_on_the_shanks():
+    body = BodyShape.default(torch.float64)
+    q = rest_pose(1, root_position=(0.0, -0.5, 2.5), dtype=torch.float64)  # feet in view
+    r = render_body(q, body, INTR)
+    for side, seg in enumerate((13, 14)):
+        toe, radius = (float(x) for x in body.feet[side])
+        sole = float(body.lengths[seg] + body.extents[seg, 1])
+        # Front of the toe cap, in the shank's frame (its axis points down, z forward).
+        local = torch.tensor([0.0, -(sole - radius), toe], dtype=torch.float64)
+        p = segment_points_to_world(r.kin, local[None, None], torch.tensor([seg]))[0, 0]
+        u, v = _project(p, INTR)
+        assert int(r.segment[0, v, u]) == seg, sk.SEGMENT_NAMES[seg]
+        assert float(r.depth[0, v, u]) == pytest.approx(float(p[2]), abs=3e-3)
+    no_feet = BodyShape.default(torch.float64)
+    no_feet.feet = torch.full((2, 2), 1e-3, dtype=torch.float64)
+    assert int(render_body(q, no_feet, INTR).mask.sum()) < int(r.mask.sum())
+
+
+@pytest.mark.parametrize("make_body", BODIES.values(), ids=BODIES.keys())
+def test_local_points_round_trip_to_depth_points(make_body):
+    body = make_body()
     q = _posed()
     r = render_body(q, body, SMALL)
     world = depth_to_points(r.depth, SMALL)  # (B, H, W, 3)
@@ -81,8 +121,9 @@ def test_local_points_round_trip_to_depth_points():
     assert torch.equal(r.mask, r.segment >= 0)
 
 
-def test_rendered_points_lie_on_the_surface_and_normals_face_the_camera():
-    body = BodyShape.default(torch.float64)
+@pytest.mark.parametrize("make_body", BODIES.values(), ids=BODIES.keys())
+def test_rendered_points_lie_on_the_surface_and_normals_face_the_camera(make_body):
+    body = make_body()
     q = _posed()
     r = render_body(q, body, SMALL)
     pts = depth_to_points(r.depth, SMALL)[r.mask].reshape(1, -1, 3)
@@ -95,6 +136,7 @@ def test_rendered_points_lie_on_the_surface_and_normals_face_the_camera():
     assert torch.allclose(n.norm(dim=-1), torch.ones(n.shape[0], dtype=n.dtype), atol=1e-9)
     assert bool(((n * pts[0]).sum(-1) < 0).all())  # towards the camera
     # Points off the surface: a point 5 cm in front of the pelvis is 5 cm away.
+    body = BodyShape.default(torch.float64)
     front = torch.tensor([[[0.0, 0.0, 2.5 - 0.11 - 0.05]]], dtype=torch.float64)
     kin = forward_kinematics(rest_pose(1, dtype=torch.float64), body)
     assert float(surface_distance(front, kin, body)[0, 0]) == pytest.approx(0.05, abs=1e-6)
@@ -122,12 +164,12 @@ def test_caps_keep_the_stature():
     q = rest_pose(1, root_position=(0.0, 0.0, 3.0), dtype=torch.float64)
     side = Intrinsics(200, 400, 300.0, 300.0, 100.0, 200.0)
     r = render_body(q, body, side)
-    rows = torch.nonzero(r.mask[0].any(1))[:, 0]
-    top_px, bottom_px = int(rows.min()), int(rows.max())
     kin = r.kin
-    # Sole (below the shank) and top of the head (above the head segment) in metres.
-    height_px = (bottom_px - top_px + 1) * 3.0 / side.fy
-    assert height_px == pytest.approx(float(body.stature()), abs=0.03)
+    # Sole (below the shank and the foot) and top of the head in metres: camera y of the hits.
+    v = torch.arange(side.height, dtype=torch.float64)[:, None].expand(-1, side.width)
+    y = ((v - side.cy) / side.fy * r.depth[0])[r.mask[0]]
+    # Pixels are 1 cm apart at 3 m; the outermost hits graze the caps within a pixel or two.
+    assert float(y.max() - y.min()) == pytest.approx(float(body.stature()), abs=0.03)
     assert kin.origins.shape == (1, 15, 3)
 
 

@@ -14,7 +14,7 @@ from runtime.tracker import Tracker, TrackerConfig, TrackerError, track_sequence
 from runtime.tracker.benchmark import camera_motion
 from runtime.tracker.depth_term import depth_rows
 from runtime.tracker.extra_depth_term import closest_points, extra_rows, observed_candidates
-from runtime.tracker.gauss_newton import Rows, rows_jacobian, solve_step
+from runtime.tracker.gauss_newton import Rows, limit_step, rows_jacobian, solve_step
 from runtime.tracker.observation import distance_to_mask, observe, pool_depth
 from runtime.tracker.prior_term import predict_pose, prior_residual, prior_system
 from runtime.tracker.regions import classify, rendered_points
@@ -272,6 +272,16 @@ def test_limits_active_set_keeps_joints_inside():
     dq = solve_step(hess, grad, q, 0.0, True)
     assert float(dq[0, D["l_radius_flex"]]) == pytest.approx(0.0, abs=1e-12)
     assert float(dq[0, D["l_humerus_abd"]]) == pytest.approx(0.1, rel=1e-6)
+
+
+def test_limit_step_shortens_long_steps_along_their_direction():
+    dq = torch.zeros(2, 34, dtype=torch.float64)
+    dq[0, 0], dq[0, D["l_femur_twist"]], dq[0, D["head_x"]] = 0.3, 0.5, -0.1
+    dq[1, D["head_x"]] = 0.05
+    out = limit_step(dq, 0.2)
+    assert torch.allclose(out[0], dq[0] * 0.4)  # 0.5 rad -> 0.2: the whole step x 0.4
+    assert torch.equal(out[1], dq[1])  # short enough: unchanged
+    assert torch.equal(limit_step(dq, 0.0), dq)
 
 
 def test_config_preset_loads():

@@ -42,3 +42,25 @@ def test_body_file_not_json(tmp_path):
         BodyShape.load(tmp_path / "b.json")
     with pytest.raises(FileNotFoundError, match="body file not found"):
         BodyShape.load(tmp_path / "missing.json")
+
+
+def test_body_file_keeps_offsets_and_feet(tmp_path):
+    body = BodyShape.default(torch.float64)
+    body.offsets[1] = torch.tensor([0.0, 0.06])
+    body.feet = torch.tensor([[0.21, 0.03], [0.2, 0.031]], dtype=torch.float64)
+    body.save(tmp_path / "body.json")
+    back = BodyShape.load(tmp_path / "body.json", torch.float64)
+    assert torch.allclose(back.offsets, body.offsets) and torch.allclose(back.feet, body.feet)
+
+
+def test_version_1_body_file_loads_with_centred_sections_and_scaled_feet(tmp_path):
+    data = BodyShape.default().scaled(1.1).to_json_dict()
+    data["version"] = 1
+    for seg in data["segments"].values():
+        seg.pop("offsets")
+        seg.pop("foot", None)
+    (tmp_path / "v1.json").write_text(json.dumps(data))
+    body = BodyShape.load(tmp_path / "v1.json", torch.float64)
+    assert float(body.offsets.abs().max()) == 0.0
+    # Default feet, scaled like the body (stature 1.1 times the default's).
+    assert torch.allclose(body.feet, BodyShape.default(torch.float64).feet * 1.1, atol=1e-6)
