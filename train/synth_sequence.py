@@ -3,7 +3,7 @@ evaluation).
 
 One random anny body performs the clip (retargeted with temporal continuity) in front of one
 fixed camera, in a fixed random scene, at ``fps`` (Kinect: 30). The camera is drawn so that the
-whole motion stays in view. ``groundtruth.npz`` holds per frame the anatomical named joints in
+whole motion stays in view and within the sensor's depth range. ``groundtruth.npz`` holds per frame the anatomical named joints in
 camera metres, the skeleton pose q (camera frame; fitted to those joints by IK, RMS in
 ``q_fit_rms_m``) and the skeleton body; ``body.json`` beside it
 is that body as a body file (what ``runtime-track --body`` loads); ``phenotype.json`` is the anny
@@ -13,6 +13,7 @@ phenotype.
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -98,12 +99,25 @@ def render_sequence(
 
         vp_cfg = replace(vp_cfg, front_weight=1.0, side_weight=0.0, back_weight=0.0)
     hull = placed.vertices[:, ::40].reshape(-1, 3)
+    # A capture session keeps the person inside the sensor's range, not only its field of view:
+    # a clip that wanders beyond it (jogging in a circle) has no depth to track there.
+    max_depth = cfg.noise.max_depth_m if cfg.noise.range_limit else float("inf")
     view = None
-    for _ in range(16):
+    for attempt in range(32):
+        # Half the attempts keep the motion in range; a clip that cannot be is still rendered
+        # (with a warning) so that it fits the field of view at least.
+        in_range = max_depth if attempt < 16 else float("inf")
         view = sample_viewpoint_in_view(
-            rng, hull, intr, vp_cfg, target_height=float(np.median(placed.q[:, 1]))
-        )
+            rng, hull, intr, vp_cfg, target_height=float(np.median(placed.q[:, 1])),
+            max_depth=in_range,
+        )  # fmt: skip
         if view is not None:
+            if attempt >= 16:
+                warnings.warn(
+                    f"{motion}: no camera keeps the whole motion within {max_depth} m; parts of "
+                    "it will have no depth",
+                    stacklevel=2,
+                )
             break
     if view is None:
         raise RuntimeError(f"{motion}: the motion does not fit in view from any sampled camera")

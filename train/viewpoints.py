@@ -251,6 +251,7 @@ def fits_in_view(
     intrinsics: Intrinsics,
     margin_px: float = 0.0,
     min_depth: float = 0.0,
+    max_depth: float = float("inf"),
 ) -> np.ndarray:
     """Whether all points project inside the image, at least ``margin_px`` from its border.
 
@@ -262,6 +263,7 @@ def fits_in_view(
         intrinsics: the camera.
         margin_px: required distance from the image border, pixels.
         min_depth: points must also lie farther than this along z (e.g. the renderer's znear).
+        max_depth: and nearer than this (e.g. the sensor's range, so no part goes unseen).
     Returns:
         (...) bool numpy array (a 0-d array for a single point set).
     """
@@ -279,6 +281,7 @@ def fits_in_view(
     lo = margin_px - 0.5
     inside = (
         in_front
+        & (z < max_depth)
         & (uv[..., 0] >= lo)
         & (uv[..., 0] <= intrinsics.width - 0.5 - margin_px)
         & (uv[..., 1] >= lo)
@@ -296,6 +299,7 @@ def sample_viewpoint_in_view(
     min_depth: float = 0.5,
     target_height: float | None = None,
     max_tries: int = 64,
+    max_depth: float = float("inf"),
 ) -> Viewpoints | None:
     """One viewpoint from which all ``points_world`` (e.g. the posed body's vertices) are seen.
 
@@ -303,13 +307,14 @@ def sample_viewpoint_in_view(
 
     Args:
         points_world: (P, 3) points in the world frame.
+        max_depth: every point must also lie nearer than this along the camera's z (m).
     Returns:
         :class:`Viewpoints` with N = 1, or ``None`` when no candidate fits (e.g. a configured
         distance range too short for the field of view).
     """
     views = sample_viewpoints(rng, max_tries, cfg, target_height)
     points_cam = transform_points(views.cam_from_world, np.asarray(points_world)[None])
-    ok = fits_in_view(points_cam, intrinsics, margin_px, min_depth)
+    ok = fits_in_view(points_cam, intrinsics, margin_px, min_depth, max_depth)
     if not ok.any():
         return None
     i = int(np.argmax(ok))

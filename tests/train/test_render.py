@@ -427,6 +427,8 @@ def test_fits_in_view_and_rejection_sampling():
     assert fits_in_view(edge, INTR, margin_px=1.0 - 1e-6)
     assert not fits_in_view(edge, INTR, margin_px=1.0 + 1e-6)
     assert fits_in_view(torch.tensor(np.stack([pts, pts])), INTR).shape == (2,)
+    assert fits_in_view(edge, INTR, max_depth=2.0 + 1e-6)
+    assert not fits_in_view(edge, INTR, max_depth=2.0 - 1e-6)  # beyond the sensor's range
 
     # A 1.8 m tall, 0.5 m wide "person" standing at the origin.
     body = np.array([[x, y, z] for x in (-0.25, 0.25) for y in (0.0, 1.8) for z in (-0.15, 0.15)])
@@ -438,3 +440,6 @@ def test_fits_in_view_and_rejection_sampling():
     assert fits_in_view(transform_points(view.cam_from_world[0], body), INTR, margin_px=2.0)
     near = ViewpointConfig(distance_min=0.6, distance_max=0.7)
     assert sample_viewpoint_in_view(np.random.default_rng(3), body, INTR, near) is None
+    in_range = sample_viewpoint_in_view(np.random.default_rng(3), body, INTR, max_depth=3.5)
+    assert in_range is not None
+    assert transform_points(in_range.cam_from_world[0], body)[:, 2].max() < 3.5
