@@ -11,6 +11,9 @@ Each shank also carries a foot: a capsule rigid with the shank (no joint of its 
 the sole and reaching ``feet[side, 0]`` forward of the shank axis with radius ``feet[side, 1]``.
 Wei's 15 cylinders have no feet; without them a standing person's feet are depth the model
 cannot explain, and the data terms tilt the shanks forward to reach them (8 cm at the ankles).
+The chest leans ``chest_tilt`` forward on the abdomen (a fixed rest rotation about the body's x
+axis, not a joint): the base of the neck lies in front of the lumbar spine's line (4 cm on
+anny bodies), and a straight trunk put the neck and the shoulders that hang from it there.
 
 Defaults describe an average adult of about 1.75 m (rounded anthropometric figures):
 stature = ankle height + shank + thigh + pelvis + abdomen + chest + neck + head.
@@ -45,8 +48,8 @@ __all__ = [
 
 BODY_FORMAT = "depthmocap-body"
 # Version 2 added section centre offsets and feet; version 1 files load with zero offsets and
-# the default feet scaled to the body's stature.
-BODY_VERSION = 2
+# the default feet scaled to the body's stature. Version 3 added the chest tilt (earlier: 0).
+BODY_VERSION = 3
 
 # Joint-to-joint lengths in metres, in SEGMENT_NAMES order.
 DEFAULT_LENGTHS = np.array(
@@ -128,6 +131,7 @@ class BodyShape:
             the two cross-section directions, metres (None: zeros, the cylinder on the axis).
         feet: (..., 2, 2) left and right foot: (toe tip forward of the shank axis, radius),
             metres (None: the default feet scaled by stature).
+        chest_tilt: (...) forward lean of the chest on the abdomen, radians (None: upright).
     """
 
     lengths: torch.Tensor
@@ -136,6 +140,7 @@ class BodyShape:
     hip_half_width: torch.Tensor
     offsets: torch.Tensor | None = None
     feet: torch.Tensor | None = None
+    chest_tilt: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         if self.offsets is None:
@@ -146,6 +151,8 @@ class BodyShape:
             )
             ratio = self.stature() / _DEFAULT_STATURE
             self.feet = default * ratio[..., None, None]
+        if self.chest_tilt is None:
+            self.chest_tilt = torch.zeros_like(self.hip_half_width)
 
     @classmethod
     def default(
@@ -166,7 +173,8 @@ class BodyShape:
 
     def _fields(self) -> tuple[torch.Tensor, ...]:
         return (
-            self.lengths, self.radii, self.extents, self.hip_half_width, self.offsets, self.feet
+            self.lengths, self.radii, self.extents, self.hip_half_width, self.offsets, self.feet,
+            self.chest_tilt,
         )  # fmt: skip
 
     def scaled(self, factor: float | torch.Tensor) -> BodyShape:
@@ -179,6 +187,7 @@ class BodyShape:
             self.hip_half_width * f,
             self.offsets * f[..., None, None],
             self.feet * f[..., None, None],
+            self.chest_tilt,
         )
 
     def stature(self) -> torch.Tensor:
@@ -205,7 +214,7 @@ class BodyShape:
                 )
         if tuple(self.feet.shape[-2:]) != (2, 2):
             raise ValueError(f"body feet must end in (2, 2), got {tuple(self.feet.shape)}")
-        names = ("lengths", "radii", "extents", "hip_half_width", "offsets", "feet")
+        names = ("lengths", "radii", "extents", "hip_half_width", "offsets", "feet", "chest_tilt")
         for name, x in zip(names, self._fields()):
             if not bool(torch.isfinite(x).all()):
                 raise ValueError(f"body {name} has non-finite values")
@@ -215,6 +224,8 @@ class BodyShape:
             raise ValueError("body feet must have positive lengths and radii")
         if bool((self.extents < 0).any()) or bool((self.hip_half_width <= 0).any()):
             raise ValueError("body extents must be >= 0 and hip_half_width > 0")
+        if bool((self.chest_tilt.abs() > 0.6).any()):
+            raise ValueError("body chest_tilt must lie within +-0.6 rad")
 
     # -- body file (JSON): what calibration and personalization write --------------------
     def to_json_dict(self) -> dict:
@@ -237,6 +248,7 @@ class BodyShape:
             "version": BODY_VERSION,
             "units": "m",
             "hip_half_width": float(self.hip_half_width),
+            "chest_tilt": float(self.chest_tilt),
             "segments": segs,
         }
 
@@ -264,12 +276,13 @@ class BodyShape:
                 [float(o) for o in segs[n].get("offsets", (0.0, 0.0))] for n in SEGMENT_NAMES
             ]
             hw = float(data["hip_half_width"])
+            tilt = float(data.get("chest_tilt", 0.0))
             feet = [segs[SEGMENT_NAMES[k]].get("foot") for k in FOOT_SEGMENTS]
             feet = None if any(f is None for f in feet) else [[float(x) for x in f] for f in feet]
         except (KeyError, TypeError, ValueError) as err:
             raise ValueError(f"body file is malformed: {err}") from None
         t = lambda a: torch.tensor(a, dtype=dtype)  # noqa: E731
-        body = cls(t(lengths), t(radii), t(extents), t(hw), t(offsets), feet and t(feet))
+        body = cls(t(lengths), t(radii), t(extents), t(hw), t(offsets), feet and t(feet), t(tilt))
         body.validate()
         return body
 

@@ -21,6 +21,9 @@ fitted mesh (Helten section III), so the two are comparable.
   hip joints, head above its bone, hand beyond the wrist, sole below the ankle.
 * **Feet**: the toe tip's distance forward of the shank axis, and as radius half the height
   of the foot's middle third (the instep the camera sees).
+* **Chest tilt**: the angle, seen from the side, between the lower trunk (pelvis to spine)
+  and the chest (spine to the base of the neck). Without it the chest went straight up and
+  the neck joint sat 4 cm behind anny's, pulling the shoulders with it.
 """
 
 from __future__ import annotations
@@ -31,7 +34,12 @@ import torch
 from . import skeleton as sk
 from .body import DEFAULT_LENGTHS, FOOT_SEGMENTS, BodyShape, cross_section_axes
 
-__all__ = ["segment_lengths_from_joints", "vertex_areas", "body_from_mesh"]
+__all__ = [
+    "segment_lengths_from_joints",
+    "chest_tilt_from_joints",
+    "vertex_areas",
+    "body_from_mesh",
+]
 
 # Fraction of a 10%-90% quantile range of cos(theta), theta uniform: 2 cos(pi / 10).
 _QUANTILE_RANGE = 2.0 * np.cos(np.pi / 10)
@@ -95,6 +103,14 @@ def _segment_axes(joints: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, 
             start[k], end[k] = J[a], J[b]
     axis = end - start
     return start, axis / np.linalg.norm(axis, axis=1, keepdims=True)
+
+
+def chest_tilt_from_joints(joints: np.ndarray) -> float:
+    """Forward lean (rad) of spine -> neck against pelvis -> spine, in the body's y-z plane;
+    ``joints`` (16, 3) in the body frame (y up, z forward)."""
+    J = dict(zip(sk.JOINT_NAMES, np.asarray(joints, dtype=np.float64)))
+    lower, upper = J["spine"] - J["pelvis"], J["neck"] - J["spine"]
+    return float(np.arctan2(upper[2], upper[1]) - np.arctan2(lower[2], lower[1]))
 
 
 def vertex_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -182,7 +198,7 @@ def body_from_mesh(
     t = torch.as_tensor
     body = BodyShape(
         t(lengths), t(radii), t(extents), torch.tensor(hip_half_width, dtype=torch.float64),
-        t(offsets), t(feet),
+        t(offsets), t(feet), torch.tensor(chest_tilt_from_joints(joints), dtype=torch.float64),
     )  # fmt: skip
     body.validate()
     return body.to(torch.float32)

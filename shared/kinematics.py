@@ -84,6 +84,17 @@ def _dof_rotations(q: torch.Tensor) -> torch.Tensor:
     return torch.cat([rot, eye.expand(3, 3, 1, q.shape[0])], 2)
 
 
+CHEST = sk.SEGMENT_NAMES.index("chest")
+
+
+def _tilt_about_x(angle: torch.Tensor) -> torch.Tensor:
+    """Rotations about x by ``angle`` (B,), batch-last: (3, 3, B)."""
+    c, s = torch.cos(angle), torch.sin(angle)
+    one, zero = torch.ones_like(angle), torch.zeros_like(angle)
+    rows = ((one, zero, zero), (zero, c, -s), (zero, s, c))
+    return torch.stack([torch.stack(row) for row in rows])
+
+
 def forward_kinematics(q: torch.Tensor, body: BodyShape) -> Kinematics:
     """Segment frames and DoF axes for poses ``q``.
 
@@ -116,6 +127,9 @@ def forward_kinematics(q: torch.Tensor, body: BodyShape) -> Kinematics:
     prefix1 = dof_rot[:, :, slots[:, 0]]  # (3, 3, 15, B)
     prefix2 = _mm(prefix1, dof_rot[:, :, slots[:, 1]])
     local = _mm(prefix2, dof_rot[:, :, slots[:, 2]])
+    # The chest has no DoFs: its local rotation is the body's fixed forward lean.
+    tilt = _tilt_about_x(body.chest_tilt.to(q).expand(B))[:, :, None]
+    local = torch.cat([local[:, :, :CHEST], tilt, local[:, :, CHEST + 1 :]], 2)
 
     # Walk the tree one depth level at a time (every segment of a level in one batched op).
     rot_of = {0: rotvec_to_matrix(q[:, 3:6]).permute(1, 2, 0)}  # (3, 3, B)

@@ -3,11 +3,11 @@ evaluation).
 
 One random anny body performs the clip (retargeted with temporal continuity) in front of one
 fixed camera, in a fixed random scene, at ``fps`` (Kinect: 30). The camera is drawn so that the
-whole motion stays in view and within the sensor's depth range. ``groundtruth.npz`` holds per frame the anatomical named joints in
-camera metres, the skeleton pose q (camera frame; fitted to those joints by IK, RMS in
-``q_fit_rms_m``) and the skeleton body; ``body.json`` beside it
-is that body as a body file (what ``runtime-track --body`` loads); ``phenotype.json`` is the anny
-phenotype.
+whole motion stays in view and within the sensor's depth range. ``groundtruth.npz`` holds per
+frame the anatomical named joints in camera metres, the skeleton pose q (camera frame;
+fitted to those joints by IK, RMS in ``q_fit_rms_m``) and the skeleton body; ``body.json``
+beside it is that body as a body file (what ``runtime-track --body`` loads);
+``phenotype.json`` is the anny phenotype.
 """
 
 from __future__ import annotations

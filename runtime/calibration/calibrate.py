@@ -228,6 +228,7 @@ def calibrate_body(
         template.radii * rad_scale[:, None],
         template.extents * len_scale[:, None],
         template.hip_half_width * hip_scale,
+        chest_tilt=template.chest_tilt,
     ).to(dtype=torch.float32)
 
 

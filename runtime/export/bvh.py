@@ -129,8 +129,10 @@ def _rodrigues(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     return np.eye(3) + s * k + (1.0 - c) * (k @ k)
 
 
-def joint_rotations(q: np.ndarray) -> np.ndarray:
+def joint_rotations(q: np.ndarray, chest_tilt: float = 0.0) -> np.ndarray:
     """Local rotation of every segment relative to its parent, (F, 34) -> (F, 15, 3, 3).
+
+    The chest's is the body's fixed ``chest_tilt`` about x (it has no DoFs).
 
     Segment 0 gets the root orientation (segment -> camera). Child joint offsets carry no
     rotation in this skeleton, so a segment's frame is ``R_parent @ local``, exactly what
@@ -144,6 +146,7 @@ def joint_rotations(q: np.ndarray) -> np.ndarray:
     slots = np.where(sk.SEGMENT_DOF_SLOTS >= 6, sk.SEGMENT_DOF_SLOTS - 6, 28)  # 28: identity
     local = dof[:, slots[:, 0]] @ dof[:, slots[:, 1]] @ dof[:, slots[:, 2]]
     local[:, 0] = _rodrigues(axis, angle)
+    local[:, sk.SEGMENT_NAMES.index("chest")] = _rodrigues(np.array([1.0, 0.0, 0.0]), chest_tilt)
     return local
 
 
@@ -218,7 +221,7 @@ def bvh_frame_values(q: np.ndarray, body: BodyShape, units: str = "cm") -> np.nd
         raise ValueError(f"q must have shape (F, {sk.NUM_DOFS}), got {q.shape}")
     if not np.isfinite(q).all():
         raise ValueError("q has non-finite values")
-    local = joint_rotations(q)
+    local = joint_rotations(q, float(body.chest_tilt))
     local[:, 0] = CAMERA_TO_WORLD @ local[:, 0]
     root = q[:, 0:3] @ CAMERA_TO_WORLD.T * UNITS_PER_METRE[units]
     angles = np.empty((len(q), sk.NUM_SEGMENTS, 3))

@@ -48,9 +48,18 @@ def test_body_file_keeps_offsets_and_feet(tmp_path):
     body = BodyShape.default(torch.float64)
     body.offsets[1] = torch.tensor([0.0, 0.06])
     body.feet = torch.tensor([[0.21, 0.03], [0.2, 0.031]], dtype=torch.float64)
+    body.chest_tilt = torch.tensor(0.17, dtype=torch.float64)
     body.save(tmp_path / "body.json")
     back = BodyShape.load(tmp_path / "body.json", torch.float64)
     assert torch.allclose(back.offsets, body.offsets) and torch.allclose(back.feet, body.feet)
+    assert float(back.chest_tilt) == pytest.approx(0.17)
+    data = body.to_json_dict()
+    data["version"] = 2  # version 2 had no tilt: an upright chest
+    del data["chest_tilt"]
+    assert float(BodyShape.from_json_dict(data).chest_tilt) == 0.0
+    data["chest_tilt"] = 2.0
+    with pytest.raises(ValueError, match="chest_tilt"):
+        BodyShape.from_json_dict(data)
 
 
 def test_version_1_body_file_loads_with_centred_sections_and_scaled_feet(tmp_path):

@@ -13,6 +13,7 @@ from shared.kinematics import forward_kinematics, named_joint_positions
 
 RADII = np.array([0.15, 0.1])
 OFFSETS = np.array([0.0, 0.04])  # 4 cm forward of the joint axis
+CHEST_TILT = 0.15  # rad, the chest leaning forward on the abdomen
 
 
 def _rings(start, axis, length, radii, offset, section, n_axial=12, n_around=48):
@@ -28,8 +29,10 @@ def _rings(start, axis, length, radii, offset, section, n_axial=12, n_around=48)
 
 @pytest.fixture(scope="module")
 def mesh():
-    """Every segment of the default body as rings of known radii and offsets, plus feet."""
+    """Every segment of the default body, chest tilted, as rings of known radii and offsets,
+    plus feet."""
     body = BodyShape.default(torch.float64)
+    body.chest_tilt = torch.tensor(CHEST_TILT, dtype=torch.float64)
     q = torch.zeros(1, sk.NUM_DOFS, dtype=torch.float64)  # all angles 0: the body frame
     joints = named_joint_positions(forward_kinematics(q, body))[0].numpy()
     kin = forward_kinematics(q, body)
@@ -66,6 +69,11 @@ def test_sections_offsets_and_feet_are_recovered(mesh):
     np.testing.assert_allclose(body.feet[:, 0].numpy(), 0.2, atol=1e-5)  # toe tip
     np.testing.assert_allclose(body.feet[:, 1].numpy(), 0.03, atol=1e-5)  # half of 6 cm
     np.testing.assert_allclose(body.extents[13:, 1].numpy(), 0.07, atol=1e-5)  # sole
+    assert float(body.chest_tilt) == pytest.approx(CHEST_TILT, abs=1e-6)
+    # The measured body puts the joints back where they were.
+    q = torch.zeros(1, sk.NUM_DOFS)
+    again = named_joint_positions(forward_kinematics(q, body))[0].numpy()
+    np.testing.assert_allclose(again, joints, atol=1e-5)
 
 
 def test_area_weights_ignore_dense_inner_points(mesh):

@@ -67,6 +67,21 @@ def test_joint_angles_golden(dtype):
     np.testing.assert_allclose(p2[J["r_wrist"]], [-0.47, -0.52, 2.24], atol=1e-6)
 
 
+def test_chest_tilt_leans_neck_and_shoulders_forward():
+    body = BodyShape.default(torch.float64)
+    body.chest_tilt = torch.tensor(0.2, dtype=torch.float64)
+    q = rest_pose(1, (0.0, 0.0, 2.5), torch.float64)
+    p = joints(q, body)[0].numpy()
+    upright = joints(q)[0].double().numpy()
+    # The chest (spine -> neck) leans forward (camera -z when facing it) by 0.2 rad.
+    chest = float(body.lengths[2])
+    lean = np.array([0.0, -chest * math.cos(0.2), -chest * math.sin(0.2)])
+    np.testing.assert_allclose(p[J["neck"]], p[J["spine"]] + lean, atol=1e-9)
+    np.testing.assert_allclose(p[J["l_shoulder"]] - p[J["neck"]], [0.18, 0, 0], atol=1e-9)
+    np.testing.assert_allclose(p[J["pelvis"]], upright[J["pelvis"]], atol=1e-9)  # below: same
+    np.testing.assert_allclose(p[J["l_ankle"]], upright[J["l_ankle"]], atol=1e-9)
+
+
 def test_root_rotation_turns_whole_body():
     q = rest_pose(1, (0.0, 0.0, 2.5), torch.float64)
     # Person turned to show their left side: left shoulder now nearer the camera.
@@ -146,6 +161,7 @@ def test_jacobian_matches_autograd():
 
 def test_jacobian_matches_finite_differences():
     body = BodyShape.default(torch.float64)
+    body.chest_tilt = torch.tensor(0.25, dtype=torch.float64)  # a rest rotation in the chain
     q, seg, local = _setup_points(B=2, N=25, seed=3)
     kin = forward_kinematics(q, body)
     jac = point_jacobian(kin, segment_points_to_world(kin, local, seg), seg)
