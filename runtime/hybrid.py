@@ -65,6 +65,17 @@ class HybridConfig:
     epsilon2: float = field_doc(
         0.9, help="tracking fails below this silhouette overlap |R and O| / |R or O| (Wei: 0.9)"
     )
+    epsilon3_mm: float = field_doc(
+        float("inf"),
+        help="tracking also fails when the 97% quantile of observed points' distances to the "
+        "model exceeds this, mm: a limb left behind leaves observed points far from the model "
+        "while the mean residual and the overlap hardly move (not in Wei; inf: off)",
+    )
+    keep_better: bool = field_doc(
+        False,
+        help="after a failure, keep the tracker's pose when the detector's refined pose has no "
+        "smaller 97% surface error (not in Wei: his switch always takes the detector's)",
+    )
     hint_from_tracker: bool = field_doc(
         True,
         help="give the detector's IK the last pose as one more start (it is used only if it "
@@ -84,9 +95,15 @@ class HybridConfig:
             raise HybridError(str(err)) from None
 
 
-def tracking_failed(depth_error_cm: float, overlap: float, cfg: HybridConfig) -> bool:
-    """Wei's two failure tests on a tracked frame."""
-    return not (depth_error_cm <= cfg.epsilon1_cm and overlap >= cfg.epsilon2)
+def tracking_failed(
+    depth_error_cm: float, overlap: float, cfg: HybridConfig, surface_error_q97_mm: float = 0.0
+) -> bool:
+    """Wei's two failure tests on a tracked frame, plus the optional surface error test."""
+    return not (
+        depth_error_cm <= cfg.epsilon1_cm
+        and overlap >= cfg.epsilon2
+        and surface_error_q97_mm <= cfg.epsilon3_mm
+    )
 
 
 class HybridEstimator:
@@ -112,6 +129,11 @@ class HybridEstimator:
     def _joints(self, q: torch.Tensor) -> np.ndarray:
         kin = forward_kinematics(q[None].to(self.detector.body.lengths), self.detector.body)
         return named_joint_positions(kin)[0].detach().cpu().double().numpy()
+
+    def _tracked(self, q: torch.Tensor, errors: dict) -> PoseEstimate:
+        q = q.detach()
+        self.q_prev, self.q_prev2 = q, self.q_prev
+        return PoseEstimate(q.cpu().double().numpy(), self._joints(q), "tracked", errors)
 
     def _detect(self, depth: torch.Tensor, mask: torch.Tensor, errors: dict) -> PoseEstimate:
         labels = labels_from(self.labeler(depth, mask))
@@ -156,11 +178,21 @@ class HybridEstimator:
                 "overlap": float(res.overlap),
                 "surface_error_q97_mm": float(res.surface_error_q97_mm),
             }
-            if not tracking_failed(res.depth_error_cm, res.overlap, self.cfg):
-                q = res.q.detach()
-                self.q_prev, self.q_prev2 = q, self.q_prev
-                return PoseEstimate(q.cpu().double().numpy(), self._joints(q), "tracked", errors)
-            errors = {f"tracker_{k}": v for k, v in errors.items()}
+            if not tracking_failed(
+                res.depth_error_cm, res.overlap, self.cfg, res.surface_error_q97_mm
+            ):
+                return self._tracked(res.q, errors)
+            failed = {f"tracker_{k}": v for k, v in errors.items()}
+            if self.cfg.keep_better:
+                before = self.q_prev, self.q_prev2
+                detected = self._detect(depth, m, failed)
+                det_err = detected.errors.get("surface_error_q97_mm")  # None: not refined
+                worse = det_err is not None and det_err >= res.surface_error_q97_mm
+                if detected.status == "lost" or worse:
+                    self.q_prev, self.q_prev2 = before
+                    return self._tracked(res.q, {**errors, "kept_over_detector": 1.0})
+                return detected
+            errors = failed
         return self._detect(depth, m, errors)
 
 

@@ -147,7 +147,7 @@ def segment_geometry(body: BodyShape, like: torch.Tensor) -> SegmentGeometry:
 
 
 def _segment_boxes(
-    kin: Kinematics, geom: SegmentGeometry, intr: Intrinsics
+    rot: torch.Tensor, origin: torch.Tensor, geom: SegmentGeometry, intr: Intrinsics
 ) -> list[tuple[int, int, int, int]]:
     """Conservative pixel box (u0, u1, v0, v1), end-exclusive, of each segment over the batch.
 
@@ -156,8 +156,7 @@ def _segment_boxes(
     boxes bound each sphere's projection via the extreme x/z and y/z ratios. Empty boxes are
     (0, 0, 0, 0). This is the ray-caster's one host sync.
     """
-    B = kin.origins.shape[0]
-    rot, origin = geom.frames(kin)
+    B = origin.shape[0]
     axis_w = torch.einsum("bkij,kj->bki", rot, geom.basis[:, 2])
     span = geom.span.expand(B, -1, -1)
     centres = origin[:, :, None] + span[..., None] * axis_w[:, :, None]  # (B, P, 2, 3)
@@ -215,17 +214,21 @@ def _pairs(boxes: list[tuple[int, int, int, int]], width: int, device) -> tuple[
 
 
 def _cast(
-    rays: torch.Tensor, seg: torch.Tensor, kin: Kinematics, geom: SegmentGeometry
+    rays: torch.Tensor,
+    seg: torch.Tensor,
+    rot: torch.Tensor,
+    origin: torch.Tensor,
+    geom: SegmentGeometry,
 ) -> torch.Tensor:
     """Ray parameter (= depth) of each ray's hit with one segment's capsule.
 
     Args:
         rays: (P, 3) ray directions with z = 1 (from the camera centre).
         seg: (P,) segment to intersect.
+        rot, origin: the primitives' frames, :meth:`SegmentGeometry.frames`.
     Returns:
         (B, P) depth, inf where the ray misses.
     """
-    rot, origin = geom.frames(kin)
     B, K = origin.shape[:2]
     # World -> scaled local: xi = diag(1/scale) @ basis @ R^T @ (x - o). One table row per
     # (pose, segment), gathered once per pair: 9 matrix entries, camera centre, cap centres.
@@ -262,7 +265,11 @@ def _cast(
 
 
 def _hit_details(
-    points: torch.Tensor, primitive: torch.Tensor, kin: Kinematics, geom: SegmentGeometry
+    points: torch.Tensor,
+    primitive: torch.Tensor,
+    rot: torch.Tensor,
+    origin: torch.Tensor,
+    geom: SegmentGeometry,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Segment-frame coordinates and camera-frame unit normals of points on their primitives'
     surfaces.
@@ -273,7 +280,6 @@ def _hit_details(
         local (B, N, 3), normals (B, N, 3).
     """
     B, N = points.shape[:2]
-    rot, origin = geom.frames(kin)
     K = origin.shape[1]
     # Camera -> section coordinates (r1-direction, r2-direction, axial), metres: c = A (p - o).
     a_mat = geom.basis @ rot.transpose(-1, -2)  # (B, P, 3, 3)
@@ -316,6 +322,7 @@ def render_body(
     intr: Intrinsics,
     kin: Kinematics | None = None,
     box: bool = True,
+    geom: SegmentGeometry | None = None,
 ) -> BodyRender:
     """Ray-cast the cylinder model at poses ``q``.
 
@@ -326,16 +333,19 @@ def render_body(
         kin: forward kinematics of ``q`` if already computed.
         box: cast only the pixels inside the projected body's bounding box (same result,
             faster); False casts every pixel.
+        geom: ``segment_geometry(body, q)`` if already computed (a tracker renders one body
+            many times per frame).
     Returns:
         :class:`BodyRender` with tensors on q's device, depth/points in q's dtype.
     """
     if q.dim() != 2 or q.shape[-1] != sk.NUM_DOFS:
         raise ValueError(f"q must have shape (B, {sk.NUM_DOFS}), got {tuple(q.shape)}")
     kin = forward_kinematics(q, body) if kin is None else kin
-    geom = segment_geometry(body, q)
+    geom = segment_geometry(body, q) if geom is None else geom
+    rot, origin = geom.frames(kin)
     B, H, W = q.shape[0], intr.height, intr.width
     if box:
-        boxes = _segment_boxes(kin, geom, intr)
+        boxes = _segment_boxes(rot, origin, geom, intr)
     else:
         boxes = [(0, W, 0, H)] * geom.segment.shape[0]
     pix, pseg, col, row = _pairs(boxes, W, q.device)  # pseg: primitive of each pair
@@ -347,7 +357,7 @@ def render_body(
         ],
         -1,
     )
-    t = _cast(rays, pseg, kin, geom)  # (B, P)
+    t = _cast(rays, pseg, rot, origin, geom)  # (B, P)
     inf = torch.full((B, H * W), float("inf"), dtype=q.dtype, device=q.device)
     zbuf = inf.scatter_reduce(1, pix.expand(B, -1), t, "amin")
     # Winner per pixel: the pair whose depth equals the z-buffer (ties: any of them).
@@ -371,7 +381,7 @@ def render_body(
             [(u + u0 - intr.cx) / intr.fx, (v + v0 - intr.cy) / intr.fy, torch.ones_like(u)], -1
         )
         pts = (d[..., None] * rays).reshape(B, -1, 3)
-        loc, nrm = _hit_details(pts, sg.reshape(B, -1).clamp_min(0), kin, geom)
+        loc, nrm = _hit_details(pts, sg.reshape(B, -1).clamp_min(0), rot, origin, geom)
         hit = (sg >= 0).reshape(B, -1, 1)
         local[:, v0:v1, u0:u1] = (loc * hit).reshape(B, v1 - v0, u1 - u0, 3)
         normals[:, v0:v1, u0:u1] = (nrm * hit).reshape(B, v1 - v0, u1 - u0, 3)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import torch
 
-from runtime.raycast import render_body
+from runtime.raycast import render_body, segment_geometry
 from shared import skeleton as sk
 from shared.body import BodyShape
 from shared.camera import Intrinsics
@@ -104,10 +104,11 @@ def fit_frames(
     q = q_pred.clone() if cfg.init_from_prediction else q_prev.clone()
     observed = observed_candidates(obs, cfg.max_candidates) if cfg.use_extra_depth else None
     converged = torch.zeros(B, dtype=torch.bool, device=q.device)
+    geom = segment_geometry(body, q)
     iterations = 0
     last = None
     for _ in range(cfg.iterations):
-        render = render_body(q, body, obs.intr)
+        render = render_body(q, body, obs.intr, geom=geom)
         regions = classify(render, obs, cfg.depth_gate_m, cfg.occlusion_handling)
         extra = extra_rows(render, obs, regions, observed, cfg, B) if observed is not None else None
         rows = []
@@ -134,7 +135,7 @@ def fit_frames(
         if bool(converged.all()):
             break
     if last is None or (cfg.exact_signals and not bool(converged.all())):
-        render = render_body(q, body, obs.intr)
+        render = render_body(q, body, obs.intr, geom=geom)
         regions = classify(render, obs, cfg.depth_gate_m, cfg.occlusion_handling)
         extra = None
     else:

@@ -57,16 +57,17 @@ class FakeResult:
 class FakeTracker:
     """Returns the previous pose; fails (large depth error) on the listed call numbers."""
 
-    def __init__(self, fail_calls=(), low_overlap_calls=()):
+    def __init__(self, fail_calls=(), low_overlap_calls=(), surface_mm=12.0):
         self.calls, self.fail, self.low = 0, set(fail_calls), set(low_overlap_calls)
         self.seen_prev2 = []
+        self.surface_mm = surface_mm
 
     def step(self, depth, mask, q_prev, q_prev2=None):
         self.calls += 1
         self.seen_prev2.append(q_prev2 is not None)
         err = 5.0 if self.calls in self.fail else 1.0
         ov = 0.5 if self.calls in self.low else 0.95
-        return FakeResult(q_prev.clone(), err, ov, 12.0)
+        return FakeResult(q_prev.clone(), err, ov, self.surface_mm)
 
 
 @pytest.fixture(scope="module")
@@ -76,9 +77,9 @@ def scene():
     return q, *render_labels(q)
 
 
-def make_hybrid(scene, tracker, **cfg):
+def make_hybrid(scene, tracker, refine_iterations=0, **cfg):
     q, depth, labels, mask = scene
-    det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
+    det = Detector(BODY, INTR, DetectorConfig(refine_iterations=refine_iterations))
     calls = []
 
     def labeler(d, m):
@@ -133,6 +134,30 @@ def test_failure_thresholds():
     assert tracking_failed(2.6, 0.95, cfg)
     assert tracking_failed(1.0, 0.85, cfg)
     assert not tracking_failed(3.0, 0.5, HybridConfig(epsilon1_cm=4.0, epsilon2=0.4))
+    assert not tracking_failed(1.0, 0.95, cfg, surface_error_q97_mm=1e4)  # off by default
+    with_surface = HybridConfig(epsilon3_mm=100.0)
+    assert not tracking_failed(1.0, 0.95, with_surface, surface_error_q97_mm=99.0)
+    assert tracking_failed(1.0, 0.95, with_surface, surface_error_q97_mm=101.0)
+
+
+@pytest.mark.parametrize("tracker_surface_mm, status", [(1e4, "detected"), (0.0, "tracked")])
+def test_keep_better_takes_the_pose_with_the_smaller_surface_error(
+    scene, tracker_surface_mm, status
+):
+    q, depth, labels, mask = scene
+    tracker = FakeTracker(fail_calls={2, 3}, surface_mm=tracker_surface_mm)
+    est, _ = make_hybrid(scene, tracker, refine_iterations=1, keep_better=True)
+    assert est.estimate(frame_of(depth, 0), mask).status == "detected"
+    first = est.q_prev.clone()
+    assert est.estimate(frame_of(depth, 1), mask).status == "tracked"
+    failed = est.estimate(frame_of(depth, 2), mask)  # the tracker fails its depth test
+    assert failed.status == status
+    if status == "tracked":  # kept: the tracker's pose, and the history goes on from it
+        assert failed.errors["kept_over_detector"] == 1.0
+        assert torch.equal(est.q_prev, first) and est.q_prev2 is not None
+    else:
+        assert failed.errors["tracker_surface_error_q97_mm"] == 1e4
+        assert est.q_prev2 is None
 
 
 def test_with_real_tracker_and_detector(scene):
