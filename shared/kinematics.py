@@ -12,8 +12,10 @@ increment the same way, so Gauss-Newton never meets gimbal lock at the root.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from . import skeleton as sk
@@ -70,7 +72,7 @@ _SMALL = 4096
 
 def _mm(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """(3, 3, *) @ (3, 3, *) -> (3, 3, *)."""
-    if a[0, 0].numel() <= _SMALL:
+    if math.prod(a.shape[2:]) <= _SMALL:
         n = a.dim()
         last = (*range(2, n), 0, 1)
         back = (n - 2, n - 1, *range(n - 2))
@@ -80,7 +82,7 @@ def _mm(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 def _mv(a: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     """(3, 3, *) @ (3, *) -> (3, *)."""
-    if a[0, 0].numel() <= _SMALL:
+    if math.prod(a.shape[2:]) <= _SMALL:
         n = v.dim()
         last = (*range(2, n + 1), 0, 1)
         out = a.permute(last) @ v.permute(*range(1, n), 0)[..., None]
@@ -100,6 +102,13 @@ def _dof_rotations(q: torch.Tensor) -> torch.Tensor:
 
 
 CHEST = sk.SEGMENT_NAMES.index("chest")
+# Position of each level's parents within the level before, and where each segment lands when
+# the levels are concatenated (its inverse permutation).
+_LEVEL_PARENT_SLOT = [
+    [list(prev).index(int(sk.SEGMENT_PARENT[k])) for k in level]
+    for prev, level in zip(sk.SEGMENT_LEVELS, sk.SEGMENT_LEVELS[1:])
+]
+_LEVEL_ORDER = np.argsort(np.concatenate(sk.SEGMENT_LEVELS))
 
 
 def _tilt_about_x(angle: torch.Tensor) -> torch.Tensor:
@@ -146,19 +155,21 @@ def forward_kinematics(q: torch.Tensor, body: BodyShape) -> Kinematics:
     tilt = _tilt_about_x(body.chest_tilt.to(q).expand(B))[:, :, None]
     local = torch.cat([local[:, :, :CHEST], tilt, local[:, :, CHEST + 1 :]], 2)
 
-    # Walk the tree one depth level at a time (every segment of a level in one batched op).
-    rot_of = {0: rotvec_to_matrix(q[:, 3:6]).permute(1, 2, 0)}  # (3, 3, B)
-    org_of = {0: q[:, 0:3].T}  # (3, B)
-    for level in sk.SEGMENT_LEVELS[1:]:
-        idx = list(level)
-        r_par = torch.stack([rot_of[int(parent[k])] for k in idx], -2)
-        t_par = torch.stack([org_of[int(parent[k])] for k in idx], -2)
+    # Walk the tree one depth level at a time (every segment of a level in one batched op);
+    # each level's parents all sit in the level before (``_LEVEL_PARENT_SLOT``).
+    r = rotvec_to_matrix(q[:, 3:6]).permute(1, 2, 0)[:, :, None]  # (3, 3, 1, B)
+    t = q[:, 0:3].T[:, None]  # (3, 1, B)
+    rots, orgs = [r], [t]
+    for level, slot in zip(sk.SEGMENT_LEVELS[1:], _LEVEL_PARENT_SLOT):
+        idx = _index(level, q)
+        r_par, t_par = r[:, :, slot], t[:, slot]
         r = _mm(r_par, local[:, :, idx])
         t = t_par + _mv(r_par, offsets[:, idx])
-        for j, k in enumerate(idx):
-            rot_of[k], org_of[k] = r[:, :, j], t[:, j]
-    rotations = torch.stack([rot_of[k] for k in range(K)], -2)  # (3, 3, 15, B)
-    origins = torch.stack([org_of[k] for k in range(K)], -2)  # (3, 15, B)
+        rots.append(r)
+        orgs.append(t)
+    order = _index(_LEVEL_ORDER, q)  # level-major -> segment order
+    rotations = torch.cat(rots, 2)[:, :, order]  # (3, 3, 15, B)
+    origins = torch.cat(orgs, 1)[:, order]  # (3, 15, B)
 
     # World axis of the s-th DoF of a joint: R_parent @ (R_1 ... R_(s-1)) @ axis.
     dof_seg = sk.DOF_SEGMENT[6:]
