@@ -76,6 +76,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--no-pose-check", action="store_true", help="use the first frames without a pose check"
     )
+    p.add_argument(
+        "--length-scale",
+        choices=("consensus", "per_bone"),
+        default="consensus",
+        help="one scale for all lengths (default) or Wei's per-bone lengths",
+    )
     p.add_argument("--start", type=int, default=0, help="first frame index")
     p.add_argument("--stop", type=int, help="stop before this frame index")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress messages")
@@ -109,7 +115,7 @@ def run(args: argparse.Namespace) -> BodyShape:
             template = BodyShape.load(args.template)
         except (FileNotFoundError, ValueError) as err:
             raise CalibrateError(str(err)) from None
-    cfg = CalibrationConfig(hold_frames=args.frames)
+    cfg = CalibrationConfig(hold_frames=args.frames, length_scale=args.length_scale)
     det_cfg = DetectorConfig(refine_iterations=0)
     watcher = ReferencePoseWatcher(cfg)
     with open_stream(args.input, frame_range=FrameRange(args.start, args.stop)) as stream:

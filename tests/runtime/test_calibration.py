@@ -27,7 +27,7 @@ from shared.recording import RecordingWriter
 
 INTR = Intrinsics.kinect_v1(320)
 TEMPLATE = BodyShape.default()
-FAST = CalibrationConfig(samples=384)
+FAST = CalibrationConfig(samples=384, length_scale="per_bone")
 
 
 def render_labels(q: torch.Tensor, body: BodyShape):
@@ -62,6 +62,22 @@ def test_calibrated_lengths_within_2cm():
         cal.lengths[13], cal.lengths[14]
     )
     cal.validate()
+
+
+def test_consensus_scale_gives_every_length_one_factor():
+    body = subject()
+    depth, labels = render_labels(reference_pose(root_position=(0.05, 0.1, 2.7)), body)
+    cfg = CalibrationConfig(samples=384)
+    assert cfg.length_scale == "consensus"
+    cal = calibrate_body([depth], [labels], INTR, TEMPLATE, cfg)
+    ratio = cal.lengths / TEMPLATE.lengths
+    assert torch.allclose(ratio, ratio[0].expand_as(ratio), rtol=1e-5)
+    # The median of the subject's per-bone factors (1.0 to 1.1): the body's overall size.
+    assert 1.0 < float(ratio[0]) < 1.1
+    per_bone = calibrate_body([depth], [labels], INTR, TEMPLATE, FAST)
+    assert torch.allclose(cal.radii, per_bone.radii)  # radii stay per bone either way
+    with pytest.raises(ValueError, match="length_scale"):
+        CalibrationConfig(length_scale="global")
 
 
 def test_fit_cylinder_of_a_forearm():
@@ -110,9 +126,12 @@ def test_cli_calibrates_from_a_recording(tmp_path):
     _write_recording(tmp_path / "rec", [rest_pose(1, (0.0, 0.1, 2.6))[0], ref, ref], body)
     out = tmp_path / "body.json"
     args = ["--input", str(tmp_path / "rec"), "--output", str(out), "--labels", "recording"]
-    assert main([*args, "--frames", "2", "--quiet"]) == 0
+    assert main([*args, "--frames", "2", "--quiet", "--length-scale", "per_bone"]) == 0
     cal = BodyShape.load(out)
     assert float((cal.lengths - body.lengths).abs().max()) < 0.02
+    assert main([*args, "--frames", "2", "--quiet"]) == 0  # consensus: one factor
+    ratio = BodyShape.load(out).lengths / TEMPLATE.lengths
+    assert float(ratio.max() - ratio.min()) < 1e-5
 
 
 def test_cli_errors(tmp_path, capsys):
