@@ -101,7 +101,7 @@ def _dof_rotations(q: torch.Tensor) -> torch.Tensor:
     return torch.cat([rot, eye.expand(3, 3, 1, q.shape[0])], 2)
 
 
-CHEST = sk.SEGMENT_NAMES.index("chest")
+_CHEST = sk.SEGMENT_NAMES.index("chest")
 # Position of each level's parents within the level before, and where each segment lands when
 # the levels are concatenated (its inverse permutation).
 _LEVEL_PARENT_SLOT = [
@@ -153,7 +153,7 @@ def forward_kinematics(q: torch.Tensor, body: BodyShape) -> Kinematics:
     local = _mm(prefix2, dof_rot[:, :, slots[:, 2]])
     # The chest has no DoFs: its local rotation is the body's fixed forward lean.
     tilt = _tilt_about_x(body.chest_tilt.to(q).expand(B))[:, :, None]
-    local = torch.cat([local[:, :, :CHEST], tilt, local[:, :, CHEST + 1 :]], 2)
+    local = torch.cat([local[:, :, :_CHEST], tilt, local[:, :, _CHEST + 1 :]], 2)
 
     # Walk the tree one depth level at a time (every segment of a level in one batched op);
     # each level's parents all sit in the level before (``_LEVEL_PARENT_SLOT``).

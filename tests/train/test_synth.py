@@ -114,6 +114,18 @@ def test_sequence_mode_recording_reads_back(tmp_path):
     assert d.shape == (240, 320) and (rec.read_labels(0) > 0).sum() > 500
 
 
+def test_sequence_out_of_sensor_range_warns_and_still_renders(tmp_path):
+    _need_egl()
+    from train.synth_frames import SceneConfig
+    from train.synth_sequence import render_sequence
+
+    near = SceneConfig()
+    near = replace(near, noise=replace(near.noise, max_depth_m=1.0))  # no camera fits 1 m
+    with pytest.warns(UserWarning, match="within 1.0 m"):
+        out = render_sequence("wave", tmp_path / "rec", frames=2, seed=2, cfg=near)
+    assert len(Recording(out)) == 2
+
+
 def test_sequence_mode_rejects_unknown_motion(tmp_path):
     from train.synth_cli import main
 
