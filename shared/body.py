@@ -14,6 +14,10 @@ cannot explain, and the data terms tilt the shanks forward to reach them (8 cm a
 The chest leans ``chest_tilt`` forward on the abdomen (a fixed rest rotation about the body's x
 axis, not a joint): the base of the neck lies in front of the lumbar spine's line (4 cm on
 anny bodies), and a straight trunk put the neck and the shoulders that hang from it there.
+Each clavicle rests ``clavicle_rest`` = (elevation, protraction) away from the horizontal
+lateral line, added to both clavicles' joint angles (mirrored, like their axes): anny's
+shoulders sit some 7 cm below the base of the neck, 20 degrees under a horizontal clavicle, and
+a skeleton without the offset pinned its clavicles at their limits or shrugged them to fit.
 
 Defaults describe an average adult of about 1.75 m (rounded anthropometric figures):
 stature = ankle height + shank + thigh + pelvis + abdomen + chest + neck + head.
@@ -48,8 +52,9 @@ __all__ = [
 
 BODY_FORMAT = "depthmocap-body"
 # Version 2 added section centre offsets and feet; version 1 files load with zero offsets and
-# the default feet scaled to the body's stature. Version 3 added the chest tilt (earlier: 0).
-BODY_VERSION = 3
+# the default feet scaled to the body's stature. Version 3 added the chest tilt, version 4 the
+# clavicle rest angles (earlier versions: 0).
+BODY_VERSION = 4
 
 # Joint-to-joint lengths in metres, in SEGMENT_NAMES order.
 DEFAULT_LENGTHS = np.array(
@@ -103,6 +108,8 @@ _DEFAULT_STATURE = float(L[11] + L[13] + E[13, 1] + L[:5].sum() + E[4, 1])  # as
 del L, E
 # Foot of each side (left, right): (toe tip forward of the shank axis, radius), metres.
 DEFAULT_FEET = np.array([[0.19, 0.035], [0.19, 0.035]])
+# Clavicle rest angles beyond this (rad) are no body: anny bodies measure 0.3-0.4 rad down.
+_MAX_CLAVICLE_REST = 0.8
 
 
 def cross_section_axes() -> np.ndarray:
@@ -132,6 +139,8 @@ class BodyShape:
         feet: (..., 2, 2) left and right foot: (toe tip forward of the shank axis, radius),
             metres (None: the default feet scaled by stature).
         chest_tilt: (...) forward lean of the chest on the abdomen, radians (None: upright).
+        clavicle_rest: (..., 2) rest (elevation, protraction) of both clavicles, radians, added
+            to their joint angles (None: zeros, horizontal clavicles).
     """
 
     lengths: torch.Tensor
@@ -141,6 +150,7 @@ class BodyShape:
     offsets: torch.Tensor | None = None
     feet: torch.Tensor | None = None
     chest_tilt: torch.Tensor | None = None
+    clavicle_rest: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         if self.offsets is None:
@@ -153,6 +163,8 @@ class BodyShape:
             self.feet = default * ratio[..., None, None]
         if self.chest_tilt is None:
             self.chest_tilt = torch.zeros_like(self.hip_half_width)
+        if self.clavicle_rest is None:
+            self.clavicle_rest = self.hip_half_width.new_zeros(*self.hip_half_width.shape, 2)
 
     @classmethod
     def default(
@@ -160,8 +172,8 @@ class BodyShape:
     ) -> BodyShape:
         """The average adult of the module docstring, unbatched."""
 
-        def t(a):
-            return torch.as_tensor(a, dtype=dtype, device=device)
+        def t(a):  # a copy: in-place edits of one body must not reach the module's defaults
+            return torch.tensor(a, dtype=dtype, device=device)
 
         return cls(
             t(DEFAULT_LENGTHS), t(DEFAULT_RADII), t(DEFAULT_EXTENTS), t(DEFAULT_HIP_HALF_WIDTH)
@@ -174,7 +186,7 @@ class BodyShape:
     def _fields(self) -> tuple[torch.Tensor, ...]:
         return (
             self.lengths, self.radii, self.extents, self.hip_half_width, self.offsets, self.feet,
-            self.chest_tilt,
+            self.chest_tilt, self.clavicle_rest,
         )  # fmt: skip
 
     def scaled(self, factor: float | torch.Tensor) -> BodyShape:
@@ -188,6 +200,7 @@ class BodyShape:
             self.offsets * f[..., None, None],
             self.feet * f[..., None, None],
             self.chest_tilt,
+            self.clavicle_rest,
         )
 
     def stature(self) -> torch.Tensor:
@@ -214,7 +227,8 @@ class BodyShape:
                 )
         if tuple(self.feet.shape[-2:]) != (2, 2):
             raise ValueError(f"body feet must end in (2, 2), got {tuple(self.feet.shape)}")
-        names = ("lengths", "radii", "extents", "hip_half_width", "offsets", "feet", "chest_tilt")
+        names = ("lengths", "radii", "extents", "hip_half_width", "offsets", "feet", "chest_tilt",
+                 "clavicle_rest")  # fmt: skip
         for name, x in zip(names, self._fields()):
             if not bool(torch.isfinite(x).all()):
                 raise ValueError(f"body {name} has non-finite values")
@@ -226,6 +240,11 @@ class BodyShape:
             raise ValueError("body extents must be >= 0 and hip_half_width > 0")
         if bool((self.chest_tilt.abs() > 0.6).any()):
             raise ValueError("body chest_tilt must lie within +-0.6 rad")
+        if self.clavicle_rest.shape[-1:] != (2,):
+            shape = tuple(self.clavicle_rest.shape)
+            raise ValueError(f"body clavicle_rest must end in 2, got {shape}")
+        if bool((self.clavicle_rest.abs() > _MAX_CLAVICLE_REST).any()):
+            raise ValueError(f"body clavicle_rest must lie within +-{_MAX_CLAVICLE_REST} rad")
 
     # -- body file (JSON): what calibration and personalization write --------------------
     def to_json_dict(self) -> dict:
@@ -249,6 +268,7 @@ class BodyShape:
             "units": "m",
             "hip_half_width": float(self.hip_half_width),
             "chest_tilt": float(self.chest_tilt),
+            "clavicle_rest": [float(a) for a in self.clavicle_rest],
             "segments": segs,
         }
 
@@ -277,12 +297,14 @@ class BodyShape:
             ]
             hw = float(data["hip_half_width"])
             tilt = float(data.get("chest_tilt", 0.0))
+            clavicle = [float(a) for a in data.get("clavicle_rest", (0.0, 0.0))]
             feet = [segs[SEGMENT_NAMES[k]].get("foot") for k in FOOT_SEGMENTS]
             feet = None if any(f is None for f in feet) else [[float(x) for x in f] for f in feet]
         except (KeyError, TypeError, ValueError) as err:
             raise ValueError(f"body file is malformed: {err}") from None
         t = lambda a: torch.tensor(a, dtype=dtype)  # noqa: E731
-        body = cls(t(lengths), t(radii), t(extents), t(hw), t(offsets), feet and t(feet), t(tilt))
+        body = cls(t(lengths), t(radii), t(extents), t(hw), t(offsets), feet and t(feet), t(tilt),
+                   t(clavicle))  # fmt: skip
         body.validate()
         return body
 

@@ -24,6 +24,10 @@ fitted mesh (Helten section III), so the two are comparable.
 * **Chest tilt**: the angle, seen from the side, between the lower trunk (pelvis to spine)
   and the chest (spine to the base of the neck). Without it the chest went straight up and
   the neck joint sat 4 cm behind anny's, pulling the shoulders with it.
+* **Clavicles**: length and rest (elevation, protraction) of the base of the neck -> shoulder
+  line in the tilted chest's frame, both sides averaged (mirrored), from the shoulders where
+  the poser puts them at q = 0 when given: anny's arm chain is turned from its A-pose onto the
+  skeleton's axes by rotating each clavicle bone, which moves the shoulder by 2-3 cm.
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ from .body import DEFAULT_LENGTHS, FOOT_SEGMENTS, BodyShape, cross_section_axes
 __all__ = [
     "segment_lengths_from_joints",
     "chest_tilt_from_joints",
+    "clavicle_rest_from_joints",
     "vertex_areas",
     "body_from_mesh",
 ]
@@ -113,6 +118,23 @@ def chest_tilt_from_joints(joints: np.ndarray) -> float:
     return float(np.arctan2(upper[2], upper[1]) - np.arctan2(lower[2], lower[1]))
 
 
+def clavicle_rest_from_joints(joints: np.ndarray, chest_tilt: float) -> np.ndarray:
+    """Rest (elevation, protraction) of the clavicles (2,) in radians, both sides averaged.
+
+    ``joints`` (16, 3) in the body frame; the angles are those of
+    ``shared.skeleton``'s clavicle DoFs that turn the segment axis (+-x of the chest frame,
+    which leans ``chest_tilt`` forward) onto neck -> shoulder.
+    """
+    J = dict(zip(sk.JOINT_NAMES, np.asarray(joints, dtype=np.float64)))
+    c, s = np.cos(chest_tilt), np.sin(chest_tilt)
+    to_chest = np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])  # R_x(tilt)^T
+    angles = []
+    for side, sign in (("l", 1.0), ("r", -1.0)):
+        x, y, z = to_chest @ (J[f"{side}_shoulder"] - J["neck"])
+        angles.append((np.arctan2(y, sign * x), np.arctan2(z, np.hypot(x, y))))
+    return np.mean(angles, 0)
+
+
 def vertex_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(V,) a third of the area of the triangles around each vertex, square metres."""
     tri = vertices[faces]  # (F, 3, 3)
@@ -153,6 +175,7 @@ def body_from_mesh(
     vertices: np.ndarray,
     vertex_segment: np.ndarray,
     faces: np.ndarray | None = None,
+    posed_shoulders: np.ndarray | None = None,
 ) -> BodyShape:
     """The tracker's body measured on a rest mesh in the body frame (module docstring).
 
@@ -161,6 +184,8 @@ def body_from_mesh(
         vertices: (V, 3) rest vertices in the body frame (x left, y up, z forward).
         vertex_segment: (V,) segment index of each vertex (``SEGMENT_NAMES`` order).
         faces: (F, 3) triangles, to weight vertices by their surface area (None: equal).
+        posed_shoulders: (2, 3) left and right shoulder where the poser puts them at q = 0,
+            for the clavicles' lengths and rest angles (None: the rest joints' shoulders).
     Returns:
         an unbatched float32 :class:`BodyShape`.
     """
@@ -169,6 +194,15 @@ def body_from_mesh(
     segment = np.asarray(vertex_segment)
     weight = np.ones(len(verts)) if faces is None else vertex_areas(verts, np.asarray(faces))
     lengths, hip_half_width = segment_lengths_from_joints(joints)
+    chest_tilt = chest_tilt_from_joints(joints)
+    at_zero = joints.copy()
+    if posed_shoulders is not None:
+        for side, shoulder in zip("lr", np.asarray(posed_shoulders, dtype=np.float64)):
+            at_zero[sk.JOINT_NAMES.index(f"{side}_shoulder")] = shoulder
+    neck = at_zero[sk.JOINT_NAMES.index("neck")]
+    for side in "lr":
+        shoulder = at_zero[sk.JOINT_NAMES.index(f"{side}_shoulder")]
+        lengths[sk.SEGMENT_NAMES.index(f"{side}_clavicle")] = np.linalg.norm(shoulder - neck)
     start, axis = _segment_axes(joints, lengths)
     section = cross_section_axes()  # (15, 2, 3) in the segment frame = body frame at rest
     radii = np.zeros((sk.NUM_SEGMENTS, 2))
@@ -198,7 +232,8 @@ def body_from_mesh(
     t = torch.as_tensor
     body = BodyShape(
         t(lengths), t(radii), t(extents), torch.tensor(hip_half_width, dtype=torch.float64),
-        t(offsets), t(feet), torch.tensor(chest_tilt_from_joints(joints), dtype=torch.float64),
+        t(offsets), t(feet), torch.tensor(chest_tilt, dtype=torch.float64),
+        t(clavicle_rest_from_joints(at_zero, chest_tilt)),
     )  # fmt: skip
     body.validate()
     return body.to(torch.float32)

@@ -119,6 +119,13 @@ def _tilt_about_x(angle: torch.Tensor) -> torch.Tensor:
     return torch.stack([torch.stack(row) for row in rows])
 
 
+def _clavicle_rest_angles(body: BodyShape, q: torch.Tensor) -> torch.Tensor:
+    """(B, 34) the body's clavicle rest angles at the clavicle DoFs, zero elsewhere: FK turns
+    each clavicle by its DoFs plus its rest, so joint limits and priors act around the rest."""
+    rest = body.clavicle_rest.to(q).expand(q.shape[0], 2).repeat(1, 2)  # (B, 4)
+    return torch.zeros_like(q).index_copy(1, _index(sk.CLAVICLE_DOFS, q), rest)
+
+
 def forward_kinematics(q: torch.Tensor, body: BodyShape) -> Kinematics:
     """Segment frames and DoF axes for poses ``q``.
 
@@ -145,7 +152,7 @@ def forward_kinematics(q: torch.Tensor, body: BodyShape) -> Kinematics:
     offsets = offsets.permute(2, 1, 0)
 
     # Local joint rotations R_1 R_2 R_3 (unused slots are the identity), keeping prefixes.
-    dof_rot = _dof_rotations(q)
+    dof_rot = _dof_rotations(q + _clavicle_rest_angles(body, q))
     slots = _index(sk.SEGMENT_DOF_SLOTS, q)
     slots = torch.where(slots >= 6, slots - 6, torch.full_like(slots, 28))
     prefix1 = dof_rot[:, :, slots[:, 0]]  # (3, 3, 15, B)

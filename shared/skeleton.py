@@ -66,6 +66,7 @@ __all__ = [
     "ROOT_TRANSLATION",
     "ROOT_ROTATION",
     "ANGLE_DOFS",
+    "CLAVICLE_DOFS",
     "FACING_CAMERA_ROTVEC",
 ]
 
@@ -180,6 +181,11 @@ DOF_NAMES: tuple[str, ...] = (
 ) + tuple(d[0] for d in _ANGLE_DOFS)
 NUM_DOFS = len(DOF_NAMES)
 assert NUM_DOFS == 34
+# The clavicle (elevation, protraction) pairs, left then right: a body's clavicle rest angles
+# (shared.body.BodyShape.clavicle_rest) add to these.
+CLAVICLE_DOFS: tuple[int, ...] = tuple(
+    DOF_NAMES.index(f"{s}_clavicle_{a}") for s in "lr" for a in ("elev", "prot")
+)
 
 # Segment moved by each DoF (the root's six move the pelvis).
 DOF_SEGMENT = np.array([0] * 6 + [d[1] for d in _ANGLE_DOFS], dtype=np.int64)

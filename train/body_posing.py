@@ -78,8 +78,13 @@ def pose_anny(body: AnnyBody, q: np.ndarray) -> PosedBody:
 
 def skeleton_body_of(body: AnnyBody):
     """The tracking skeleton's :class:`BodyShape` measured on an anny body's rest mesh: lengths
-    between its anatomical joints, section radii, centre offsets and extents from its vertices
+    between its anatomical joints, section radii, centre offsets and extents from its vertices,
+    clavicles from the shoulders as :func:`pose_anny` puts them at q = 0
     (:func:`shared.body_from_mesh.body_from_mesh`)."""
     from shared.body_from_mesh import body_from_mesh
 
-    return body_from_mesh(anatomical_joints(body), body.vertices, body.vertex_segment, body.faces)
+    at_zero = anatomical_joints(body, pose_anny(body, np.zeros((1, sk.NUM_DOFS))))[0]
+    shoulders = at_zero[[sk.JOINT_NAMES.index("l_shoulder"), sk.JOINT_NAMES.index("r_shoulder")]]
+    return body_from_mesh(
+        anatomical_joints(body), body.vertices, body.vertex_segment, body.faces, shoulders
+    )

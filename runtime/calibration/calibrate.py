@@ -249,6 +249,7 @@ def calibrate_body(
         template.extents * len_scale[:, None],
         template.hip_half_width * hip_scale,
         chest_tilt=template.chest_tilt,
+        clavicle_rest=template.clavicle_rest,
     ).to(dtype=torch.float32)
 
 

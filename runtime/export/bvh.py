@@ -129,16 +129,21 @@ def _rodrigues(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     return np.eye(3) + s * k + (1.0 - c) * (k @ k)
 
 
-def joint_rotations(q: np.ndarray, chest_tilt: float = 0.0) -> np.ndarray:
+def joint_rotations(
+    q: np.ndarray, chest_tilt: float = 0.0, clavicle_rest: tuple[float, float] = (0.0, 0.0)
+) -> np.ndarray:
     """Local rotation of every segment relative to its parent, (F, 34) -> (F, 15, 3, 3).
 
-    The chest's is the body's fixed ``chest_tilt`` about x (it has no DoFs).
+    The chest's is the body's fixed ``chest_tilt`` about x (it has no DoFs); the clavicles turn
+    by their angles plus the body's ``clavicle_rest`` (elevation, protraction).
 
     Segment 0 gets the root orientation (segment -> camera). Child joint offsets carry no
     rotation in this skeleton, so a segment's frame is ``R_parent @ local``, exactly what
     :func:`shared.kinematics.forward_kinematics` composes; here in numpy because one pose per
     frame through torch costs milliseconds of overhead.
     """
+    q = np.array(q, dtype=np.float64)
+    q[:, list(sk.CLAVICLE_DOFS)] += np.tile(np.asarray(clavicle_rest, dtype=np.float64), 2)
     angle = np.linalg.norm(q[:, 3:6], axis=1)
     axis = q[:, 3:6] / np.where(angle > 0, angle, 1.0)[:, None]
     dof = _rodrigues(np.broadcast_to(sk.DOF_AXIS[6:], (len(q), 28, 3)), q[:, 6:])
@@ -221,7 +226,8 @@ def bvh_frame_values(q: np.ndarray, body: BodyShape, units: str = "cm") -> np.nd
         raise ValueError(f"q must have shape (F, {sk.NUM_DOFS}), got {q.shape}")
     if not np.isfinite(q).all():
         raise ValueError("q has non-finite values")
-    local = joint_rotations(q, float(body.chest_tilt))
+    rest = tuple(float(a) for a in body.clavicle_rest)
+    local = joint_rotations(q, float(body.chest_tilt), rest)
     local[:, 0] = CAMERA_TO_WORLD @ local[:, 0]
     root = q[:, 0:3] @ CAMERA_TO_WORLD.T * UNITS_PER_METRE[units]
     angles = np.empty((len(q), sk.NUM_SEGMENTS, 3))

@@ -11,6 +11,7 @@ UpLeg/Leg/Foot heads), so that the tracker's named joints land on the same anato
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from shared import skeleton as sk
 from shared.body import BodyShape
@@ -18,7 +19,7 @@ from shared.body_from_mesh import body_from_mesh
 
 from .shape_model import RestShape, ShapeModel
 
-__all__ = ["named_joints_from_bones", "body_from_rest"]
+__all__ = ["named_joints_from_bones", "posed_shoulders", "body_from_rest"]
 
 # Named joint -> (bone, end) pairs averaged; "head" is the middle of the Head bone.
 _JOINT_BONES: dict[str, tuple[tuple[str, str], ...]] = {
@@ -45,6 +46,19 @@ def named_joints_from_bones(model: ShapeModel, rest: RestShape) -> np.ndarray:
     return out
 
 
+def posed_shoulders(model: ShapeModel, rest: RestShape) -> np.ndarray:
+    """(2, 3) left and right shoulder of a batch-1 rest body posed at q = 0 (arms straight
+    down: the arm-chain rest corrections turn the clavicle bones, which moves the shoulders)."""
+    heads, tails = rest.heads[:1].detach(), rest.tails[:1].detach()
+    q0 = heads.new_zeros(1, sk.NUM_DOFS)
+    rotations = model.bone_rotations(q0, model.rest_corrections(heads, tails))
+    none = torch.zeros(0, dtype=torch.long)
+    _, posed = model.pose(RestShape(rest.vertices[:1, :0], heads, tails), rotations,
+                          heads.new_zeros(1, 3), none)  # fmt: skip
+    bones = [model.bone_names.index(_JOINT_BONES[f"{s}_shoulder"][0][0]) for s in "lr"]
+    return posed[0, bones].numpy()
+
+
 def body_from_rest(model: ShapeModel, rest: RestShape) -> BodyShape:
     """The tracker's body measured on a batch-1 rest body of ``model`` (module docstring)."""
     return body_from_mesh(
@@ -52,4 +66,5 @@ def body_from_rest(model: ShapeModel, rest: RestShape) -> BodyShape:
         rest.vertices[0].detach().numpy(),
         model.vertex_segment.numpy(),
         model.faces.numpy(),
+        posed_shoulders(model, rest),
     )

@@ -28,12 +28,14 @@ from train.mocap.clip import euler_to_matrix
 
 
 def _body() -> BodyShape:
-    """A non-default body: smaller overall, long left humerus, wide hips, leaning chest."""
+    """A non-default body: smaller overall, long left humerus, wide hips, leaning chest,
+    lowered clavicles."""
     body = BodyShape.default(torch.float64).scaled(0.92)
     body.lengths[7] *= 1.15
     body.lengths[13] *= 1.05
     body.hip_half_width = body.hip_half_width * 1.2
     body.chest_tilt = torch.tensor(0.15, dtype=torch.float64)
+    body.clavicle_rest = torch.tensor([-0.35, 0.1], dtype=torch.float64)
     return body
 
 

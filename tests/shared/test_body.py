@@ -1,5 +1,6 @@
 import json
 
+import numpy as np
 import pytest
 import torch
 
@@ -49,11 +50,21 @@ def test_body_file_keeps_offsets_and_feet(tmp_path):
     body.offsets[1] = torch.tensor([0.0, 0.06])
     body.feet = torch.tensor([[0.21, 0.03], [0.2, 0.031]], dtype=torch.float64)
     body.chest_tilt = torch.tensor(0.17, dtype=torch.float64)
+    body.clavicle_rest = torch.tensor([-0.38, 0.12], dtype=torch.float64)
     body.save(tmp_path / "body.json")
     back = BodyShape.load(tmp_path / "body.json", torch.float64)
     assert torch.allclose(back.offsets, body.offsets) and torch.allclose(back.feet, body.feet)
     assert float(back.chest_tilt) == pytest.approx(0.17)
+    np.testing.assert_allclose(back.clavicle_rest.numpy(), [-0.38, 0.12])
     data = body.to_json_dict()
+    data["version"] = 3  # version 3 had no clavicle rest: horizontal clavicles
+    del data["clavicle_rest"]
+    assert BodyShape.from_json_dict(data).clavicle_rest.tolist() == [0.0, 0.0]
+    for bad in ([1.2, 0.0], [0.1], "x"):
+        data["clavicle_rest"] = bad
+        with pytest.raises(ValueError, match="clavicle_rest|malformed"):
+            BodyShape.from_json_dict(data)
+    del data["clavicle_rest"]
     data["version"] = 2  # version 2 had no tilt: an upright chest
     del data["chest_tilt"]
     assert float(BodyShape.from_json_dict(data).chest_tilt) == 0.0
@@ -73,3 +84,11 @@ def test_version_1_body_file_loads_with_centred_sections_and_scaled_feet(tmp_pat
     assert float(body.offsets.abs().max()) == 0.0
     # Default feet, scaled like the body (stature 1.1 times the default's).
     assert torch.allclose(body.feet, BodyShape.default(torch.float64).feet * 1.1, atol=1e-6)
+
+
+def test_editing_a_default_body_leaves_the_defaults_alone():
+    body = BodyShape.default(torch.float64)
+    body.lengths[5] = 0.5
+    body.radii[0, 0] = 0.5
+    fresh = BodyShape.default(torch.float64)
+    assert float(fresh.lengths[5]) != 0.5 and float(fresh.radii[0, 0]) != 0.5

@@ -14,6 +14,7 @@ from shared.kinematics import forward_kinematics, named_joint_positions
 RADII = np.array([0.15, 0.1])
 OFFSETS = np.array([0.0, 0.04])  # 4 cm forward of the joint axis
 CHEST_TILT = 0.15  # rad, the chest leaning forward on the abdomen
+CLAVICLE_REST = (-0.35, 0.12)  # rad, shoulders below and in front of a horizontal clavicle
 
 
 def _rings(start, axis, length, radii, offset, section, n_axial=12, n_around=48):
@@ -33,6 +34,7 @@ def mesh():
     plus feet."""
     body = BodyShape.default(torch.float64)
     body.chest_tilt = torch.tensor(CHEST_TILT, dtype=torch.float64)
+    body.clavicle_rest = torch.tensor(CLAVICLE_REST, dtype=torch.float64)
     q = torch.zeros(1, sk.NUM_DOFS, dtype=torch.float64)  # all angles 0: the body frame
     joints = named_joint_positions(forward_kinematics(q, body))[0].numpy()
     kin = forward_kinematics(q, body)
@@ -70,10 +72,27 @@ def test_sections_offsets_and_feet_are_recovered(mesh):
     np.testing.assert_allclose(body.feet[:, 1].numpy(), 0.03, atol=1e-5)  # half of 6 cm
     np.testing.assert_allclose(body.extents[13:, 1].numpy(), 0.07, atol=1e-5)  # sole
     assert float(body.chest_tilt) == pytest.approx(CHEST_TILT, abs=1e-6)
+    np.testing.assert_allclose(body.clavicle_rest.numpy(), CLAVICLE_REST, atol=1e-6)
     # The measured body puts the joints back where they were.
     q = torch.zeros(1, sk.NUM_DOFS)
     again = named_joint_positions(forward_kinematics(q, body))[0].numpy()
     np.testing.assert_allclose(again, joints, atol=1e-5)
+
+
+def test_posed_shoulders_set_clavicle_rest_and_length(mesh):
+    """Shoulders where the poser puts them at q = 0 (here: as a body whose clavicles rest
+    elsewhere, 20 cm long, would) override the rest mesh's for the clavicles."""
+    joints, verts, segs = mesh
+    other = BodyShape.default(torch.float64)
+    other.chest_tilt = torch.tensor(CHEST_TILT, dtype=torch.float64)
+    other.clavicle_rest = torch.tensor([-0.2, 0.3], dtype=torch.float64)
+    other.lengths[5:7] = 0.2
+    at_zero = named_joint_positions(forward_kinematics(torch.zeros(1, sk.NUM_DOFS).double(), other))
+    shoulders = at_zero[0, [sk.JOINT_NAMES.index("l_shoulder"), sk.JOINT_NAMES.index("r_shoulder")]]
+    body = body_from_mesh(joints, verts, segs, posed_shoulders=shoulders.numpy())
+    np.testing.assert_allclose(body.clavicle_rest.numpy(), [-0.2, 0.3], atol=1e-6)
+    np.testing.assert_allclose(body.lengths[5:7].numpy(), 0.2, atol=1e-6)
+    np.testing.assert_allclose(body.lengths[7:].numpy(), BodyShape.default().lengths[7:], atol=1e-5)
 
 
 def test_area_weights_ignore_dense_inner_points(mesh):

@@ -82,6 +82,25 @@ def test_chest_tilt_leans_neck_and_shoulders_forward():
     np.testing.assert_allclose(p[J["l_ankle"]], upright[J["l_ankle"]], atol=1e-9)
 
 
+def test_clavicle_rest_adds_to_clavicle_angles():
+    """A body's clavicle rest turns both clavicles as their DoFs would (mirrored), so the
+    shoulders drop and move forward; limits and priors then act around the rest."""
+    body = BodyShape.default(torch.float64)
+    body.clavicle_rest = torch.tensor([-0.4, 0.2], dtype=torch.float64)
+    q = rest_pose(1, (0.0, 0.0, 2.5), torch.float64)
+    p = joints(q, body)[0].numpy()
+    q_angles = q.clone()
+    q_angles[0, list(sk.CLAVICLE_DOFS)] = torch.tensor([-0.4, 0.2, -0.4, 0.2]).double()
+    np.testing.assert_allclose(p, joints(q_angles)[0].numpy(), atol=1e-12)
+    # Facing the camera (camera y down, z towards the person): the left shoulder lies 18 cm
+    # along (cos p cos e, cos p sin e, sin p) of the body frame, i.e. lower and nearer.
+    e, pr = -0.4, 0.2
+    rel = 0.18 * np.array([math.cos(pr) * math.cos(e), -math.cos(pr) * math.sin(e), -math.sin(pr)])
+    np.testing.assert_allclose(p[J["l_shoulder"]] - p[J["neck"]], rel, atol=1e-12)
+    mirrored = p[J["r_shoulder"]] - p[J["neck"]]
+    np.testing.assert_allclose(mirrored, rel * [-1, 1, 1], atol=1e-12)
+
+
 def test_root_rotation_turns_whole_body():
     q = rest_pose(1, (0.0, 0.0, 2.5), torch.float64)
     # Person turned to show their left side: left shoulder now nearer the camera.
@@ -162,6 +181,7 @@ def test_jacobian_matches_autograd():
 def test_jacobian_matches_finite_differences():
     body = BodyShape.default(torch.float64)
     body.chest_tilt = torch.tensor(0.25, dtype=torch.float64)  # a rest rotation in the chain
+    body.clavicle_rest = torch.tensor([-0.35, 0.15], dtype=torch.float64)
     q, seg, local = _setup_points(B=2, N=25, seed=3)
     kin = forward_kinematics(q, body)
     jac = point_jacobian(kin, segment_points_to_world(kin, local, seg), seg)
