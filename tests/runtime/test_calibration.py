@@ -76,6 +76,9 @@ def test_consensus_scale_gives_every_length_one_factor():
     assert 1.0 < float(ratio[0]) < 1.1
     per_bone = calibrate_body([depth], [labels], INTR, TEMPLATE, FAST)
     assert torch.allclose(cal.radii, per_bone.radii)  # radii stay per bone either way
+    # The clavicles rest where the config puts them (a T-pose cannot show it).
+    rest = torch.tensor(cfg.clavicle_rest_deg).deg2rad()
+    assert torch.allclose(cal.clavicle_rest, rest) and float(rest[0]) < 0
     with pytest.raises(ValueError, match="length_scale"):
         CalibrationConfig(length_scale="global")
 
