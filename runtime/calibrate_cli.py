@@ -36,6 +36,9 @@ from .forest.inference import DEFAULT_CALIBRATION_MODEL, DEFAULT_MODEL
 from .segmentation import segment_person
 from .streams import FrameRange, StreamError, describe_sources, open_stream
 
+# The training population's average body (python -m train.template_body writes it).
+DEFAULT_TEMPLATE = Path(__file__).resolve().parents[1] / "configs" / "body_template.json"
+
 __all__ = ["main", "build_parser", "CalibrateError"]
 
 
@@ -72,7 +75,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="part labels from the forest, or the recording's own ground-truth labels/",
     )
     p.add_argument("--frames", type=int, default=10, help="frames the pose must be held / used")
-    p.add_argument("--template", type=Path, help="template body file (default: average adult)")
+    p.add_argument(
+        "--template",
+        type=Path,
+        default=DEFAULT_TEMPLATE,
+        help="template body file whose proportions the measurements scale (default: the "
+        "training population's average, python -m train.template_body; the built-in average "
+        "adult when that file is missing)",
+    )
     p.add_argument(
         "--no-pose-check", action="store_true", help="use the first frames without a pose check"
     )
@@ -110,7 +120,8 @@ def run(args: argparse.Namespace) -> BodyShape:
     if args.frames < 1:
         raise CalibrateError(f"--frames must be >= 1, got {args.frames}")
     template = BodyShape.default()
-    if args.template is not None:
+    missing_default = args.template == DEFAULT_TEMPLATE and not DEFAULT_TEMPLATE.is_file()
+    if args.template is not None and not missing_default:
         try:
             template = BodyShape.load(args.template)
         except (FileNotFoundError, ValueError) as err:

@@ -92,13 +92,6 @@ class CalibrationConfig:
         "length by the median ratio (the per-bone ratios' own errors exceed the "
         "proportions they would capture on mesh bodies, see the module docstring)",
     )
-    clavicle_rest_deg: tuple[float, float] = field_doc(
-        (-22.5, 8.0),
-        help="rest (elevation, protraction) of the calibrated body's clavicles, degrees: the "
-        "reference pose lifts the shoulders, so it cannot show where they rest. A population "
-        "value: anny bodies measure -21 to -24 and 6 to 11 (shared.body_from_mesh), shoulders "
-        "some 7 cm below the base of the neck",
-    )
 
     def __post_init__(self) -> None:
         if self.length_scale not in ("per_bone", "consensus"):
@@ -256,7 +249,7 @@ def calibrate_body(
         template.extents * len_scale[:, None],
         template.hip_half_width * hip_scale,
         chest_tilt=template.chest_tilt,
-        clavicle_rest=torch.tensor(cfg.clavicle_rest_deg, dtype=torch.float64).deg2rad(),
+        clavicle_rest=template.clavicle_rest,  # the T-pose lifts the shoulders: cannot show it
     ).to(dtype=torch.float32)
 
 

@@ -76,9 +76,10 @@ def test_consensus_scale_gives_every_length_one_factor():
     assert 1.0 < float(ratio[0]) < 1.1
     per_bone = calibrate_body([depth], [labels], INTR, TEMPLATE, FAST)
     assert torch.allclose(cal.radii, per_bone.radii)  # radii stay per bone either way
-    # The clavicles rest where the config puts them (a T-pose cannot show it).
-    rest = torch.tensor(cfg.clavicle_rest_deg).deg2rad()
-    assert torch.allclose(cal.clavicle_rest, rest) and float(rest[0]) < 0
+    # The clavicles rest as the template's (a T-pose cannot show it).
+    template = BodyShape(**{**TEMPLATE.__dict__, "clavicle_rest": torch.tensor([-0.4, 0.1])})
+    rested = calibrate_body([depth], [labels], INTR, template, cfg)
+    assert torch.allclose(rested.clavicle_rest, template.clavicle_rest)
     with pytest.raises(ValueError, match="length_scale"):
         CalibrationConfig(length_scale="global")
 
@@ -128,7 +129,9 @@ def test_cli_calibrates_from_a_recording(tmp_path):
     ref = reference_pose(root_position=(0.0, 0.1, 2.6))
     _write_recording(tmp_path / "rec", [rest_pose(1, (0.0, 0.1, 2.6))[0], ref, ref], body)
     out = tmp_path / "body.json"
-    args = ["--input", str(tmp_path / "rec"), "--output", str(out), "--labels", "recording"]
+    TEMPLATE.save(tmp_path / "template.json")  # the subject is a scaled built-in adult
+    args = ["--input", str(tmp_path / "rec"), "--output", str(out), "--labels", "recording",
+            "--template", str(tmp_path / "template.json")]  # fmt: skip
     assert main([*args, "--frames", "2", "--quiet", "--length-scale", "per_bone"]) == 0
     cal = BodyShape.load(out)
     assert float((cal.lengths - body.lengths).abs().max()) < 0.02
@@ -150,3 +153,14 @@ def test_cli_errors(tmp_path, capsys):
     assert "reference pose" in capsys.readouterr().err
     assert main(["--input", str(tmp_path / "nothing"), "--output", str(out)]) == 2
     assert not out.exists()
+
+
+def test_shipped_template_is_the_cli_default():
+    """configs/body_template.json (python -m train.template_body) loads and has anny's
+    proportions: a chest (top of the lumbar spine to the base of the neck) of some 30 cm."""
+    from runtime.calibrate_cli import DEFAULT_TEMPLATE, build_parser
+
+    assert build_parser().parse_args(["--input", "x", "--output", "y"]).template == DEFAULT_TEMPLATE
+    template = BodyShape.load(DEFAULT_TEMPLATE)
+    assert 0.27 < float(template.lengths[2]) < 0.36
+    assert float(template.clavicle_rest[0]) < 0
