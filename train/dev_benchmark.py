@@ -7,7 +7,9 @@ configuration averaged over the recordings (frame-weighted), as a Markdown table
 
 - ``tracker`` (ground-truth start, ground-truth body), its ablations (``no occlusion``,
   ``no silhouette``, ``no extra depth``) and ``tracker, default body``;
-- ``hybrid``, ``detector`` and ``shotton`` (no ground truth at run time; need the forest).
+- ``hybrid``, ``detector`` and ``shotton`` (no ground truth at run time; need the forest);
+  ``hybrid, calibrated body`` is Wei's whole system: the body from ``runtime-calibrate`` on
+  the same person's T-pose recording, the pose from the forest, no ground truth anywhere.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ CONFIGS: dict[str, tuple[str, str, dict]] = {
     "tracker, calibrated body": ("tracker", "calibrated", {}),
     "hybrid": ("hybrid", "gt", {}),
     "hybrid, personalized body": ("hybrid", "personalized", {}),
+    "hybrid, calibrated body": ("hybrid", "calibrated", {}),
     "detector": ("detector", "gt", {}),
     "shotton": ("shotton", "gt", {}),
 }
