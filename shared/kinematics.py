@@ -126,6 +126,38 @@ def _clavicle_rest_angles(body: BodyShape, q: torch.Tensor) -> torch.Tensor:
     return torch.zeros_like(q).index_copy(1, _index(sk.CLAVICLE_DOFS, q), rest)
 
 
+_UPPER_ARMS = [sk.SEGMENT_NAMES.index(n) for n in ("l_upper_arm", "r_upper_arm")]
+
+
+def _rotation_about(axis, angle: torch.Tensor) -> torch.Tensor:
+    """Rotations about a fixed unit ``axis`` (3,) by ``angle`` (B,), batch-last: (3, 3, B)."""
+    k = skew(_const(axis, angle))
+    eye = torch.eye(3, dtype=angle.dtype, device=angle.device)
+    return (eye[..., None] + torch.sin(angle) * k[..., None]
+            + (1.0 - torch.cos(angle)) * (k @ k)[..., None])  # fmt: skip
+
+
+def _upper_arm_pre_rotations(body: BodyShape, q: torch.Tensor) -> torch.Tensor:
+    """(3, 3, 15, B) the inverse clavicle rest rotation before each upper arm's DoFs, the
+    identity elsewhere: the arm hangs from the clavicle's rest direction turned back, so the
+    humerus angles (and their limits) mean the same whatever the rest (q = 0: arms straight
+    down, an arm raised overhead at 180 degrees)."""
+    B = q.shape[0]
+    rest = body.clavicle_rest.to(q).expand(B, 2)
+    eye = torch.eye(3, dtype=q.dtype, device=q.device)[:, :, None, None]
+    undo = []
+    for elev, prot in (sk.CLAVICLE_DOFS[0:2], sk.CLAVICLE_DOFS[2:4]):
+        r = _mm(
+            _rotation_about(sk.DOF_AXIS[elev], rest[:, 0])[:, :, None],
+            _rotation_about(sk.DOF_AXIS[prot], rest[:, 1])[:, :, None],
+        )
+        undo.append(r.transpose(0, 1))
+    first, last = _UPPER_ARMS
+    assert last == first + 1
+    before, after = eye.expand(3, 3, first, B), eye.expand(3, 3, sk.NUM_SEGMENTS - last - 1, B)
+    return torch.cat([before, *undo, after], 2)
+
+
 def forward_kinematics(q: torch.Tensor, body: BodyShape) -> Kinematics:
     """Segment frames and DoF axes for poses ``q``.
 
@@ -155,7 +187,8 @@ def forward_kinematics(q: torch.Tensor, body: BodyShape) -> Kinematics:
     dof_rot = _dof_rotations(q + _clavicle_rest_angles(body, q))
     slots = _index(sk.SEGMENT_DOF_SLOTS, q)
     slots = torch.where(slots >= 6, slots - 6, torch.full_like(slots, 28))
-    prefix1 = dof_rot[:, :, slots[:, 0]]  # (3, 3, 15, B)
+    pre = _upper_arm_pre_rotations(body, q)  # (3, 3, 15, B)
+    prefix1 = _mm(pre, dof_rot[:, :, slots[:, 0]])
     prefix2 = _mm(prefix1, dof_rot[:, :, slots[:, 1]])
     local = _mm(prefix2, dof_rot[:, :, slots[:, 2]])
     # The chest has no DoFs: its local rotation is the body's fixed forward lean.
@@ -180,8 +213,7 @@ def forward_kinematics(q: torch.Tensor, body: BodyShape) -> Kinematics:
 
     # World axis of the s-th DoF of a joint: R_parent @ (R_1 ... R_(s-1)) @ axis.
     dof_seg = sk.DOF_SEGMENT[6:]
-    eye = torch.eye(3, dtype=q.dtype, device=q.device)[:, :, None, None].expand_as(prefix1)
-    prefixes = torch.stack([eye, prefix1, prefix2], 2)  # (3, 3, 3, 15, B)
+    prefixes = torch.stack([pre, prefix1, prefix2], 2)  # (3, 3, 3, 15, B)
     pre = prefixes[:, :, _index(sk.DOF_SLOT[6:], q), _index(dof_seg, q)]  # (3, 3, 28, B)
     r_par = rotations[:, :, _index(parent[dof_seg], q)]
     local_axes = _const(sk.DOF_AXIS[6:], q).T[:, :, None]  # (3, 28, 1)

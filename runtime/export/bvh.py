@@ -135,15 +135,17 @@ def joint_rotations(
     """Local rotation of every segment relative to its parent, (F, 34) -> (F, 15, 3, 3).
 
     The chest's is the body's fixed ``chest_tilt`` about x (it has no DoFs); the clavicles turn
-    by their angles plus the body's ``clavicle_rest`` (elevation, protraction).
+    by their angles plus the body's ``clavicle_rest`` (elevation, protraction), and the upper
+    arms start from that rest rotation turned back.
 
     Segment 0 gets the root orientation (segment -> camera). Child joint offsets carry no
     rotation in this skeleton, so a segment's frame is ``R_parent @ local``, exactly what
     :func:`shared.kinematics.forward_kinematics` composes; here in numpy because one pose per
     frame through torch costs milliseconds of overhead.
     """
+    rest = np.asarray(clavicle_rest, dtype=np.float64)
     q = np.array(q, dtype=np.float64)
-    q[:, list(sk.CLAVICLE_DOFS)] += np.tile(np.asarray(clavicle_rest, dtype=np.float64), 2)
+    q[:, list(sk.CLAVICLE_DOFS)] += np.tile(rest, 2)
     angle = np.linalg.norm(q[:, 3:6], axis=1)
     axis = q[:, 3:6] / np.where(angle > 0, angle, 1.0)[:, None]
     dof = _rodrigues(np.broadcast_to(sk.DOF_AXIS[6:], (len(q), 28, 3)), q[:, 6:])
@@ -152,6 +154,11 @@ def joint_rotations(
     local = dof[:, slots[:, 0]] @ dof[:, slots[:, 1]] @ dof[:, slots[:, 2]]
     local[:, 0] = _rodrigues(axis, angle)
     local[:, sk.SEGMENT_NAMES.index("chest")] = _rodrigues(np.array([1.0, 0.0, 0.0]), chest_tilt)
+    # Each upper arm hangs from its clavicle's rest rotation turned back (as in FK).
+    for side, (elev, prot) in zip("lr", (sk.CLAVICLE_DOFS[0:2], sk.CLAVICLE_DOFS[2:4])):
+        turn = _rodrigues(sk.DOF_AXIS[elev], rest[0]) @ _rodrigues(sk.DOF_AXIS[prot], rest[1])
+        arm = sk.SEGMENT_NAMES.index(f"{side}_upper_arm")
+        local[:, arm] = turn.T @ local[:, arm]
     return local
 
 

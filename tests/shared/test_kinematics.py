@@ -84,14 +84,24 @@ def test_chest_tilt_leans_neck_and_shoulders_forward():
 
 def test_clavicle_rest_adds_to_clavicle_angles():
     """A body's clavicle rest turns both clavicles as their DoFs would (mirrored), so the
-    shoulders drop and move forward; limits and priors then act around the rest."""
+    shoulders drop and move forward; limits and priors then act around the rest. The arms
+    still hang straight down at q = 0 and reach straight up at 180 degrees of abduction."""
     body = BodyShape.default(torch.float64)
     body.clavicle_rest = torch.tensor([-0.4, 0.2], dtype=torch.float64)
     q = rest_pose(1, (0.0, 0.0, 2.5), torch.float64)
     p = joints(q, body)[0].numpy()
     q_angles = q.clone()
     q_angles[0, list(sk.CLAVICLE_DOFS)] = torch.tensor([-0.4, 0.2, -0.4, 0.2]).double()
-    np.testing.assert_allclose(p, joints(q_angles)[0].numpy(), atol=1e-12)
+    by_angles = joints(q_angles)[0].numpy()
+    for name in ("l_shoulder", "r_shoulder", "neck", "head", "l_ankle"):
+        np.testing.assert_allclose(p[J[name]], by_angles[J[name]], atol=1e-12)
+    for s in "lr":  # camera y points down: the elbow lies one upper arm below the shoulder
+        down = p[J[f"{s}_elbow"]] - p[J[f"{s}_shoulder"]]
+        np.testing.assert_allclose(down, [0.0, 0.29, 0.0], atol=1e-12)
+    q[0, sk.DOF_NAMES.index("l_humerus_abd")] = math.pi
+    p_up = joints(q, body)[0].numpy()
+    up = p_up[J["l_elbow"]] - p_up[J["l_shoulder"]]
+    np.testing.assert_allclose(up, [0.0, -0.29, 0.0], atol=1e-12)
     # Facing the camera (camera y down, z towards the person): the left shoulder lies 18 cm
     # along (cos p cos e, cos p sin e, sin p) of the body frame, i.e. lower and nearer.
     e, pr = -0.4, 0.2
