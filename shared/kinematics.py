@@ -127,14 +127,7 @@ def _clavicle_rest_angles(body: BodyShape, q: torch.Tensor) -> torch.Tensor:
 
 
 _UPPER_ARMS = [sk.SEGMENT_NAMES.index(n) for n in ("l_upper_arm", "r_upper_arm")]
-
-
-def _rotation_about(axis, angle: torch.Tensor) -> torch.Tensor:
-    """Rotations about a fixed unit ``axis`` (3,) by ``angle`` (B,), batch-last: (3, 3, B)."""
-    k = skew(_const(axis, angle))
-    eye = torch.eye(3, dtype=angle.dtype, device=angle.device)
-    return (eye[..., None] + torch.sin(angle) * k[..., None]
-            + (1.0 - torch.cos(angle)) * (k @ k)[..., None])  # fmt: skip
+assert _UPPER_ARMS[1] == _UPPER_ARMS[0] + 1  # adjacent: one block of pre-rotations
 
 
 def _upper_arm_pre_rotations(body: BodyShape, q: torch.Tensor) -> torch.Tensor:
@@ -144,18 +137,18 @@ def _upper_arm_pre_rotations(body: BodyShape, q: torch.Tensor) -> torch.Tensor:
     down, an arm raised overhead at 180 degrees)."""
     B = q.shape[0]
     rest = body.clavicle_rest.to(q).expand(B, 2)
-    eye = torch.eye(3, dtype=q.dtype, device=q.device)[:, :, None, None]
-    undo = []
-    for elev, prot in (sk.CLAVICLE_DOFS[0:2], sk.CLAVICLE_DOFS[2:4]):
-        r = _mm(
-            _rotation_about(sk.DOF_AXIS[elev], rest[:, 0])[:, :, None],
-            _rotation_about(sk.DOF_AXIS[prot], rest[:, 1])[:, :, None],
-        )
-        undo.append(r.transpose(0, 1))
+    (ce, cp), (se, sp) = torch.cos(rest).T, torch.sin(rest).T
+    zero, one = torch.zeros_like(ce), torch.ones_like(ce)
+    # Left: R_z(elev) R_-y(prot), written out and transposed; the right side's axes are the
+    # mirror images (x, -y, -z), which flips the signs of the mixed x-y and x-z entries.
+    left = torch.stack([ce * cp, se * cp, sp, -se, ce, zero, -ce * sp, -se * sp, cp])
+    mirror = _const([1.0, -1.0, -1.0, -1.0, 1.0, 1.0, -1.0, 1.0, 1.0], q)[:, None]
+    undo = torch.stack([left, left * mirror], 1).reshape(3, 3, 2, B)
+    eye = torch.stack([one, zero, zero, zero, one, zero, zero, zero, one]).reshape(3, 3, 1, B)
     first, last = _UPPER_ARMS
-    assert last == first + 1
-    before, after = eye.expand(3, 3, first, B), eye.expand(3, 3, sk.NUM_SEGMENTS - last - 1, B)
-    return torch.cat([before, *undo, after], 2)
+    return torch.cat(
+        [eye.expand(3, 3, first, B), undo, eye.expand(3, 3, sk.NUM_SEGMENTS - last - 1, B)], 2
+    )
 
 
 def forward_kinematics(q: torch.Tensor, body: BodyShape) -> Kinematics:
