@@ -176,12 +176,13 @@ def forward_kinematics(q: torch.Tensor, body: BodyShape) -> Kinematics:
     )
     offsets = offsets.permute(2, 1, 0)
 
-    # Local joint rotations R_1 R_2 R_3 (unused slots are the identity), keeping prefixes.
+    # Local joint rotations P R_1 R_2 R_3 (unused slots are the identity; P is the identity but
+    # for the upper arms), keeping prefixes.
     dof_rot = _dof_rotations(q + _clavicle_rest_angles(body, q))
     slots = _index(sk.SEGMENT_DOF_SLOTS, q)
     slots = torch.where(slots >= 6, slots - 6, torch.full_like(slots, 28))
-    pre = _upper_arm_pre_rotations(body, q)  # (3, 3, 15, B)
-    prefix1 = _mm(pre, dof_rot[:, :, slots[:, 0]])
+    arm_pre = _upper_arm_pre_rotations(body, q)  # (3, 3, 15, B), P in local = P R_1 R_2 R_3
+    prefix1 = _mm(arm_pre, dof_rot[:, :, slots[:, 0]])
     prefix2 = _mm(prefix1, dof_rot[:, :, slots[:, 1]])
     local = _mm(prefix2, dof_rot[:, :, slots[:, 2]])
     # The chest has no DoFs: its local rotation is the body's fixed forward lean.
@@ -204,9 +205,9 @@ def forward_kinematics(q: torch.Tensor, body: BodyShape) -> Kinematics:
     rotations = torch.cat(rots, 2)[:, :, order]  # (3, 3, 15, B)
     origins = torch.cat(orgs, 1)[:, order]  # (3, 15, B)
 
-    # World axis of the s-th DoF of a joint: R_parent @ (R_1 ... R_(s-1)) @ axis.
+    # World axis of the s-th DoF of a joint: R_parent @ P @ (R_1 ... R_(s-1)) @ axis.
     dof_seg = sk.DOF_SEGMENT[6:]
-    prefixes = torch.stack([pre, prefix1, prefix2], 2)  # (3, 3, 3, 15, B)
+    prefixes = torch.stack([arm_pre, prefix1, prefix2], 2)  # (3, 3, 3, 15, B)
     pre = prefixes[:, :, _index(sk.DOF_SLOT[6:], q), _index(dof_seg, q)]  # (3, 3, 28, B)
     r_par = rotations[:, :, _index(parent[dof_seg], q)]
     local_axes = _const(sk.DOF_AXIS[6:], q).T[:, :, None]  # (3, 28, 1)
