@@ -119,9 +119,8 @@ def _labeler(args, intr):
 def run(args: argparse.Namespace) -> BodyShape:
     if args.frames < 1:
         raise CalibrateError(f"--frames must be >= 1, got {args.frames}")
-    template = BodyShape.default()
-    missing_default = args.template == DEFAULT_TEMPLATE and not DEFAULT_TEMPLATE.is_file()
-    if args.template is not None and not missing_default:
+    template = BodyShape.default()  # when the shipped template is missing
+    if args.template != DEFAULT_TEMPLATE or DEFAULT_TEMPLATE.is_file():
         try:
             template = BodyShape.load(args.template)
         except (FileNotFoundError, ValueError) as err:

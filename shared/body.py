@@ -17,7 +17,8 @@ anny bodies), and a straight trunk put the neck and the shoulders that hang from
 Each clavicle rests ``clavicle_rest`` = (elevation, protraction) away from the horizontal
 lateral line, added to both clavicles' joint angles (mirrored, like their axes): anny's
 shoulders sit some 7 cm below the base of the neck, 20 degrees under a horizontal clavicle, and
-a skeleton without the offset pinned its clavicles at their limits or shrugged them to fit.
+a skeleton without the offset pinned its clavicles at their limits or shrugged them to fit. The
+upper arms start from that rest rotation turned back, so arm angles keep their meaning.
 
 Defaults describe an average adult of about 1.75 m (rounded anthropometric figures):
 stature = ankle height + shank + thigh + pelvis + abdomen + chest + neck + head.

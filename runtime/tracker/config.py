@@ -16,7 +16,6 @@ prior is weak and settles what the data leave free.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 from shared.config import field_doc
@@ -110,12 +109,6 @@ class TrackerConfig:
         1.0,
         "prediction q_prev + gain (q_prev - q_prev2) the prior pulls towards: 1 = Wei's "
         "constant velocity, 0 = the previous pose",
-    )
-    sigma_clavicle_rad: float = field_doc(
-        math.inf,
-        "pull of the four clavicle angles towards their rest (0) with this noise scale (rad); "
-        "inf = off. Depth barely sees a clavicle, and without a pull it drifts to a limit to "
-        "explain torso surface, taking the shoulder 20 cm off",
     )
     # ---------------- sampling caps (speed) ----------------
     max_depth_pixels: int = field_doc(

@@ -9,11 +9,10 @@ from __future__ import annotations
 
 import torch
 
-from shared import skeleton as sk
 from shared.kinematics import clamp_to_limits
 from shared.so3 import matrix_to_rotvec, rotvec_to_matrix
 
-__all__ = ["predict_pose", "prior_residual", "prior_system", "rest_system"]
+__all__ = ["predict_pose", "prior_residual", "prior_system"]
 
 
 def predict_pose(
@@ -63,18 +62,3 @@ def prior_system(
     res = prior_residual(q, q_pred)
     w2 = w * w
     return w2, w2 * res, (w2 * res * res).sum(-1)
-
-
-def rest_system(
-    q: torch.Tensor, sigma_rad: float, dofs: tuple[int, ...] = sk.CLAVICLE_DOFS
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Pull of the angles ``dofs`` towards their rest angle 0, as :func:`prior_system` returns.
-
-    Returns:
-        diagonal (B, 34) of w^2, right-hand side (B, 34) w^2 r, energy (B,) sum (w r)^2.
-    """
-    mask = torch.zeros(q.shape[-1], dtype=q.dtype, device=q.device)
-    mask[list(dofs)] = 1.0
-    w2 = mask / sigma_rad**2
-    res = -q
-    return w2.expand_as(q), w2 * res, (w2 * res * res).sum(-1)

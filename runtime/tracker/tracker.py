@@ -17,7 +17,6 @@ Everything is batch-first (B poses on B frames) and follows the device/dtype of 
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
@@ -32,7 +31,7 @@ from .depth_term import depth_rows
 from .extra_depth_term import extra_rows, observed_candidates
 from .gauss_newton import apply_step, cat_rows, limit_step, normal_equations, solve_step
 from .observation import Observation, observe
-from .prior_term import predict_pose, prior_system, rest_system
+from .prior_term import predict_pose, prior_system
 from .regions import classify
 from .signals import FrameSignals, frame_signals
 from .silhouette_term import silhouette_rows
@@ -126,10 +125,6 @@ def fit_frames(
             grad = q.new_zeros(B, sk.NUM_DOFS, dtype=torch.float64)
         if cfg.use_prior:
             diag, rhs, _ = prior_system(q, q_pred, cfg.sigma_prior_rad, cfg.sigma_prior_m)
-            hess = hess + torch.diag_embed(diag.double())
-            grad = grad + rhs.double()
-        if math.isfinite(cfg.sigma_clavicle_rad):
-            diag, rhs, _ = rest_system(q, cfg.sigma_clavicle_rad)
             hess = hess + torch.diag_embed(diag.double())
             grad = grad + rhs.double()
         dq = limit_step(solve_step(hess, grad, q, cfg.damping, cfg.use_limits), cfg.max_step_rad)

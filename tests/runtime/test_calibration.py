@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from runtime import calibrate_cli
 from runtime.calibrate_cli import main
 from runtime.calibration import (
     CalibrationConfig,
@@ -124,7 +125,7 @@ def _write_recording(path, poses, body):
 
 
 @pytest.mark.slow
-def test_cli_calibrates_from_a_recording(tmp_path):
+def test_cli_calibrates_from_a_recording(tmp_path, monkeypatch):
     body = subject()
     ref = reference_pose(root_position=(0.0, 0.1, 2.6))
     _write_recording(tmp_path / "rec", [rest_pose(1, (0.0, 0.1, 2.6))[0], ref, ref], body)
@@ -138,6 +139,13 @@ def test_cli_calibrates_from_a_recording(tmp_path):
     assert main([*args, "--frames", "2", "--quiet"]) == 0  # consensus: one factor
     ratio = BodyShape.load(out).lengths / TEMPLATE.lengths
     assert float(ratio.max() - ratio.min()) < 1e-5
+    # Without the shipped template the built-in adult stands in (here: the same as TEMPLATE).
+    monkeypatch.setattr(calibrate_cli, "DEFAULT_TEMPLATE", tmp_path / "missing.json")
+    plain = [a for a in args if a not in ("--template", str(tmp_path / "template.json"))]
+    assert main([*plain, "--frames", "2", "--quiet"]) == 0
+    assert torch.allclose(BodyShape.load(out).lengths, TEMPLATE.lengths * ratio[0], rtol=1e-5)
+    missing = ["--template", str(tmp_path / "nope.json")]  # named but missing: an error
+    assert main([*plain, "--frames", "2", "--quiet", *missing]) == 2
 
 
 def test_cli_errors(tmp_path, capsys):

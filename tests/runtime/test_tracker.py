@@ -16,7 +16,7 @@ from runtime.tracker.depth_term import depth_rows
 from runtime.tracker.extra_depth_term import closest_points, extra_rows, observed_candidates
 from runtime.tracker.gauss_newton import Rows, limit_step, rows_jacobian, solve_step
 from runtime.tracker.observation import distance_to_mask, observe, pool_depth
-from runtime.tracker.prior_term import predict_pose, prior_residual, prior_system, rest_system
+from runtime.tracker.prior_term import predict_pose, prior_residual, prior_system
 from runtime.tracker.regions import classify, rendered_points
 from runtime.tracker.silhouette_term import silhouette_rows
 from shared import skeleton as sk
@@ -240,19 +240,6 @@ def test_prior_prediction_and_step():
     dq = solve_step(torch.diag_embed(w2), rhs, q1, 1e-6, True)
     moved = pose_update(q1, dq)
     assert float(prior_residual(moved, pred).abs().max()) < 1e-4
-
-
-def test_clavicle_rest_pull_moves_only_the_clavicles_to_rest():
-    q = _pose()
-    q[0, list(sk.CLAVICLE_DOFS)] = torch.tensor([0.3, -0.2, 0.1, 0.25]).double()
-    w2, rhs, energy = rest_system(q, 0.1)
-    assert float(energy[0]) == pytest.approx((0.09 + 0.04 + 0.01 + 0.0625) / 0.01)
-    others = [d for d in range(34) if d not in sk.CLAVICLE_DOFS]
-    assert float(w2[0, others].abs().max()) == 0.0 and float(rhs[0, others].abs().max()) == 0.0
-    dq = solve_step(torch.diag_embed(w2) + 1e-3 * torch.eye(34).double(), rhs, q, 0.0, False)
-    moved = q + dq
-    assert float(moved[0, list(sk.CLAVICLE_DOFS)].abs().max()) < 1e-3
-    assert torch.equal(moved[0, others], q[0, others])
 
 
 def test_prior_prediction_velocity_gain():
