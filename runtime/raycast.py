@@ -48,6 +48,7 @@ __all__ = [
     "segment_geometry",
     "render_body",
     "render_body_depth",
+    "surface_normals",
     "surface_distance",
 ]
 
@@ -99,17 +100,26 @@ class BodyRender:
         depth: (B, H, W) metric z of the nearest hit, 0 where the ray misses the body.
         mask: (B, H, W) bool, the rendered silhouette.
         segment: (B, H, W) int64 segment hit, -1 on background.
-        local_points: (B, H, W, 3) hit point in the hit segment's frame (0 on background).
-        normals: (B, H, W, 3) unit outward surface normal in camera frame (0 on background).
+        local_points: (B, H, W, 3) hit point in the hit segment's frame (0 on background);
+            None when rendered without details (see :func:`surface_normals` instead).
+        normals: (B, H, W, 3) unit outward surface normal in camera frame (0 on background);
+            None when rendered without details.
         kin: forward kinematics of the poses (reused by the tracker for Jacobians).
+        primitive: (B, H, W) int64 primitive hit (segments, then feet), -1 on background.
+        geom: the primitives' geometry; rot, origin: their frames
+            (:meth:`SegmentGeometry.frames`), for details at chosen pixels.
     """
 
     depth: torch.Tensor
     mask: torch.Tensor
     segment: torch.Tensor
-    local_points: torch.Tensor
-    normals: torch.Tensor
+    local_points: torch.Tensor | None
+    normals: torch.Tensor | None
     kin: Kinematics
+    primitive: torch.Tensor
+    geom: SegmentGeometry
+    rot: torch.Tensor
+    origin: torch.Tensor
 
 
 def segment_geometry(body: BodyShape, like: torch.Tensor) -> SegmentGeometry:
@@ -316,6 +326,28 @@ def _hit_details(
     return local.permute(1, 2, 0), normals.permute(1, 2, 0)
 
 
+def surface_normals(render: BodyRender, idx: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Camera-frame unit outward normals (N, 3) of rendered surface points at chosen pixels.
+
+    Args:
+        idx: (N, 3) int64 pixels (b, v, u) on the rendered silhouette.
+        points: (N, 3) their camera-frame surface points (depth times the pixel's ray).
+    """
+    b, v, u = idx.unbind(1)
+    prim = render.primitive[b, v, u].clamp_min(0)
+    geom = render.geom
+    B = render.rot.shape[0]
+    rot, origin = render.rot[b, prim], render.origin[b, prim]  # (N, 3, 3), (N, 3)
+    a_mat = geom.basis[prim] @ rot.transpose(-1, -2)  # camera -> section coordinates
+    coords = (a_mat @ (points - origin)[..., None])[..., 0]
+    span = geom.span.expand(B, -1, -1)[b, prim]
+    scale = geom.scale.expand(B, -1, -1)[b, prim]
+    axial = coords[:, 2] - torch.minimum(torch.maximum(coords[:, 2], span[:, 0]), span[:, 1])
+    grad = torch.stack([coords[:, 0], coords[:, 1], axial], -1) / (scale * scale)
+    normals = (a_mat.transpose(-1, -2) @ grad[..., None])[..., 0]
+    return normals / normals.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
 def render_body(
     q: torch.Tensor,
     body: BodyShape,
@@ -323,6 +355,7 @@ def render_body(
     kin: Kinematics | None = None,
     box: bool = True,
     geom: SegmentGeometry | None = None,
+    details: bool = True,
 ) -> BodyRender:
     """Ray-cast the cylinder model at poses ``q``.
 
@@ -335,6 +368,8 @@ def render_body(
             faster); False casts every pixel.
         geom: ``segment_geometry(body, q)`` if already computed (a tracker renders one body
             many times per frame).
+        details: also compute every pixel's local point and normal; the tracker needs
+            normals at a few pixels only (:func:`surface_normals`).
     Returns:
         :class:`BodyRender` with tensors on q's device, depth/points in q's dtype.
     """
@@ -368,6 +403,8 @@ def render_body(
     depth = torch.where(prim >= 0, zbuf, torch.zeros_like(zbuf)).reshape(B, H, W)
     prim = prim.reshape(B, H, W)
     segment = torch.where(prim >= 0, geom.segment[prim.clamp_min(0)], prim)
+    if not details:
+        return BodyRender(depth, segment >= 0, segment, None, None, kin, prim, geom, rot, origin)
     local = q.new_zeros(B, H, W, 3)
     normals = q.new_zeros(B, H, W, 3)
     # Surface coordinates only inside the union of the boxes (everything else is background).
@@ -385,7 +422,7 @@ def render_body(
         hit = (sg >= 0).reshape(B, -1, 1)
         local[:, v0:v1, u0:u1] = (loc * hit).reshape(B, v1 - v0, u1 - u0, 3)
         normals[:, v0:v1, u0:u1] = (nrm * hit).reshape(B, v1 - v0, u1 - u0, 3)
-    return BodyRender(depth, segment >= 0, segment, local, normals, kin)
+    return BodyRender(depth, segment >= 0, segment, local, normals, kin, prim, geom, rot, origin)
 
 
 def render_body_depth(q: torch.Tensor, body: BodyShape, intr: Intrinsics) -> torch.Tensor:

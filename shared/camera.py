@@ -56,6 +56,10 @@ class Intrinsics:
             (self.cy + 0.5) * sy - 0.5,
         )
 
+    def cropped(self, u0: int, v0: int, width: int, height: int) -> Intrinsics:
+        """Intrinsics of the window of ``width`` x ``height`` pixels whose corner is (u0, v0)."""
+        return Intrinsics(width, height, self.fx, self.fy, self.cx - u0, self.cy - v0)
+
     def validate(self) -> None:
         """Raise ``ValueError`` unless sizes and focal lengths are positive and finite."""
         if self.width <= 0 or self.height <= 0:

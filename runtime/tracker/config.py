@@ -28,9 +28,22 @@ class TrackerConfig:
     """MAP tracker settings; every term can be switched off for ablations."""
 
     downsample: int = field_doc(
-        2,
-        "working resolution = stream resolution / downsample (320x240 -> 160x120); observed "
-        "depth is pooled over each block ignoring missing readings",
+        0,
+        "working resolution = stream resolution / downsample (2: 320x240 -> 160x120); "
+        "observed depth is pooled over each block ignoring missing readings. 0: chosen per "
+        "frame from the person's size (person_pixels)",
+    )
+    person_pixels: int = field_doc(
+        2500,
+        "with downsample 0, the factor (rounded) at which the observed person covers about "
+        "this many working pixels: a person far away keeps the stream's resolution, one close "
+        "by is pooled",
+    )
+    crop_margin: float = field_doc(
+        0.25,
+        "work in a window around the observed silhouette's bounding box, grown on every side "
+        "by this fraction of its larger side (and at least silhouette_max_px + 2 working "
+        "pixels): model parts outside it are not seen. Negative: the whole image",
     )
     iterations: int = field_doc(5, "Gauss-Newton iterations per frame at most (Wei: about 5)")
     stop_angle_rad: float = field_doc(

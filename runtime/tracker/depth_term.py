@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import torch
 
-from runtime.raycast import BodyRender
+from runtime.raycast import BodyRender, surface_normals
 
 from .config import TrackerConfig
 from .gauss_newton import Rows
@@ -32,7 +32,11 @@ def depth_rows(render: BodyRender, obs: Observation, regions: Regions, cfg: Trac
     idx, _, ratio = sample_pixels(regions.good, cfg.max_depth_pixels)
     points, segment = rendered_points(render, idx, obs.intr)
     b, v, u = idx.unbind(1)
-    normal = render.normals[b, v, u]
+    normal = (
+        render.normals[b, v, u]
+        if render.normals is not None
+        else surface_normals(render, idx, points)
+    )
     ray_len = points.norm(dim=-1) / points[:, 2].clamp_min(1e-9)  # |d| with d_z = 1
     cosine = (normal * points).sum(-1) / points.norm(dim=-1).clamp_min(1e-9)  # < 0: facing
     keep = cosine.abs() >= cfg.min_cosine

@@ -1,20 +1,29 @@
 """The observed frame at the tracker's working resolution: depth, silhouette, points, distances.
 
 Computed once per frame, before the Gauss-Newton iterations: the stream's depth and the
-caller's person mask are pooled to the working resolution, back-projected, and the observed
-silhouette gets a truncated Euclidean distance transform whose gradient drives the silhouette
-term beyond the silhouette's boundary.
+caller's person mask are cut to a window around the person, pooled to the working resolution,
+back-projected, and the observed silhouette gets a truncated Euclidean distance transform whose
+gradient drives the silhouette term beyond the silhouette's boundary.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
 
 from shared.camera import Intrinsics, depth_to_points
 
-__all__ = ["Observation", "working_intrinsics", "pool_depth", "distance_to_mask", "observe"]
+__all__ = [
+    "Observation",
+    "working_intrinsics",
+    "pool_depth",
+    "distance_to_mask",
+    "automatic_factor",
+    "person_window",
+    "observe",
+]
 
 
 @dataclass
@@ -115,8 +124,41 @@ def _central_gradient(image: torch.Tensor) -> torch.Tensor:
     return torch.stack([gu, gv], -1)
 
 
+def automatic_factor(mask: torch.Tensor, person_pixels: int) -> int:
+    """Pooling factor at which the largest of the (B, H, W) silhouettes covers about
+    ``person_pixels`` working pixels (rounded, at least 1; one host sync)."""
+    count = float(mask.sum((-2, -1)).max()) if mask.numel() else 0.0
+    return max(1, round(math.sqrt(count / max(1, person_pixels))))
+
+
+def person_window(
+    mask: torch.Tensor, factor: int, margin: float, min_margin_px: int
+) -> tuple[int, int, int, int] | None:
+    """Stream-pixel window (u0, u1, v0, v1), end-exclusive, around all B silhouettes.
+
+    The silhouettes' bounding box grows on every side by ``margin`` times its larger side, and
+    by at least ``min_margin_px`` working pixels, clipped to the image. The corner is a
+    multiple of ``factor``, so the working pixels inside are those of the whole image. None
+    when the masks are empty.
+    """
+    H, W = mask.shape[-2:]
+    flat = mask.reshape(-1, H, W).any(0)
+    rows, cols = flat.any(1).nonzero()[:, 0], flat.any(0).nonzero()[:, 0]
+    if rows.numel() == 0:
+        return None
+    v0, v1, u0, u1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    pad = max(math.ceil(margin * max(v1 - v0, u1 - u0)), factor * min_margin_px)
+    u0, v0 = max(0, u0 - pad) // factor * factor, max(0, v0 - pad) // factor * factor
+    return u0, min(W, u1 + pad), v0, min(H, v1 + pad)
+
+
 def observe(
-    depth: torch.Tensor, mask: torch.Tensor, intr: Intrinsics, factor: int, max_distance_px: float
+    depth: torch.Tensor,
+    mask: torch.Tensor,
+    intr: Intrinsics,
+    factor: int,
+    max_distance_px: float,
+    window: tuple[int, int, int, int] | None = None,
 ) -> Observation:
     """Working-resolution observation of full-resolution frames.
 
@@ -124,7 +166,15 @@ def observe(
         depth: (B, H, W) metres at the stream resolution ``intr``, 0 = no reading.
         mask: (B, H, W) bool person silhouette from the caller's segmentation.
         factor: integer downsampling factor; max_distance_px: distance-transform cap.
+        window: stream-pixel window (u0, u1, v0, v1) to work in (:func:`person_window`;
+            its corner a multiple of ``factor``), None for the whole image. The observation's
+            intrinsics are the window's, so everything downstream costs what the person
+            covers, not what the image does.
     """
+    if window is not None:
+        u0, u1, v0, v1 = window
+        depth, mask = depth[..., v0:v1, u0:u1], mask[..., v0:v1, u0:u1]
+        intr = intr.cropped(u0, v0, u1 - u0, v1 - v0)
     work = working_intrinsics(intr, factor)
     pooled, silhouette = pool_depth(depth, mask.bool(), factor)
     valid = silhouette & (pooled > 0)

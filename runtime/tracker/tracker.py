@@ -30,7 +30,7 @@ from .config import TrackerConfig
 from .depth_term import depth_rows
 from .extra_depth_term import extra_rows, observed_candidates
 from .gauss_newton import apply_step, cat_rows, limit_step, normal_equations, solve_step
-from .observation import Observation, observe
+from .observation import Observation, automatic_factor, observe, person_window
 from .prior_term import predict_pose, prior_system
 from .regions import classify
 from .signals import FrameSignals, frame_signals
@@ -108,7 +108,7 @@ def fit_frames(
     iterations = 0
     last = None
     for _ in range(cfg.iterations):
-        render = render_body(q, body, obs.intr, geom=geom)
+        render = render_body(q, body, obs.intr, geom=geom, details=False)
         regions = classify(render, obs, cfg.depth_gate_m, cfg.occlusion_handling)
         extra = extra_rows(render, obs, regions, observed, cfg, B) if observed is not None else None
         rows = []
@@ -135,7 +135,7 @@ def fit_frames(
         if bool(converged.all()):
             break
     if last is None or (cfg.exact_signals and not bool(converged.all())):
-        render = render_body(q, body, obs.intr, geom=geom)
+        render = render_body(q, body, obs.intr, geom=geom, details=False)
         regions = classify(render, obs, cfg.depth_gate_m, cfg.occlusion_handling)
         extra = None
     else:
@@ -169,8 +169,11 @@ class Tracker:
     ) -> None:
         intr.validate()
         self.cfg = TrackerConfig() if cfg is None else cfg
-        if self.cfg.downsample < 1:
-            raise TrackerError(f"downsample must be >= 1, got {self.cfg.downsample}")
+        if self.cfg.downsample < 0 or self.cfg.person_pixels < 1:
+            raise TrackerError(
+                f"downsample must be >= 0 (0: automatic) and person_pixels >= 1, got "
+                f"{self.cfg.downsample}, {self.cfg.person_pixels}"
+            )
         self.intr = intr
         self.device = torch.device("cpu") if device is None else torch.device(device)
         self.dtype = dtype
@@ -189,7 +192,13 @@ class Tracker:
         mask = mask.to(device=self.device, dtype=torch.bool)
         if depth.dim() == 2:
             depth, mask = depth[None], mask[None]
-        return observe(depth, mask, self.intr, self.cfg.downsample, self.cfg.silhouette_max_px)
+        cfg = self.cfg
+        factor = cfg.downsample or automatic_factor(mask, cfg.person_pixels)
+        window = None
+        if cfg.crop_margin >= 0:
+            margin_px = int(cfg.silhouette_max_px) + 2
+            window = person_window(mask, factor, cfg.crop_margin, margin_px)
+        return observe(depth, mask, self.intr, factor, cfg.silhouette_max_px, window)
 
     def step(
         self,

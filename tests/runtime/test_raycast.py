@@ -7,7 +7,13 @@ import math
 import pytest
 import torch
 
-from runtime.raycast import render_body, render_body_depth, segment_geometry, surface_distance
+from runtime.raycast import (
+    render_body,
+    render_body_depth,
+    segment_geometry,
+    surface_distance,
+    surface_normals,
+)
 from shared import skeleton as sk
 from shared.body import BodyShape
 from shared.camera import Intrinsics, depth_to_points
@@ -140,6 +146,21 @@ def test_rendered_points_lie_on_the_surface_and_normals_face_the_camera(make_bod
     front = torch.tensor([[[0.0, 0.0, 2.5 - 0.11 - 0.05]]], dtype=torch.float64)
     kin = forward_kinematics(rest_pose(1, dtype=torch.float64), body)
     assert float(surface_distance(front, kin, body)[0, 0]) == pytest.approx(0.05, abs=1e-6)
+
+
+@pytest.mark.parametrize("make_body", BODIES.values(), ids=BODIES.keys())
+def test_normals_at_chosen_pixels_match_the_full_rendering(make_body):
+    body = make_body()
+    q = _posed()
+    full = render_body(q, body, SMALL)
+    lean = render_body(q, body, SMALL, details=False)
+    assert lean.normals is None and lean.local_points is None
+    assert torch.equal(lean.depth, full.depth) and torch.equal(lean.segment, full.segment)
+    idx = full.mask.nonzero()[::7]
+    b, v, u = idx.unbind(1)
+    pts = depth_to_points(full.depth, SMALL)[b, v, u]
+    got = surface_normals(lean, idx, pts)
+    assert torch.allclose(got, full.normals[b, v, u], atol=1e-9)
 
 
 def test_box_culling_batching_and_dtypes_agree():

@@ -15,7 +15,13 @@ from runtime.tracker.benchmark import camera_motion
 from runtime.tracker.depth_term import depth_rows
 from runtime.tracker.extra_depth_term import closest_points, extra_rows, observed_candidates
 from runtime.tracker.gauss_newton import Rows, limit_step, rows_jacobian, solve_step
-from runtime.tracker.observation import distance_to_mask, observe, pool_depth
+from runtime.tracker.observation import (
+    automatic_factor,
+    distance_to_mask,
+    observe,
+    person_window,
+    pool_depth,
+)
 from runtime.tracker.prior_term import predict_pose, prior_residual, prior_system
 from runtime.tracker.regions import classify, rendered_points
 from runtime.tracker.silhouette_term import silhouette_rows
@@ -226,6 +232,50 @@ def test_pool_depth_takes_the_block_corner_and_fills_holes():
     assert pooled.tolist() == [[[2.0, 3.0]]] and sil.tolist() == [[[True, True]]]
 
 
+def test_person_window_grows_the_box_and_keeps_the_pixel_grid():
+    mask = torch.zeros(2, 60, 80, dtype=torch.bool)
+    mask[0, 20:30, 31:41] = True  # 10 x 10
+    mask[1, 25:40, 35:37] = True  # the box spans both frames: rows 20-39, columns 31-40
+    assert person_window(mask, 1, 0.25, 2) == (31 - 5, 41 + 5, 20 - 5, 40 + 5)
+    # Corner on the factor's grid; at least min_margin_px working pixels (2 x 6 stream pixels).
+    assert person_window(mask, 2, 0.0, 6) == (18, 53, 8, 52)
+    # Clipped to the image; nothing to frame without a person.
+    assert person_window(mask, 1, 3.0, 0) == (0, 80, 0, 60)
+    assert person_window(torch.zeros(1, 5, 5, dtype=torch.bool), 2, 0.25, 2) is None
+
+
+def test_automatic_factor_follows_the_person_size():
+    mask = torch.zeros(1, 240, 320, dtype=torch.bool)
+    mask[0, :100, :25] = True  # 2,500 pixels
+    assert automatic_factor(mask, 2500) == 1
+    assert automatic_factor(mask, 600) == 2  # sqrt(4.2) rounds to 2
+    assert automatic_factor(mask, 100) == 5
+    assert automatic_factor(mask & False, 2500) == 1
+
+
+@pytest.mark.parametrize("factor", [1, 2])
+def test_observation_in_a_window_is_the_whole_image_cut(factor):
+    body, truth, depth, mask = _sequence("wave", 1)
+    full = observe(depth, mask, INTR, factor, 6.0)
+    u0, u1, v0, v1 = person_window(mask, factor, 0.25, 8)
+    cut = observe(depth, mask, INTR, factor, 6.0, (u0, u1, v0, v1))
+    i0, j0 = v0 // factor, u0 // factor
+    h, w = cut.depth.shape[-2:]
+    for name in ("depth", "silhouette", "valid", "points", "distance"):
+        a, b = getattr(full, name)[:, i0 : i0 + h, j0 : j0 + w], getattr(cut, name)
+        assert torch.allclose(a.double(), b.double(), atol=1e-6), name
+    assert cut.intr.cx == pytest.approx(full.intr.cx - j0) and cut.intr.fy == full.intr.fy
+
+
+def test_tracking_in_a_window_matches_the_whole_image():
+    body, truth, depth, mask = _sequence("walk", 3)
+    runs = []
+    for margin in (0.25, -1.0):
+        tracker = Tracker(body, INTR, TrackerConfig(crop_margin=margin))
+        runs.append(track_sequence(depth, mask, truth[0], tracker)[0])
+    assert torch.allclose(runs[0], runs[1], atol=1e-4)
+
+
 def test_prior_prediction_and_step():
     q1, q2 = _pose(), _pose()
     q2[0, 0] -= 0.02
@@ -321,6 +371,7 @@ def test_tracks_a_sequence_rendered_from_the_model(motion):
         {"use_limits": False},
         {"occlusion_handling": False},
         {"init_from_prediction": True, "surface_error": False},
+        {"downsample": 0, "person_pixels": 900, "crop_margin": -1.0},
         {"use_depth": False, "use_extra_depth": False, "use_silhouette": False, "use_prior": False},
     ],
 )
