@@ -51,20 +51,29 @@ def camera_motion(
 
 
 def benchmark_tracker(
-    device: str = "cpu", frames: int = 60, motion: str = "walk", cfg: TrackerConfig | None = None
+    device: str = "cpu",
+    frames: int = 60,
+    motion: str = "walk",
+    cfg: TrackerConfig | None = None,
+    distance_m: float = 2.5,
 ) -> dict[str, float]:
     """Frames per second of :meth:`Tracker.step` and the ray-cast time on ``device``.
 
+    Args:
+        distance_m: the person's distance from the camera: the farther, the fewer pixels, and
+            the automatic working resolution (``cfg.downsample`` 0) pools less.
     Returns:
         ``frames_per_s`` (tracking), ``ms_per_frame``, ``raycast_ms`` (median of one
         working-resolution ray-cast), ``iterations_mean``, ``joint_error_mm`` (mean named-joint
-        error against the ground truth, a sanity check), ``threads`` (torch CPU threads).
+        error against the ground truth, a sanity check), ``threads`` (torch CPU threads),
+        ``working_pixels`` (the person's pixels at the working resolution, frame 0),
+        ``working_width`` (the working image's width if it were uncropped).
     """
     dev = torch.device(device)
     cfg = TrackerConfig() if cfg is None else cfg
     body = BodyShape.default(torch.float32, dev)
     intr = Intrinsics.kinect_v1(320)
-    truth = camera_motion(motion, frames).to(device=dev, dtype=torch.float32)
+    truth = camera_motion(motion, frames, distance_m=distance_m).to(device=dev, dtype=torch.float32)
     depth = render_body(truth, body, intr).depth
     mask = depth > 0
     tracker = Tracker(body, intr, cfg, device=dev)
@@ -86,7 +95,8 @@ def benchmark_tracker(
     sync()
     elapsed = time.perf_counter() - t0
 
-    work = tracker.observe(depth[0], mask[0]).intr
+    obs = tracker.observe(depth[0], mask[0])
+    work = obs.intr
     times = []
     for f in range(min(frames, 30)):
         sync()
@@ -105,4 +115,6 @@ def benchmark_tracker(
         "iterations_mean": float(np.mean(iters)),
         "joint_error_mm": float(err.norm(dim=-1).mean()) * 1e3,
         "threads": float(torch.get_num_threads()),
+        "working_pixels": float(obs.valid.sum()),
+        "working_width": float(intr.width * obs.intr.fx / intr.fx),
     }
