@@ -54,7 +54,8 @@ def format_table(ev: Evaluation) -> str:
         "",
         f"surface error q97     {_fmt(r['surface_error_q97_mm'], ' mm')}"
         f" ({r['surface_error_frames']} frames)",
-        f"tracking failure      {_fmt(r['tracking_failure_pct'], ' %', 2)}",
+        f"tracking failure      {_fmt(r['tracking_failure_pct'], ' %', 2)}"
+        f" (detector frames, the first included: {_fmt(r['detector_frames_pct'], ' %', 2)})",
         f"system failure        {_fmt(r['system_failure_pct'], ' %', 2)}",
         f"processing rate       {_fmt(r['fps'], ' frames/s')}",
         f"offset-norm frames    {r['offset_frame']}",

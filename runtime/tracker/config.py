@@ -118,6 +118,11 @@ class TrackerConfig:
         0.05, "prior noise scale of joint angles and root rotation (rad per frame^2)"
     )
     sigma_prior_m: float = field_doc(0.02, "prior noise scale of the root position (m per frame^2)")
+    sigma_twist_rad: float = field_doc(
+        0.0,
+        "noise scale of a pull of the upper arms' and thighs' twists towards their rest (rad); "
+        "0 = off. A hidden bent limb's twist is free (it swings the lower limb in depth)",
+    )
     prior_velocity_gain: float = field_doc(
         1.0,
         "prediction q_prev + gain (q_prev - q_prev2) the prior pulls towards: 1 = Wei's "

@@ -71,6 +71,11 @@ def test_precision_failures_and_percentages_golden():
     assert m.percent(m.system_failures(err, 0.20)) == 50.0
     assert m.percent(m.system_failures(err, 0.12)) == 75.0
     status = np.array(["detected", "tracked", "tracked", "lost", "tracked", "tracked"])
+    # The first frame starts the track: not a failure; the lost frame is one.
+    assert m.tracking_failure_pct(status) == pytest.approx(100 * 1 / 6)
+    assert m.detector_frames_pct(status) == pytest.approx(100 * 2 / 6)
+    status = np.array(["detected", "detected", "tracked", "lost", "detected", "tracked"])
+    np.testing.assert_array_equal(m.initializations(status), [1, 0, 0, 0, 1, 0])
     assert m.tracking_failure_pct(status) == pytest.approx(100 * 2 / 6)
     assert m.distance_quantile(np.arange(101.0), 0.97) == pytest.approx(97.0)
     assert m.sequence_surface_error_mm(np.array([10.0, np.nan, 20.0])) == 15.0
@@ -174,7 +179,8 @@ def test_cli_end_to_end(recording, tmp_path, capsys):
     assert r["offset_frame"] == "ground_truth_q"
     assert r["precision_10cm"] == pytest.approx(15 / 16)
     assert r["per_joint_precision_10cm"]["l_wrist"] == 0.0
-    assert r["tracking_failure_pct"] == pytest.approx(100 * 2 / 8)  # detected + lost of 8
+    assert r["detector_frames_pct"] == pytest.approx(100 * 2 / 8)  # detected + lost of 8
+    assert r["tracking_failure_pct"] == pytest.approx(100 * 1 / 8)  # frame 0 starts the track
     assert r["system_failure_pct"] == pytest.approx(100 * 2 / 9)  # missing 3 + lost 6
     # Surface error: mean of the per-frame values of the frames written (lost ones too).
     assert r["surface_error_q97_mm"] == pytest.approx(10.0 * np.mean(frames))

@@ -179,6 +179,7 @@ def evaluate(
         "surface_error_q97_mm": _finite(surface_mm),
         "surface_error_frames": surface_frames,
         "tracking_failure_pct": _finite(m.tracking_failure_pct(result.status)),
+        "detector_frames_pct": _finite(m.detector_frames_pct(result.status)),
         "system_failure_pct": _finite(m.percent(failures)),
         "status_counts": {s: int((result.status == s).sum()) for s in STATUSES},
         "fps": _finite(result.summary.get("fps") or math.nan),
