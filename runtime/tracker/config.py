@@ -88,7 +88,11 @@ class TrackerConfig:
         0.08, "B2 threshold: pixels whose rendered/observed depths differ more (m) leave G"
     )
     extra_gate_m: float = field_doc(
-        0.08, "extra depth correspondences with a larger depth difference are rejected (m)"
+        0.15,
+        "extra depth correspondences with a larger depth difference are rejected (m). Wei: 8 "
+        "cm; at 30 frames/s a kicking foot moves farther than that between frames and then "
+        "finds nothing to pull it back (dev recordings, tracker alone: 8 cm 47-54 mm, "
+        "15 cm 37.5 mm, 20 cm 42.4 mm)",
     )
     extra_margin_px: int = field_doc(
         1,
@@ -118,11 +122,6 @@ class TrackerConfig:
         0.05, "prior noise scale of joint angles and root rotation (rad per frame^2)"
     )
     sigma_prior_m: float = field_doc(0.02, "prior noise scale of the root position (m per frame^2)")
-    sigma_twist_rad: float = field_doc(
-        0.0,
-        "noise scale of a pull of the upper arms' and thighs' twists towards their rest (rad); "
-        "0 = off. A hidden bent limb's twist is free (it swings the lower limb in depth)",
-    )
     prior_velocity_gain: float = field_doc(
         1.0,
         "prediction q_prev + gain (q_prev - q_prev2) the prior pulls towards: 1 = Wei's "

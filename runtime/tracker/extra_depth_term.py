@@ -10,7 +10,7 @@ The four correspondence types of Wei figure 4(c):
 
 So correspondences are searched in both directions (rendered -> observed for types 1, 3,
 observed -> rendered for 2, 4). A candidate whose depth differs from the query's by more than
-``extra_gate_m`` (8 cm) is not eligible, i.e. each query takes its closest point among the
+``extra_gate_m`` (15 cm; Wei: 8) is not eligible, i.e. each query takes its closest point among the
 eligible ones, and matches farther than ``extra_max_distance_m`` in 3D are dropped. The residual
 is the 3D offset, one row per camera axis, all on the model point's Jacobian.
 
@@ -111,7 +111,8 @@ class ExtraResult:
     Attributes:
         rows: the linearized rows (3 per accepted correspondence).
         error_sum: (B,) estimated sum over all query pixels of the 3D distance to the match,
-            counting queries without an eligible match as ``extra_gate_m`` (metres).
+            counting queries without an eligible match as ``depth_gate_m`` (metres: the
+            signal's scale does not move with the correspondence gate).
         count: (B,) number of query pixels.
     """
 
@@ -155,7 +156,7 @@ def extra_rows(
     )
     target = observed.points[j] if observed.points.shape[0] else q_pts
     off_r = torch.where(found[:, None], target - q_pts, torch.zeros_like(q_pts))
-    dist_r = torch.where(found, off_r.norm(dim=-1), torch.full_like(q_pts[:, 0], cfg.extra_gate_m))
+    dist_r = torch.where(found, off_r.norm(dim=-1), torch.full_like(q_pts[:, 0], cfg.depth_gate_m))
     error.index_add_(0, q_idx[:, 0], dist_r * q_ratio)
     count.index_add_(0, q_idx[:, 0], torch.full_like(dist_r, q_ratio))
 
@@ -172,7 +173,7 @@ def extra_rows(
     model_seg = c_seg[k] if c_pts.shape[0] else torch.zeros_like(b)
     off_o = torch.where(found_o[:, None], o_pts - model, torch.zeros_like(o_pts))
     dist_o = torch.where(
-        found_o, off_o.norm(dim=-1), torch.full_like(o_pts[:, 0], cfg.extra_gate_m)
+        found_o, off_o.norm(dim=-1), torch.full_like(o_pts[:, 0], cfg.depth_gate_m)
     )
     error.index_add_(0, b, dist_o * o_ratio)
     count.index_add_(0, b, torch.full_like(dist_o, o_ratio))

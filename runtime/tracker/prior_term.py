@@ -9,13 +9,10 @@ from __future__ import annotations
 
 import torch
 
-from shared import skeleton as sk
 from shared.kinematics import clamp_to_limits
 from shared.so3 import matrix_to_rotvec, rotvec_to_matrix
 
 __all__ = ["predict_pose", "prior_residual", "prior_system"]
-
-_TWISTS = [sk.DOF_NAMES.index(n) for n in sk.DOF_NAMES if n.endswith("twist")]
 
 
 def predict_pose(
@@ -53,13 +50,9 @@ def prior_residual(q: torch.Tensor, q_pred: torch.Tensor) -> torch.Tensor:
 
 
 def prior_system(
-    q: torch.Tensor, q_pred: torch.Tensor, sigma_rad: float, sigma_m: float, sigma_twist_rad=0.0
+    q: torch.Tensor, q_pred: torch.Tensor, sigma_rad: float, sigma_m: float
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Prior contribution to the normal equations and its energy.
-
-    ``sigma_twist_rad`` > 0 adds a pull of the upper arms' and thighs' twists towards 0 (the
-    rest): a bent limb's twist swings its lower part in depth, where a hidden limb leaves
-    nothing to see, so without it the twist drifts to its limit.
 
     Returns:
         diagonal (B, 34) of w^2, right-hand side (B, 34) w^2 r, energy (B,) sum (w r)^2.
@@ -68,12 +61,4 @@ def prior_system(
     w[:, 0:3] = 1.0 / sigma_m
     res = prior_residual(q, q_pred)
     w2 = w * w
-    diag, rhs, energy = w2, w2 * res, (w2 * res * res).sum(-1)
-    if sigma_twist_rad > 0:
-        wt2 = 1.0 / sigma_twist_rad**2
-        twist = q[:, _TWISTS]
-        diag, rhs = diag.clone(), rhs.clone()
-        diag[:, _TWISTS] += wt2
-        rhs[:, _TWISTS] -= wt2 * twist
-        energy = energy + wt2 * (twist * twist).sum(-1)
-    return diag, rhs, energy
+    return w2, w2 * res, (w2 * res * res).sum(-1)

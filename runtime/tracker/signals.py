@@ -3,8 +3,8 @@
 - ``depth_error_cm``: mean absolute residual of the depth and extra depth terms, the hybrid's
   epsilon1 signal (Wei: switch to the detector above 2.5 cm). It averages |observed - rendered
   depth| over G and the 3D distance to the matched point over the extra term's query pixels
-  (B1, B2, B3); a query without an eligible match counts as the gate (8 cm), so a lost track
-  approaches 8 cm instead of hiding behind the gates. No data pixel at all gives the gate.
+  (B1, B2, B3); a query without an eligible match counts as the depth gate (8 cm), so a lost
+  track approaches 8 cm instead of hiding behind the gates. No data pixel at all gives 8 cm.
 - ``overlap``: |R and O| / |R or O| of rendered and observed silhouettes (epsilon2 = 90%);
   0 when both are empty.
 - ``surface_error_q97_mm``: 97% quantile of the distances from observed foreground points
@@ -77,7 +77,7 @@ def frame_signals(
     count = n.double() + extra.count.double()
     depth_cm = (
         torch.where(
-            count > 0, total / count.clamp_min(1e-9), torch.full_like(total, cfg.extra_gate_m)
+            count > 0, total / count.clamp_min(1e-9), torch.full_like(total, cfg.depth_gate_m)
         )
         * 100.0
     )

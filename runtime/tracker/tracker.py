@@ -124,9 +124,7 @@ def fit_frames(
             hess = q.new_zeros(B, sk.NUM_DOFS, sk.NUM_DOFS, dtype=torch.float64)
             grad = q.new_zeros(B, sk.NUM_DOFS, dtype=torch.float64)
         if cfg.use_prior:
-            diag, rhs, _ = prior_system(
-                q, q_pred, cfg.sigma_prior_rad, cfg.sigma_prior_m, cfg.sigma_twist_rad
-            )
+            diag, rhs, _ = prior_system(q, q_pred, cfg.sigma_prior_rad, cfg.sigma_prior_m)
             hess = hess + torch.diag_embed(diag.double())
             grad = grad + rhs.double()
         dq = limit_step(solve_step(hess, grad, q, cfg.damping, cfg.use_limits), cfg.max_step_rad)

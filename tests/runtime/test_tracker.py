@@ -292,34 +292,6 @@ def test_prior_prediction_and_step():
     assert float(prior_residual(moved, pred).abs().max()) < 1e-4
 
 
-def test_twist_prior_pulls_twists_to_rest_and_matches_its_energy():
-    q = _pose()
-    twists = [
-        D[n] for n in ("l_humerus_twist", "r_humerus_twist", "l_femur_twist", "r_femur_twist")
-    ]
-    q[0, twists] = torch.tensor([0.4, -0.2, 0.3, -0.5], dtype=q.dtype)
-    pred = q.clone()
-    diag0, rhs0, e0 = prior_system(q, pred, 0.05, 0.02)
-    diag, rhs, e = prior_system(q, pred, 0.05, 0.02, sigma_twist_rad=0.5)
-    others = [i for i in range(sk.NUM_DOFS) if i not in twists]
-    assert torch.equal(diag[:, others], diag0[:, others]) and torch.equal(
-        rhs[:, others], rhs0[:, others]
-    )
-    assert torch.allclose(
-        diag[:, twists] - diag0[:, twists], torch.full((1, 4), 4.0, dtype=q.dtype)
-    )
-    # Gauss-Newton's right-hand side is minus half the energy's gradient: finite differences.
-    for i in twists:
-        dq = torch.zeros_like(q)
-        dq[0, i] = 1e-6
-        grad = (
-            prior_system(q + dq, pred, 0.05, 0.02, 0.5)[2]
-            - prior_system(q - dq, pred, 0.05, 0.02, 0.5)[2]
-        ) / 2e-6
-        assert float(rhs[0, i]) == pytest.approx(-0.5 * float(grad), rel=1e-5)
-    assert float(e - e0) == pytest.approx(4.0 * (0.16 + 0.04 + 0.09 + 0.25), rel=1e-9)
-
-
 def test_prior_prediction_velocity_gain():
     from shared.so3 import rotvec_to_matrix
 
