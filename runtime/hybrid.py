@@ -6,15 +6,21 @@ the frames where it fails; those are (re)initialized by the detector (forest lab
 fails when
 
 - the mean depth / extra-depth residual exceeds ``epsilon1_cm`` (Wei: 2.5 cm), or
-- the silhouette overlap |R and O| / |R or O| is below ``epsilon2`` (Wei: 90%).
+- the silhouette overlap |R and O| / |R or O| is below ``epsilon2`` (Wei: 90%), or
+- (not in Wei, off by default) the 97% quantile of the observed points' distances to the
+  model exceeds ``epsilon3_mm``: a limb left behind.
 
-Statuses per frame: "tracked" (the tracker's pose passed both tests), "detected" (the detector
-gave the pose: first frame, after a failure, after a lost frame), "lost" (no person: empty
-mask, or too few labelled body pixels for the detector). After a lost frame the estimator
-forgets its past, so the person is picked up by the detector when they return.
+Statuses per frame: "tracked" (the tracker's pose passed the tests, or was kept over the
+detector's), "detected" (the detector gave the pose: first frame, after a failure, after a lost
+frame), "lost" (no person: empty mask, or too few labelled body pixels for the detector).
+After a lost frame the estimator forgets its past, so the person is picked up by the detector
+when they return.
 
-The detector's pose is accepted as it is, even where it would fail the two tests too (Wei
-re-initializes the tracker from it); the next frame is tracked from it and judged again.
+Wei accepts the detector's pose as it is and re-initializes the tracker from it; so does this
+estimator by default. With ``keep_better`` (the shipped preset) the tracker's pose stays when
+the detector's does not explain the observed points better (smaller 97% surface error), or
+when it turns the person round by more than ``max_turn_rad`` in one frame (a profile view fits
+facing either way), unless that has gone on for ``max_turn_frames`` failed frames in a row.
 """
 
 from __future__ import annotations
@@ -41,8 +47,16 @@ from shared.body import BodyShape
 from shared.camera import Intrinsics
 from shared.config import ConfigError, config_from_dict, field_doc
 from shared.kinematics import forward_kinematics, named_joint_positions
+from shared.so3 import rotvec_to_matrix
 
-__all__ = ["HybridConfig", "HybridError", "HybridEstimator", "tracking_failed", "create_estimator"]
+__all__ = [
+    "HybridConfig",
+    "HybridError",
+    "HybridEstimator",
+    "root_turn",
+    "tracking_failed",
+    "create_estimator",
+]
 
 
 class HybridError(ValueError):
@@ -76,6 +90,17 @@ class HybridConfig:
         help="after a failure, keep the tracker's pose when the detector's refined pose has no "
         "smaller 97% surface error (not in Wei: his switch always takes the detector's)",
     )
+    max_turn_rad: float = field_doc(
+        float("inf"),
+        help="with keep_better, a detector pose whose root turns more than this from the last "
+        "pose is not taken (rad): a person does not turn round in one frame, but a profile "
+        "view fits facing either way (inf: off)",
+    )
+    max_turn_frames: int = field_doc(
+        15,
+        help="... unless the tracker has failed and the detector turned it round this many "
+        "frames in a row: then the track itself is taken to face the wrong way",
+    )
     hint_from_tracker: bool = field_doc(
         True,
         help="give the detector's IK the last pose as one more start (it is used only if it "
@@ -93,6 +118,12 @@ class HybridConfig:
             return config_from_dict(cls, dict(self.tracker), "hybrid tracker config")
         except ConfigError as err:
             raise HybridError(str(err)) from None
+
+
+def root_turn(q_a: torch.Tensor, q_b: torch.Tensor) -> float:
+    """Angle (rad) of the rotation between the root orientations of two (34,) poses."""
+    r = rotvec_to_matrix(q_a[3:6]) @ rotvec_to_matrix(q_b[3:6]).T
+    return float(torch.arccos(((torch.diagonal(r).sum() - 1.0) / 2.0).clamp(-1.0, 1.0)))
 
 
 def tracking_failed(
@@ -125,6 +156,7 @@ class HybridEstimator:
         """Forget the previous poses: the next frame goes to the detector."""
         self.q_prev: torch.Tensor | None = None
         self.q_prev2: torch.Tensor | None = None
+        self.turned_round = 0  # consecutive failed frames whose detection turned round
 
     def _joints(self, q: torch.Tensor) -> np.ndarray:
         kin = forward_kinematics(q[None].to(self.detector.body.lengths), self.detector.body)
@@ -181,6 +213,7 @@ class HybridEstimator:
             if not tracking_failed(
                 res.depth_error_cm, res.overlap, self.cfg, res.surface_error_q97_mm
             ):
+                self.turned_round = 0
                 return self._tracked(res.q, errors)
             failed = {f"tracker_{k}": v for k, v in errors.items()}
             if self.cfg.keep_better:
@@ -188,6 +221,12 @@ class HybridEstimator:
                 detected = self._detect(depth, m, failed)
                 det_err = detected.errors.get("surface_error_q97_mm")  # None: not refined
                 worse = det_err is not None and det_err >= res.surface_error_q97_mm
+                if detected.q is not None and before[0] is not None:
+                    turn = root_turn(torch.as_tensor(detected.q).to(before[0]), before[0])
+                    turned = turn > self.cfg.max_turn_rad
+                    self.turned_round = self.turned_round + 1 if turned else 0
+                    if self.turned_round < self.cfg.max_turn_frames:
+                        worse = worse or turned
                 if detected.status == "lost" or worse:
                     self.q_prev, self.q_prev2 = before
                     return self._tracked(res.q, {**errors, "kept_over_detector": 1.0})

@@ -16,6 +16,7 @@ from runtime.hybrid import (
     HybridError,
     HybridEstimator,
     create_estimator,
+    root_turn,
     tracking_failed,
 )
 from runtime.raycast import render_body
@@ -158,6 +159,44 @@ def test_keep_better_takes_the_pose_with_the_smaller_surface_error(
     else:
         assert failed.errors["tracker_surface_error_q97_mm"] == 1e4
         assert est.q_prev2 is None
+
+
+def test_root_turn_golden():
+    q = rest_pose(1)[0]
+    turned = q.clone()
+    # Root (pi, 0, 0) then 120 degrees more about the same axis: 120 degrees apart.
+    turned[3:6] = torch.tensor([math.pi + math.radians(120), 0.0, 0.0])
+    assert root_turn(q, q) == pytest.approx(0.0, abs=1e-3)
+    assert root_turn(turned, q) == pytest.approx(math.radians(120), abs=1e-4)
+
+
+@pytest.mark.parametrize("max_turn, status", [(math.inf, "detected"), (1.6, "tracked")])
+def test_a_detector_pose_turned_round_is_not_taken(scene, max_turn, status):
+    q, depth, labels, mask = scene
+    tracker = FakeTracker(fail_calls={1}, surface_mm=1e4)
+    est, _ = make_hybrid(scene, tracker, keep_better=True, max_turn_rad=max_turn)
+    assert est.estimate(frame_of(depth, 0), mask).status == "detected"
+    # The track so far faces away; the detector (which finds the true pose) turns it round.
+    away = est.q_prev.clone()
+    away[3:6] = torch.tensor([0.0, 0.0, math.pi])  # facing (pi, 0, 0) turned about y
+    est.q_prev = away
+    got = est.estimate(frame_of(depth, 1), mask)
+    assert got.status == status
+    if status == "tracked":
+        assert got.errors["kept_over_detector"] == 1.0
+
+
+def test_a_track_turned_round_for_long_gives_way_to_the_detector(scene):
+    q, depth, labels, mask = scene
+    tracker = FakeTracker(fail_calls={1, 2, 3, 5}, surface_mm=1e4)
+    est, _ = make_hybrid(scene, tracker, keep_better=True, max_turn_rad=1.6, max_turn_frames=3)
+    est.estimate(frame_of(depth, 0), mask)
+    est.q_prev[3:6] = torch.tensor([0.0, 0.0, math.pi])  # the track faces away
+    statuses = [est.estimate(frame_of(depth, i), mask).status for i in range(1, 4)]
+    assert statuses == ["tracked", "tracked", "detected"]  # the third turned detection wins
+    assert root_turn(est.q_prev, q) < 0.3
+    # A frame that passes resets the count.
+    assert est.estimate(frame_of(depth, 4), mask).status == "tracked" and est.turned_round == 0
 
 
 def test_with_real_tracker_and_detector(scene):
