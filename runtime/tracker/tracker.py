@@ -1,7 +1,9 @@
 """The MAP tracker of Wei section 3.1: Gauss-Newton on eq. 8 from the previous pose.
 
-Per frame: pool the observation to the working resolution (once), then iterate: ray-cast the
-model at the current pose (depth, silhouette, segment, surface coordinates), classify pixels
+Per frame: cut the observation to a window around the person and pool it to the working
+resolution (once; by default the factor follows the person's size, see
+:class:`TrackerConfig`), then iterate: ray-cast the model at the current pose in that window
+(depth, silhouette, segment; normals at the depth term's pixels), classify pixels
 (G, B1, B2, B3), build the linearized rows of the depth, extra depth and silhouette terms with
 analytic Jacobians, add the constant-acceleration prior, solve the 34x34 normal equations in
 float64 with a little damping and joint limits as an active set, shorten the step to at most
@@ -153,7 +155,7 @@ class Tracker:
     Args:
         body: the cylinder body model (from calibration or a body file).
         intr: intrinsics of the stream (full resolution); the tracker works at
-            ``intr / cfg.downsample``.
+            ``intr / cfg.downsample`` (or the automatic factor) in a window around the person.
         cfg: settings; defaults if None.
         device: where to compute (default: CPU); inputs are moved there.
         dtype: float dtype of the computation (normal equations are always float64).
