@@ -118,7 +118,7 @@ def bench_tracker(device: str) -> list[tuple[str, float, str]]:
             ),
             (f"ray-cast of the body, {at}", r["raycast_ms"], "one render per iteration"),
         ]
-    return rows  # fmt: skip
+    return rows
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -10,9 +10,9 @@ The four correspondence types of Wei figure 4(c):
 
 So correspondences are searched in both directions (rendered -> observed for types 1, 3,
 observed -> rendered for 2, 4). A candidate whose depth differs from the query's by more than
-``extra_gate_m`` (15 cm; Wei: 8) is not eligible, i.e. each query takes its closest point among the
-eligible ones, and matches farther than ``extra_max_distance_m`` in 3D are dropped. The residual
-is the 3D offset, one row per camera axis, all on the model point's Jacobian.
+``extra_gate_m`` (15 cm; Wei: 8) is not eligible, i.e. each query takes its closest point
+among the eligible ones, and matches farther than ``extra_max_distance_m`` in 3D are dropped.
+The residual is the 3D offset, one row per camera axis, all on the model point's Jacobian.
 
 Pixels within ``extra_margin_px`` of the other silhouette (B1, B3) or of G (B2) are skipped:
 there the region is a one-pixel quantization band of an edge, and its closest-point offsets

@@ -404,6 +404,9 @@ def test_bad_input_is_rejected_clearly():
         tracker.step(
             torch.zeros(100, 100), torch.zeros(100, 100, dtype=torch.bool), rest_pose(1)[0]
         )
+    for bad in ({"downsample": -1}, {"person_pixels": 0}):
+        with pytest.raises(TrackerError, match="downsample must be >= 0"):
+            Tracker(BodyShape.default(), INTR, TrackerConfig(**bad))
     with pytest.raises(TrackerError, match="q_prev"):
         tracker.step(torch.zeros(240, 320), torch.zeros(240, 320, dtype=torch.bool), rest_pose(1))
 
