@@ -10,6 +10,7 @@ import argparse
 import statistics
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import torch
 
@@ -23,7 +24,7 @@ from shared.kinematics import (
 )
 from shared.skeleton import DOF_LIMITS, JOINT_FRACTION, JOINT_SEGMENT
 
-__all__ = ["time_call", "bench_kinematics", "bench_tracker", "main"]
+__all__ = ["time_call", "bench_kinematics", "bench_tracker", "bench_recordings", "main"]
 
 
 def time_call(fn: Callable[[], object], repeats: int = 20, warmup: int = 3) -> float:
@@ -121,11 +122,35 @@ def bench_tracker(device: str) -> list[tuple[str, float, str]]:
     return rows
 
 
+def bench_recordings(folder: Path, device: str) -> list[tuple[str, float, str]]:
+    """Tracker frame time on each recording with ground truth in ``folder``."""
+    from runtime.tracker.benchmark import benchmark_recording
+
+    rows = []
+    for rec in sorted(d for d in folder.iterdir() if (d / "groundtruth.npz").is_file()):
+        r = benchmark_recording(rec, device=device)
+        rows.append(
+            (
+                f"tracker step, {rec.name}",
+                r["ms_per_frame"],
+                f"{1e3 / r['ms_per_frame']:.1f} frames/s, {r['iterations_mean']:.1f} "
+                f"iterations, {r['working_pixels']:.0f} working pixels",
+            )
+        )
+    return rows
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--batch", type=int, default=1000, help="poses per FK call")
     parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     parser.add_argument("--device", default="cpu", choices=["cpu", "cuda", "all"])
+    parser.add_argument(
+        "--recordings",
+        type=Path,
+        help="also time the tracker on each recording with ground truth in this folder "
+        "(make dev-recordings: anny bodies and sensor noise)",
+    )
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     devices = ["cpu", "cuda"] if args.device == "all" else [args.device]
@@ -161,6 +186,11 @@ def main(argv: list[str] | None = None) -> None:
         print("   and window from the person's size)")
         for what, ms, note in bench_tracker(dev):
             print(f"  {what:<45s} {ms:9.3f} ms  {note}")
+        if args.recordings is not None:
+            where = f"recordings in {args.recordings}"
+            print(f"\n== tracker on {name}, {where} (ground-truth start) ==")
+            for what, ms, note in bench_recordings(args.recordings, dev):
+                print(f"  {what:<45s} {ms:9.3f} ms  {note}")
 
 
 if __name__ == "__main__":

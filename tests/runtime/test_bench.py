@@ -1,0 +1,56 @@
+"""``make bench`` helpers: the tracker timed on a recording with ground truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from runtime.bench import bench_recordings
+from runtime.raycast import render_body
+from runtime.tracker.benchmark import benchmark_recording, camera_motion
+from shared import skeleton as sk
+from shared.body import BodyShape
+from shared.camera import Intrinsics
+from shared.kinematics import forward_kinematics, named_joint_positions
+from shared.recording import RecordingError, RecordingWriter
+
+INTR = Intrinsics.kinect_v1(320)
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def _recording(path, frames=4, truth=True):
+    body = BodyShape.default()
+    q = camera_motion("walk", frames).float()
+    depth = render_body(q, body, INTR).depth
+    with RecordingWriter(path, INTR, source="synthetic:walk") as rec:
+        for d in depth:
+            rec.write_frame((d.numpy() * 1000).round().astype(np.uint16))
+        if truth:
+            joints = named_joint_positions(forward_kinematics(q, body)).numpy()
+            rec.write_groundtruth(joints, sk.JOINT_NAMES, q=q.double().numpy())
+    body.save(path / "body.json")
+    return path
+
+
+def test_tracker_is_timed_on_a_recording(tmp_path):
+    rec = _recording(tmp_path / "walk")
+    r = benchmark_recording(rec, frames=3)
+    assert r["frames"] == 3 and r["ms_per_frame"] > 0
+    assert 1 <= r["iterations_mean"] <= 5 and r["working_pixels"] > 500
+    rows = bench_recordings(tmp_path, "cpu")
+    assert len(rows) == 1 and rows[0][0].endswith("walk") and "frames/s" in rows[0][2]
+
+
+def test_a_recording_without_ground_truth_is_refused(tmp_path):
+    rec = _recording(tmp_path / "bare", truth=False)
+    with pytest.raises(RecordingError, match="groundtruth"):
+        benchmark_recording(rec, frames=2)
+    assert bench_recordings(tmp_path, "cpu") == []  # skipped by the folder scan
