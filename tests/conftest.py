@@ -28,6 +28,16 @@ def dtype(request) -> torch.dtype:
 
 
 @pytest.fixture
+def one_thread():
+    """Torch on one thread for the test: the tracker's many small ops stall on a loaded
+    2-core machine when a second thread competes."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.fixture
 def shared_data() -> Path:
     """../shared/data beside the checkout; skips the test when it is absent."""
     if not SHARED_DATA.is_dir():

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 
 from runtime.bench import bench_recordings
 from runtime.raycast import render_body
@@ -18,12 +17,7 @@ from shared.recording import RecordingError, RecordingWriter
 INTR = Intrinsics.kinect_v1(320)
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _recording(path, frames=4, truth=True):

@@ -42,13 +42,7 @@ INTR = Intrinsics.kinect_v1(320)
 D = {n: i for i, n in enumerate(sk.DOF_NAMES)}
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    # Many small ops: on a loaded 2-core machine a second torch thread stalls them badly.
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _pose(dtype=torch.float64) -> torch.Tensor:
