@@ -152,6 +152,8 @@ def main(argv: list[str] | None = None) -> None:
         "(make dev-recordings: anny bodies and sensor noise)",
     )
     args = parser.parse_args(argv)
+    if args.recordings is not None and not args.recordings.is_dir():
+        parser.error(f"--recordings {args.recordings}: no such folder")
     torch.set_num_threads(args.threads)
     devices = ["cpu", "cuda"] if args.device == "all" else [args.device]
     devices = [d for d in devices if d == "cpu" or torch.cuda.is_available()]

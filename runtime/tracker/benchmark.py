@@ -22,7 +22,7 @@ from shared.kinematics import forward_kinematics, named_joint_positions, transfo
 from shared.procedural_motion import ground_poses, motion_poses
 
 from .config import TrackerConfig
-from .tracker import Tracker
+from .tracker import Tracker, track_sequence
 
 __all__ = ["camera_motion", "benchmark_tracker", "benchmark_recording"]
 
@@ -142,21 +142,20 @@ def benchmark_recording(
     body = BodyShape.load(Path(path) / "body.json").to(device=dev)
     tracker = Tracker(body, rec.intrinsics, cfg, device=dev)
     n = min(frames, len(rec))
-    depths = [torch.as_tensor(rec.read_depth(i), dtype=torch.float32) for i in range(n)]
-    masks = [segment_person(d, rec.intrinsics) for d in depths]
+    if n < 1:
+        raise RecordingError(f"{path}: no frames to time")
+    depths = torch.stack([torch.as_tensor(rec.read_depth(i)) for i in range(n)])
+    masks = torch.stack([segment_person(d, rec.intrinsics) for d in depths])
     q = torch.as_tensor(rec.groundtruth()["q"][0], dtype=torch.float32, device=dev)
     tracker.step(depths[0], masks[0], q, None)  # warm-up
-    prev, prev2, iters = q, None, 0
     t0 = time.perf_counter()
-    for d, m in zip(depths, masks):
-        res = tracker.step(d, m, prev, prev2)
-        prev, prev2, iters = res.q, prev, iters + res.iterations
+    _, results = track_sequence(depths, masks, q, tracker)
     if dev.type == "cuda":
         torch.cuda.synchronize(dev)
     elapsed = time.perf_counter() - t0
     return {
         "ms_per_frame": elapsed / n * 1e3,
-        "iterations_mean": iters / n,
+        "iterations_mean": float(np.mean([r.iterations for r in results])),
         "working_pixels": float(tracker.observe(depths[0], masks[0]).valid.sum()),
         "frames": float(n),
     }

@@ -48,3 +48,12 @@ def test_a_recording_without_ground_truth_is_refused(tmp_path):
     with pytest.raises(RecordingError, match="groundtruth"):
         benchmark_recording(rec, frames=2)
     assert bench_recordings(tmp_path, "cpu") == []  # skipped by the folder scan
+
+
+def test_bench_refuses_a_missing_recordings_folder(tmp_path, capsys):
+    from runtime.bench import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--recordings", str(tmp_path / "nowhere")])
+    assert exit_info.value.code == 2
+    assert "no such folder" in capsys.readouterr().err
