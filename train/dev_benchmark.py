@@ -130,10 +130,16 @@ def format_row(name: str, agg: dict) -> str:
         v = agg.get(key)
         return "n/a" if v is None else f"{v * scale:.{digits}f}"
 
+    # A mode without a tracker has no tracking failures to count: the detector runs always.
+    tracking = (
+        "(every frame)"
+        if CONFIGS[name][0] in ("detector", "shotton")
+        else (f"{f('tracking_failure_pct')}%")
+    )
     return (
         f"| {name} | {f('mean_joint_error_mm')} | {f('mean_joint_error_offset_normalized_mm')} | "
         f"{f('precision_10cm', 1, 100)}% | {f('surface_error_q97_mm')} | "
-        f"{f('tracking_failure_pct')}% | {f('detector_frames_pct')}% | "
+        f"{tracking} | {f('detector_frames_pct')}% | "
         f"{f('system_failure_pct')}% | {f('fps')} |"
     )
 

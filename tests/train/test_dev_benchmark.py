@@ -1,0 +1,16 @@
+"""The dev benchmark's table rows."""
+
+from __future__ import annotations
+
+from train.dev_benchmark import HEADER, format_row
+
+
+def test_rows_match_the_header_and_detector_modes_have_no_tracking_failure():
+    agg = {"mean_joint_error_mm": 36.1, "precision_10cm": 0.963, "tracking_failure_pct": 2.0,
+           "detector_frames_pct": 3.9, "system_failure_pct": 7.2}  # fmt: skip
+    columns = HEADER.splitlines()[0].count("|")
+    hybrid, detector = format_row("hybrid", agg), format_row("detector", agg)
+    assert hybrid.count("|") == detector.count("|") == columns
+    assert "| 36.1 |" in hybrid and "| 96.3% |" in hybrid and "| 2.0% | 3.9% | 7.2% |" in hybrid
+    assert "| (every frame) | 3.9% |" in detector and "2.0%" not in detector
+    assert "| n/a |" in hybrid  # missing metrics are marked, not invented
