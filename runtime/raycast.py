@@ -38,7 +38,7 @@ import torch
 
 from shared import skeleton as sk
 from shared.body import FOOT_SEGMENTS, BodyShape, cross_section_axes
-from shared.camera import Intrinsics, pixel_grid
+from shared.camera import Intrinsics
 from shared.kinematics import Kinematics, forward_kinematics
 
 __all__ = [
@@ -49,6 +49,7 @@ __all__ = [
     "render_body",
     "render_body_depth",
     "surface_normals",
+    "surface_local_points",
     "surface_distance",
 ]
 
@@ -274,56 +275,13 @@ def _cast(
     return torch.where(hit, t, torch.full_like(t, float("inf")))
 
 
-def _hit_details(
-    points: torch.Tensor,
-    primitive: torch.Tensor,
-    rot: torch.Tensor,
-    origin: torch.Tensor,
-    geom: SegmentGeometry,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Segment-frame coordinates and camera-frame unit normals of points on their primitives'
-    surfaces.
-
-    Args:
-        points: (B, N, 3) camera-frame points; primitive: (B, N) int64 (clamped to >= 0).
-    Returns:
-        local (B, N, 3), normals (B, N, 3).
-    """
-    B, N = points.shape[:2]
-    K = origin.shape[1]
-    # Camera -> section coordinates (r1-direction, r2-direction, axial), metres: c = A (p - o).
-    a_mat = geom.basis @ rot.transpose(-1, -2)  # (B, P, 3, 3)
-    scale = geom.scale.expand(B, -1, -1)
-    span = geom.span.expand(B, -1, -1)
-    basis = geom.basis.expand(B, -1, -1, -1)
-    centre = geom.centre.expand(B, -1, -1)
-    table = torch.cat(
-        [a_mat.reshape(B, K, 9), origin, scale, span, basis.reshape(B, K, 9), centre],
-        -1,
-    )  # (B, P, 29)
-    flat = (primitive + K * torch.arange(B, device=points.device)[:, None]).reshape(-1)
-    row = table.reshape(B * K, -1).T.contiguous().index_select(1, flat).reshape(-1, B, N)
-    a_r = row[0:9]
-    rel = points.permute(2, 0, 1) - row[9:12]  # (3, B, N)
-    coords = torch.stack(
-        [a_r[3 * i] * rel[0] + a_r[3 * i + 1] * rel[1] + a_r[3 * i + 2] * rel[2] for i in range(3)]
-    )
-    b_r = row[17:26]
-    # basis is orthonormal: local = basis^T c, plus the capsule's offset from the joint axis
-    local = torch.stack(
-        [
-            b_r[j] * coords[0] + b_r[3 + j] * coords[1] + b_r[6 + j] * coords[2] + row[26 + j]
-            for j in range(3)
-        ]
-    )
-    axial = coords[2] - torch.minimum(torch.maximum(coords[2], row[15]), row[16])
-    grad = torch.stack([coords[0], coords[1], axial]) / (row[12:15] * row[12:15])
-    normals = torch.stack(
-        [a_r[j] * grad[0] + a_r[3 + j] * grad[1] + a_r[6 + j] * grad[2] for j in range(3)]
-    )
-    norm = (normals[0] * normals[0] + normals[1] * normals[1] + normals[2] * normals[2]).sqrt()
-    normals = normals / norm.clamp_min(1e-12)
-    return local.permute(1, 2, 0), normals.permute(1, 2, 0)
+def _primitive_frames(
+    render: BodyRender, idx: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Pose index, primitive, rotation (N, 3, 3) and axis point (N, 3) at pixels (b, v, u)."""
+    b, v, u = idx.unbind(1)
+    prim = render.primitive[b, v, u].clamp_min(0)
+    return b, prim, render.rot[b, prim], render.origin[b, prim]
 
 
 def surface_normals(render: BodyRender, idx: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
@@ -333,12 +291,11 @@ def surface_normals(render: BodyRender, idx: torch.Tensor, points: torch.Tensor)
         idx: (N, 3) int64 pixels (b, v, u) on the rendered silhouette.
         points: (N, 3) their camera-frame surface points (depth times the pixel's ray).
     """
-    b, v, u = idx.unbind(1)
-    prim = render.primitive[b, v, u].clamp_min(0)
+    b, prim, rot, origin = _primitive_frames(render, idx)
     geom = render.geom
     B = render.rot.shape[0]
-    rot, origin = render.rot[b, prim], render.origin[b, prim]  # (N, 3, 3), (N, 3)
-    a_mat = geom.basis[prim] @ rot.transpose(-1, -2)  # camera -> section coordinates
+    # Camera -> section coordinates (r1-direction, r2-direction, axial), metres: c = A (p - o).
+    a_mat = geom.basis[prim] @ rot.transpose(-1, -2)
     coords = (a_mat @ (points - origin)[..., None])[..., 0]
     span = geom.span.expand(B, -1, -1)[b, prim]
     scale = geom.scale.expand(B, -1, -1)[b, prim]
@@ -346,6 +303,16 @@ def surface_normals(render: BodyRender, idx: torch.Tensor, points: torch.Tensor)
     grad = torch.stack([coords[:, 0], coords[:, 1], axial], -1) / (scale * scale)
     normals = (a_mat.transpose(-1, -2) @ grad[..., None])[..., 0]
     return normals / normals.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def surface_local_points(
+    render: BodyRender, idx: torch.Tensor, points: torch.Tensor
+) -> torch.Tensor:
+    """Rendered surface points (N, 3) at pixels ``idx`` in their segment's frame (a foot's in
+    its shank's): ``R^T (p - o)`` plus the primitive's offset from the segment origin."""
+    b, prim, rot, origin = _primitive_frames(render, idx)
+    centre = render.geom.centre.expand(render.rot.shape[0], -1, -1)[b, prim]
+    return ((points - origin)[:, None, :] @ rot)[:, 0] + centre
 
 
 def render_body(
@@ -403,25 +370,20 @@ def render_body(
     depth = torch.where(prim >= 0, zbuf, torch.zeros_like(zbuf)).reshape(B, H, W)
     prim = prim.reshape(B, H, W)
     segment = torch.where(prim >= 0, geom.segment[prim.clamp_min(0)], prim)
+    lean = BodyRender(depth, segment >= 0, segment, None, None, kin, prim, geom, rot, origin)
     if not details:
-        return BodyRender(depth, segment >= 0, segment, None, None, kin, prim, geom, rot, origin)
+        return lean
+    # Surface coordinates and normals of the hit pixels (everything else is background).
+    idx = lean.mask.nonzero()
+    b, v, u = idx.unbind(1)
+    ray = torch.stack(
+        [(u.to(q.dtype) - intr.cx) / intr.fx, (v.to(q.dtype) - intr.cy) / intr.fy], -1
+    )
+    pts = depth[b, v, u, None] * torch.cat([ray, torch.ones_like(ray[:, :1])], -1)
     local = q.new_zeros(B, H, W, 3)
     normals = q.new_zeros(B, H, W, 3)
-    # Surface coordinates only inside the union of the boxes (everything else is background).
-    live = [b for b in boxes if b[1] > b[0]]
-    if live:
-        u0, u1 = min(b[0] for b in live), max(b[1] for b in live)
-        v0, v1 = min(b[2] for b in live), max(b[3] for b in live)
-        d, sg = depth[:, v0:v1, u0:u1], prim[:, v0:v1, u0:u1]
-        u, v = pixel_grid(v1 - v0, u1 - u0, q.dtype, q.device)
-        rays = torch.stack(
-            [(u + u0 - intr.cx) / intr.fx, (v + v0 - intr.cy) / intr.fy, torch.ones_like(u)], -1
-        )
-        pts = (d[..., None] * rays).reshape(B, -1, 3)
-        loc, nrm = _hit_details(pts, sg.reshape(B, -1).clamp_min(0), rot, origin, geom)
-        hit = (sg >= 0).reshape(B, -1, 1)
-        local[:, v0:v1, u0:u1] = (loc * hit).reshape(B, v1 - v0, u1 - u0, 3)
-        normals[:, v0:v1, u0:u1] = (nrm * hit).reshape(B, v1 - v0, u1 - u0, 3)
+    local[b, v, u] = surface_local_points(lean, idx, pts)
+    normals[b, v, u] = surface_normals(lean, idx, pts)
     return BodyRender(depth, segment >= 0, segment, local, normals, kin, prim, geom, rot, origin)
 
 
