@@ -25,8 +25,9 @@ affine, the ray parameter t of a hit is the same in both spaces: one closed-form
 intersection per ray and segment (Inigo Quilez's formulation). Rays have ``d_z = 1`` so t is
 the metric depth z directly.
 
-Only pixels inside a conservative bounding box of the projected body are cast (one host sync
-for the box); the rest of the image is background. Everything follows q's device and dtype.
+Only the pixels each capsule can cover are cast (:mod:`runtime.capsule_pixels`: a
+conservative span per row, one host sync); the rest of the image is background. Everything
+follows q's device and dtype.
 """
 
 from __future__ import annotations
@@ -36,6 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from runtime.capsule_pixels import NEAR as _NEAR
+from runtime.capsule_pixels import segment_boxes, segment_row_spans, span_pairs
 from shared import skeleton as sk
 from shared.body import FOOT_SEGMENTS, BodyShape, cross_section_axes
 from shared.camera import Intrinsics
@@ -62,8 +65,6 @@ for _k, _p in enumerate(sk.SEGMENT_PARENT):
     if _p >= 0 and sk.SEGMENT_ATTACH_END[_k] > 0.5:
         _HAS_CHILD_AT_END[_p] = True
 _LOWER_IS_FREE = sk.SEGMENT_PARENT < 0
-
-_NEAR = 1e-3  # hits closer than this to the camera (or behind it) are ignored, metres
 
 
 @dataclass
@@ -155,73 +156,6 @@ def segment_geometry(body: BodyShape, like: torch.Tensor) -> SegmentGeometry:
     span = torch.cat([torch.stack([lo, hi], -1), foot_span], -2)
     segment = torch.cat([torch.arange(sk.NUM_SEGMENTS, device=device), fs])
     return SegmentGeometry(basis, scale, span, torch.cat([centre, foot_centre], -2), segment)
-
-
-def _segment_boxes(
-    rot: torch.Tensor, origin: torch.Tensor, geom: SegmentGeometry, intr: Intrinsics
-) -> list[tuple[int, int, int, int]]:
-    """Conservative pixel box (u0, u1, v0, v1), end-exclusive, of each segment over the batch.
-
-    A capsule lies in the convex hull of two spheres of radius ``max(r1, r2)`` around its cap
-    centres; perspective maps that hull into the hull of the spheres' projections, whose
-    boxes bound each sphere's projection via the extreme x/z and y/z ratios. Empty boxes are
-    (0, 0, 0, 0). This is the ray-caster's one host sync.
-    """
-    B = origin.shape[0]
-    axis_w = torch.einsum("bkij,kj->bki", rot, geom.basis[:, 2])
-    span = geom.span.expand(B, -1, -1)
-    centres = origin[:, :, None] + span[..., None] * axis_w[:, :, None]  # (B, P, 2, 3)
-    radius = geom.scale[..., :2].max(-1).values.expand(B, -1)[..., None]  # (B, K, 1)
-    x, y, z = centres.unbind(-1)
-    near, far = (z - radius).clamp_min(_NEAR), z + radius
-    visible = far > _NEAR
-
-    def extent(c):
-        lo = torch.minimum((c - radius) / near, (c - radius) / far)
-        hi = torch.maximum((c + radius) / near, (c + radius) / far)
-        big = torch.finfo(c.dtype).max
-        lo = torch.where(visible, lo, big).amin(dim=(0, 2))
-        hi = torch.where(visible, hi, -big).amax(dim=(0, 2))
-        return lo, hi
-
-    ux, uy = extent(x), extent(y)
-    box = (
-        torch.stack(
-            [
-                ux[0] * intr.fx + intr.cx,
-                ux[1] * intr.fx + intr.cx,
-                uy[0] * intr.fy + intr.cy,
-                uy[1] * intr.fy + intr.cy,
-            ],
-            -1,
-        )
-        .clamp(-1e6, 1e6)
-        .tolist()
-    )
-    out = []
-    for u0, u1, v0, v1 in box:
-        u0i, v0i = max(0, int(np.floor(u0))), max(0, int(np.floor(v0)))
-        u1i = min(intr.width, int(np.ceil(u1)) + 1)
-        v1i = min(intr.height, int(np.ceil(v1)) + 1)
-        out.append((u0i, u1i, v0i, v1i) if u1i > u0i and v1i > v0i else (0, 0, 0, 0))
-    return out
-
-
-def _pairs(boxes: list[tuple[int, int, int, int]], width: int, device) -> tuple[torch.Tensor, ...]:
-    """Every (pixel, segment) pair inside the segments' boxes: flat pixel index (P,), segment (P,),
-    column (P,), row (P,)."""
-    sizes = [(u1 - u0) * (v1 - v0) for u0, u1, v0, v1 in boxes]
-    geo = torch.tensor([(u0, u1 - u0, v0) for u0, u1, v0, _ in boxes], device=device)
-    counts = torch.tensor(sizes, device=device)
-    seg = torch.repeat_interleave(
-        torch.arange(len(boxes), device=device), counts, output_size=sum(sizes)
-    )
-    first = torch.cumsum(counts, 0) - counts
-    idx = torch.arange(seg.shape[0], device=device) - first[seg]
-    g = geo[seg]
-    col = g[:, 0] + idx % g[:, 1].clamp_min(1)
-    row = g[:, 2] + idx // g[:, 1].clamp_min(1)
-    return row * width + col, seg, col, row
 
 
 def _cast(
@@ -331,8 +265,8 @@ def render_body(
         body: body parameters (unbatched or batch B).
         intr: intrinsics of the output image (H x W = intr.height x intr.width).
         kin: forward kinematics of ``q`` if already computed.
-        box: cast only the pixels inside the projected body's bounding box (same result,
-            faster); False casts every pixel.
+        box: cast only the pixels each capsule can cover (same result, faster); False casts
+            every pixel against every primitive.
         geom: ``segment_geometry(body, q)`` if already computed (a tracker renders one body
             many times per frame).
         details: also compute every pixel's local point and normal; the tracker needs
@@ -347,10 +281,13 @@ def render_body(
     rot, origin = geom.frames(kin)
     B, H, W = q.shape[0], intr.height, intr.width
     if box:
-        boxes = _segment_boxes(rot, origin, geom, intr)
+        axis = geom.basis[:, 2]
+        boxes = segment_boxes(rot, origin, axis, geom.span, geom.scale, intr)
+        first, count = segment_row_spans(rot, origin, axis, geom.span, geom.scale, intr, boxes)
     else:
-        boxes = [(0, W, 0, H)] * geom.segment.shape[0]
-    pix, pseg, col, row = _pairs(boxes, W, q.device)  # pseg: primitive of each pair
+        first = torch.zeros(geom.segment.shape[0], H, dtype=torch.long, device=q.device)
+        count = torch.full_like(first, W)
+    pix, pseg, col, row = span_pairs(first, count, W)  # pseg: primitive of each pair
     rays = torch.stack(
         [
             (col.to(q.dtype) - intr.cx) / intr.fx,
