@@ -127,6 +127,12 @@ class TrackerConfig:
         "prediction q_prev + gain (q_prev - q_prev2) the prior pulls towards: 1 = Wei's "
         "constant velocity, 0 = the previous pose",
     )
+    shoulder_branch_turn_rad: float = field_doc(
+        0.7,
+        "before each frame a shoulder pinned at its limits moves to its other Euler form when "
+        "that turns the upper arm by less than this (rad; 0: never), see "
+        "runtime/tracker/shoulder_branch.py",
+    )
     # ---------------- sampling caps (speed) ----------------
     max_depth_pixels: int = field_doc(
         1200, "depth term: at most this many G pixels per iteration (strided subsample)"

@@ -35,6 +35,7 @@ from .gauss_newton import apply_step, cat_rows, limit_step, normal_equations, so
 from .observation import Observation, automatic_factor, observe, person_window
 from .prior_term import predict_pose, prior_system
 from .regions import classify
+from .shoulder_branch import align_branch, move_to_roomier_branch
 from .signals import FrameSignals, frame_signals
 from .silhouette_term import silhouette_rows
 
@@ -102,6 +103,9 @@ def fit_frames(
             prior then predicts no motion).
     """
     B = q_prev.shape[0]
+    if cfg.shoulder_branch_turn_rad > 0:
+        q_prev = move_to_roomier_branch(q_prev, cfg.shoulder_branch_turn_rad)
+        q_prev2 = None if q_prev2 is None else align_branch(q_prev2, q_prev)
     q_pred = predict_pose(q_prev, q_prev2, cfg.prior_velocity_gain)
     q = q_pred.clone() if cfg.init_from_prediction else q_prev.clone()
     observed = observed_candidates(obs, cfg.max_candidates) if cfg.use_extra_depth else None
