@@ -141,6 +141,8 @@ def span_pairs(
     entries = torch.arange(P * H, device=count.device)
     entry = torch.repeat_interleave(entries, flat, output_size=total)
     start = torch.cumsum(flat, 0) - flat
-    col = first.reshape(-1)[entry] + torch.arange(total, device=count.device) - start[entry]
+    # index_select, not x[entry]: several times faster on CPU at these sizes.
+    offset = (first.reshape(-1) - start).index_select(0, entry)
+    col = offset + torch.arange(total, device=count.device)
     row = entry % H
     return row * width + col, entry // H, col, row

