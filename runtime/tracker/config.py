@@ -52,6 +52,13 @@ class TrackerConfig:
     stop_translation_m: float = field_doc(
         1e-3, "... and every root-translation update is below this (m)"
     )
+    stop_decrease: float = field_doc(
+        800.0,
+        "... or, from the second step on, when a step's predicted energy decrease dq^T H dq "
+        "falls below this (noise scales squared; 0: off). On noisy data the angles the data "
+        "hardly see keep moving by degrees per iteration, so the update test alone never "
+        "stops; on the dev recordings the first step removes ~20,000, the fifth ~250",
+    )
     damping: float = field_doc(
         1e-3, "Levenberg damping added to the Gauss-Newton diagonal, relative to its mean"
     )

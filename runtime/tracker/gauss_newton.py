@@ -30,6 +30,7 @@ __all__ = [
     "solve_step",
     "limit_step",
     "apply_step",
+    "predicted_decrease",
 ]
 
 
@@ -140,3 +141,14 @@ def apply_step(q: torch.Tensor, dq: torch.Tensor, limits: bool) -> torch.Tensor:
     """``q (+) dq``, clamped to the joint limits when ``limits``."""
     q = pose_update(q, dq)
     return clamp_to_limits(q) if limits else q
+
+
+def predicted_decrease(hess: torch.Tensor, dq: torch.Tensor) -> torch.Tensor:
+    """``dq^T H dq`` per pose, (B,): the energy the linearized model expects the Gauss-Newton
+    step ``dq = H^-1 g`` to remove, in units of the noise scales squared.
+
+    A step along a direction the data hardly constrain (a straight arm's twist) can be large in
+    radians yet remove almost nothing; this measures the step in the energy's own metric.
+    """
+    d = dq.to(hess.dtype)
+    return (d[:, None, :] @ hess @ d[:, :, None])[:, 0, 0]

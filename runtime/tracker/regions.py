@@ -58,7 +58,13 @@ def classify(render: BodyRender, obs: Observation, gate_m: float, occlusion: boo
 
 
 def sample_pixels(mask: torch.Tensor, max_count: int) -> tuple[torch.Tensor, int, float]:
-    """Indices of at most ``max_count`` True pixels, evenly strided over the image.
+    """About ``max_count`` of the True pixels, on a fixed pseudo-random lattice.
+
+    With s = ceil(count / max_count), a pixel is kept when a hash of its (v, u) is 0 modulo
+    s, so the kept set depends on the pixel, not on how many True pixels precede it: between
+    Gauss-Newton iterations the region masks change a little and the samples stay put (taking
+    every s-th True pixel instead moved every sample after the first change, and the
+    iterations never settled).
 
     Returns:
         (N, 3) int64 rows (b, v, u); the number of True pixels; their ratio to the N kept
@@ -68,7 +74,8 @@ def sample_pixels(mask: torch.Tensor, max_count: int) -> tuple[torch.Tensor, int
     total = idx.shape[0]
     if total > max_count > 0:
         stride = -(-total // max_count)
-        idx = idx[stride // 2 :: stride]
+        key = (idx[:, 2] * 73856093) ^ (idx[:, 1] * 19349663)
+        idx = idx[key % stride == 0]
     ratio = total / max(1, idx.shape[0])
     return idx, total, ratio
 

@@ -31,7 +31,14 @@ from shared.camera import Intrinsics
 from .config import TrackerConfig
 from .depth_term import depth_rows
 from .extra_depth_term import extra_rows, observed_candidates
-from .gauss_newton import apply_step, cat_rows, limit_step, normal_equations, solve_step
+from .gauss_newton import (
+    apply_step,
+    cat_rows,
+    limit_step,
+    normal_equations,
+    predicted_decrease,
+    solve_step,
+)
 from .observation import Observation, automatic_factor, observe, person_window
 from .prior_term import predict_pose, prior_system
 from .regions import classify
@@ -137,6 +144,10 @@ def fit_frames(
         q = apply_step(q, dq, cfg.use_limits)
         iterations += 1
         converged = _small(dq, cfg)
+        if iterations > 1:
+            # Not after the first step: the failure signals come from this iteration's
+            # rendering, which then would still show the previous frame's pose.
+            converged = converged | (predicted_decrease(hess, dq) < cfg.stop_decrease)
         last = (render, regions, extra)
         if bool(converged.all()):
             break

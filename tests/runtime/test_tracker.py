@@ -14,7 +14,13 @@ from runtime.tracker import Tracker, TrackerConfig, TrackerError, track_sequence
 from runtime.tracker.benchmark import camera_motion
 from runtime.tracker.depth_term import depth_rows
 from runtime.tracker.extra_depth_term import closest_points, extra_rows, observed_candidates
-from runtime.tracker.gauss_newton import Rows, limit_step, rows_jacobian, solve_step
+from runtime.tracker.gauss_newton import (
+    Rows,
+    limit_step,
+    predicted_decrease,
+    rows_jacobian,
+    solve_step,
+)
 from runtime.tracker.observation import (
     automatic_factor,
     distance_to_mask,
@@ -23,7 +29,7 @@ from runtime.tracker.observation import (
     pool_depth,
 )
 from runtime.tracker.prior_term import predict_pose, prior_residual, prior_system
-from runtime.tracker.regions import classify, rendered_points
+from runtime.tracker.regions import classify, rendered_points, sample_pixels
 from runtime.tracker.silhouette_term import silhouette_rows
 from shared import skeleton as sk
 from shared.body import BodyShape
@@ -318,6 +324,50 @@ def test_limits_active_set_keeps_joints_inside():
     assert float(dq[0, D["l_humerus_abd"]]) == pytest.approx(0.1, rel=1e-6)
 
 
+def test_sampled_pixels_stay_put_when_the_mask_changes():
+    order = torch.randperm(60 * 80, generator=torch.Generator().manual_seed(0))
+    mask = torch.zeros(60 * 80, dtype=torch.bool)
+    mask[order[:1800]] = True
+    grown = mask.clone()
+    grown[order[1800:1850]] = True  # 50 more pixels; the stride stays ceil(1850 / 500) = 4
+    a, total, ratio = sample_pixels(mask.reshape(1, 60, 80), 500)
+    b, _, _ = sample_pixels(grown.reshape(1, 60, 80), 500)
+    assert total == 1800 and ratio == pytest.approx(1800 / len(a))
+    assert abs(len(a) - 450) < 60  # about total / stride
+    kept = {tuple(r) for r in b.tolist()}
+    assert all(tuple(r) in kept for r in a.tolist())  # every earlier sample is still sampled
+    few, count, one = sample_pixels(mask.reshape(1, 60, 80), 5000)
+    assert len(few) == count == 1800 and one == 1.0
+
+
+def test_predicted_decrease_is_the_quadratic_model_s():
+    hess = torch.diag(torch.tensor([4.0, 1.0], dtype=torch.float64))[None].repeat(2, 1, 1)
+    hess[1, 0, 1] = hess[1, 1, 0] = 1.0
+    dq = torch.tensor([[0.5, 2.0], [1.0, -1.0]])
+    # 4 * 0.25 + 4 = 5; 4 + 1 - 2 * 1 = 3
+    assert predicted_decrease(hess, dq).tolist() == [5.0, 3.0]
+    # For the Gauss-Newton step dq = H^-1 g it is the drop of the quadratic model g.dq - dq'H dq/2
+    # times two.
+    g = torch.tensor([[1.0, 2.0]], dtype=torch.float64)
+    step = torch.linalg.solve(hess[1:], g[..., None])[..., 0]
+    drop = 2 * (g * step).sum() - predicted_decrease(hess[1:], step)
+    assert torch.allclose(predicted_decrease(hess[1:], step), drop)
+
+
+def test_energy_stop_ends_the_iterations_early():
+    body, truth, depth, mask = _sequence("walk", 6)
+    runs = {}
+    for stop in (0.0, 800.0, 1e12):
+        cfg = dataclasses.replace(TrackerConfig(), stop_decrease=stop)
+        q, results = track_sequence(depth, mask, truth[0], Tracker(body, INTR, cfg))
+        error = float(_joint_error_mm(q, truth, body).mean())
+        runs[stop] = (sum(r.iterations for r in results), error)
+        if stop == 1e12:  # at most two steps per frame: the energy test starts at the second
+            assert all(r.iterations <= 2 for r in results)
+    assert runs[1e12][0] <= runs[800.0][0] < runs[0.0][0]
+    assert runs[800.0][1] < 5.0 and runs[0.0][1] < 5.0
+
+
 def test_limit_step_shortens_long_steps_along_their_direction():
     dq = torch.zeros(2, 34, dtype=torch.float64)
     dq[0, 0], dq[0, D["l_femur_twist"]], dq[0, D["head_x"]] = 0.3, 0.5, -0.1
@@ -343,15 +393,21 @@ def _sequence(name: str, frames: int, dtype=torch.float32):
     return body, truth, depth, depth > 0
 
 
+@pytest.mark.parametrize("stop_decrease", [None, 0.0], ids=["preset", "update_stop_only"])
 @pytest.mark.parametrize("motion", ["walk", "wave"])
-def test_tracks_a_sequence_rendered_from_the_model(motion):
+def test_tracks_a_sequence_rendered_from_the_model(motion, stop_decrease):
     body, truth, depth, mask = _sequence(motion, 24)
-    tracker = Tracker(body, INTR, TrackerConfig())
-    q, results = track_sequence(depth, mask, truth[0], tracker)
+    cfg = TrackerConfig()
+    if stop_decrease is not None:
+        cfg = dataclasses.replace(cfg, stop_decrease=stop_decrease)
+    q, results = track_sequence(depth, mask, truth[0], Tracker(body, INTR, cfg))
     err = _joint_error_mm(q, truth, body)
     assert float(err.mean()) < 5.0, err.mean(1)
     assert all(r.overlap > 0.95 and r.depth_error_cm < 1.0 for r in results)
-    assert all(0 <= r.surface_error_q97_mm < 20 for r in results)
+    # The preset's energy stop leaves up to 2 cm in the first frames after a start from rest
+    # (noise-free data: 800 units of energy are a real misfit here, noise on a sensor's).
+    bound = 20 if stop_decrease == 0.0 else 25
+    assert all(0 <= r.surface_error_q97_mm < bound for r in results)
     assert q.shape == (24, 34) and all(r.iterations <= 5 for r in results)
 
 
