@@ -25,15 +25,27 @@ import torch
 
 from shared.camera import Intrinsics
 
-__all__ = ["NEAR", "segment_boxes", "segment_row_spans", "span_pairs"]
+__all__ = ["NEAR", "capsule_ends", "segment_boxes", "segment_row_spans", "span_pairs"]
 
 NEAR = 1e-3  # hits closer than this to the camera (or behind it) are ignored, metres
 _SPAN_MIN_DEPTH = 0.05  # nearer than this (capsule's closest point), rows keep the whole box
 _SLACK_PX = 1.0  # rounding margin added to every span
 
 
-def _cap_centres(rot: torch.Tensor, origin: torch.Tensor, basis_axis, span, scale):
-    """Camera-frame cap centres (B, P, 2, 3) and bounding radius (B, P, 1)."""
+def capsule_ends(
+    rot: torch.Tensor,
+    origin: torch.Tensor,
+    basis_axis: torch.Tensor,
+    span: torch.Tensor,
+    scale: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Camera-frame cap centres (B, P, 2, 3) and bounding radius (B, P, 1) of each primitive.
+
+    Args:
+        rot, origin: (B, P, 3, 3), (B, P, 3) primitive frames.
+        basis_axis: (P, 3) capsule axis in the local frame; span: (..., P, 2) cap centres along
+            it; scale: (..., P, 3) semi-axes.
+    """
     B = origin.shape[0]
     axis_w = torch.einsum("bkij,kj->bki", rot, basis_axis)
     centres = origin[:, :, None] + span.expand(B, -1, -1)[..., None] * axis_w[:, :, None]
@@ -41,9 +53,7 @@ def _cap_centres(rot: torch.Tensor, origin: torch.Tensor, basis_axis, span, scal
     return centres, radius
 
 
-def segment_boxes(
-    rot: torch.Tensor, origin: torch.Tensor, basis_axis, span, scale, intr: Intrinsics
-) -> torch.Tensor:
+def segment_boxes(centres: torch.Tensor, radius: torch.Tensor, intr: Intrinsics) -> torch.Tensor:
     """Conservative pixel box of each primitive over the batch: (P, 4) float (u0, u1, v0, v1),
     whole pixel numbers, end-exclusive, clamped to the image; empty boxes have u1 <= u0.
 
@@ -52,11 +62,8 @@ def segment_boxes(
     projection via the extreme x/z and y/z ratios.
 
     Args:
-        rot, origin: (B, P, 3, 3), (B, P, 3) primitive frames.
-        basis_axis: (P, 3) capsule axis in the local frame; span: (..., P, 2) cap centres along
-            it; scale: (..., P, 3) semi-axes.
+        centres, radius: from :func:`capsule_ends`.
     """
-    centres, radius = _cap_centres(rot, origin, basis_axis, span, scale)
     x, y, z = centres.unbind(-1)
     near, far = (z - radius).clamp_min(NEAR), z + radius
     visible = far > NEAR
@@ -78,22 +85,15 @@ def segment_boxes(
 
 
 def segment_row_spans(
-    rot: torch.Tensor,
-    origin: torch.Tensor,
-    basis_axis,
-    span,
-    scale,
-    intr: Intrinsics,
-    boxes: torch.Tensor,
+    centres: torch.Tensor, radius: torch.Tensor, intr: Intrinsics, boxes: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """First column and column count of every primitive's candidate pixels on every row.
 
     Args:
-        boxes: (P, 4) from :func:`segment_boxes`.
+        centres, radius: from :func:`capsule_ends`; boxes: (P, 4) from :func:`segment_boxes`.
     Returns:
         (P, H) int64 first column and (P, H) int64 count (0 off the box).
     """
-    centres, radius = _cap_centres(rot, origin, basis_axis, span, scale)
     z = centres[..., 2]
     zmin = z.amin(-1)  # (B, P)
     near_ok = zmin - radius[..., 0] > _SPAN_MIN_DEPTH

@@ -38,7 +38,7 @@ import numpy as np
 import torch
 
 from runtime.capsule_pixels import NEAR as _NEAR
-from runtime.capsule_pixels import segment_boxes, segment_row_spans, span_pairs
+from runtime.capsule_pixels import capsule_ends, segment_boxes, segment_row_spans, span_pairs
 from shared import skeleton as sk
 from shared.body import FOOT_SEGMENTS, BodyShape, cross_section_axes
 from shared.camera import Intrinsics
@@ -283,9 +283,8 @@ def render_body(
     rot, origin = geom.frames(kin)
     B, H, W = q.shape[0], intr.height, intr.width
     if box:
-        axis = geom.basis[:, 2]
-        boxes = segment_boxes(rot, origin, axis, geom.span, geom.scale, intr)
-        first, count = segment_row_spans(rot, origin, axis, geom.span, geom.scale, intr, boxes)
+        ends = capsule_ends(rot, origin, geom.basis[:, 2], geom.span, geom.scale)
+        first, count = segment_row_spans(*ends, intr, segment_boxes(*ends, intr))
     else:
         first = torch.zeros(geom.segment.shape[0], H, dtype=torch.long, device=q.device)
         count = torch.full_like(first, W)

@@ -36,8 +36,7 @@ __all__ = [
 SHOULDER_DOFS = torch.tensor(
     [[sk.DOF_NAMES.index(f"{s}_humerus_{a}") for a in ("abd", "flex", "twist")] for s in "lr"]
 )
-_SIGN = (1.0, -1.0, 1.0)
-_SHIFT = (math.pi, math.pi, math.pi)
+_SIGN = (1.0, -1.0, 1.0)  # (abd, flex, twist) -> (abd + pi, pi - flex, twist + pi)
 _ROOM_CAP = 0.5  # radians of distance to a limit that still count as room
 
 
@@ -48,10 +47,8 @@ def _wrap(a: torch.Tensor) -> torch.Tensor:
 def other_branch(q: torch.Tensor) -> torch.Tensor:
     """The same poses (B, 34) with both shoulders in their other Euler form, in [-pi, pi)."""
     idx = SHOULDER_DOFS.to(q.device)
-    sign = q.new_tensor(_SIGN)
-    shift = q.new_tensor(_SHIFT)
     out = q.clone()
-    out[:, idx] = _wrap(sign * q[:, idx] + shift)
+    out[:, idx] = _wrap(q.new_tensor(_SIGN) * q[:, idx] + math.pi)
     return out
 
 

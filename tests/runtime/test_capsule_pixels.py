@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from runtime.capsule_pixels import segment_boxes, segment_row_spans, span_pairs
+from runtime.capsule_pixels import capsule_ends, segment_boxes, segment_row_spans, span_pairs
 from runtime.raycast import _cast, render_body, segment_geometry
 from shared import skeleton as sk
 from shared.body import BodyShape
@@ -23,9 +23,9 @@ def _spans(q, body, intr):
     kin = forward_kinematics(q, body)
     geom = segment_geometry(body, q)
     rot, origin = geom.frames(kin)
-    args = (rot, origin, geom.basis[:, 2], geom.span, geom.scale, intr)
-    boxes = segment_boxes(*args)
-    return (*segment_row_spans(*args, boxes), boxes, rot, origin, geom)
+    ends = capsule_ends(rot, origin, geom.basis[:, 2], geom.span, geom.scale)
+    boxes = segment_boxes(*ends, intr)
+    return (*segment_row_spans(*ends, intr, boxes), boxes, rot, origin, geom)
 
 
 def _all_hits(rot, origin, geom, intr):
