@@ -25,6 +25,7 @@ facing either way), unless that has gone on for ``max_turn_frames`` failed frame
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -56,6 +57,7 @@ __all__ = [
     "root_turn",
     "tracking_failed",
     "create_estimator",
+    "fit_badness",
 ]
 
 
@@ -90,6 +92,14 @@ class HybridConfig:
         help="after a failure, keep the tracker's pose when the detector's refined pose has no "
         "smaller 97% surface error (not in Wei: his switch always takes the detector's)",
     )
+    compare_all_tests: bool = field_doc(
+        False,
+        "with keep_better, compare the two poses by the sum of their three failure signals, "
+        "each divided by its threshold (depth error / epsilon1, (1 - overlap) / (1 - "
+        "epsilon2), surface error / epsilon3) instead of the surface error alone: a detector "
+        "pose that explains the far points slightly better but leaves more of the silhouette "
+        "unexplained is not taken",
+    )
     max_turn_rad: float = field_doc(
         float("inf"),
         help="with keep_better, a detector pose whose root turns more than this from the last "
@@ -100,6 +110,13 @@ class HybridConfig:
         15,
         help="... unless the tracker has failed and the detector turned it round this many "
         "frames in a row: then the track itself is taken to face the wrong way",
+    )
+    recheck_every: int = field_doc(
+        0,
+        "with keep_better, also run the detector on every this-many-th frame the tracker "
+        "passed, and take its pose when it is better by the same rule: a wrong track whose "
+        "fit is good enough to pass the tests (a hidden limb on the wrong side, a bad start) "
+        "is otherwise never questioned (not in Wei; 0: off)",
     )
     hint_from_tracker: bool = field_doc(
         True,
@@ -137,6 +154,18 @@ def tracking_failed(
     )
 
 
+def fit_badness(
+    depth_error_cm: float, overlap: float, surface_q97_mm: float, cfg: HybridConfig
+) -> float:
+    """Sum of a pose's failure signals in units of their thresholds (0: perfect fit; a pose
+    that sits on all three thresholds scores 3). The surface term drops out when epsilon3 is
+    off (infinite)."""
+    score = depth_error_cm / cfg.epsilon1_cm + (1.0 - overlap) / max(1.0 - cfg.epsilon2, 1e-6)
+    if math.isfinite(cfg.epsilon3_mm):
+        score += surface_q97_mm / cfg.epsilon3_mm
+    return score
+
+
 class HybridEstimator:
     """Tracker with detector (re)initialization for one stream (implements PoseEstimator).
 
@@ -157,6 +186,7 @@ class HybridEstimator:
         self.q_prev: torch.Tensor | None = None
         self.q_prev2: torch.Tensor | None = None
         self.turned_round = 0  # consecutive failed frames whose detection turned round
+        self.passed = 0  # frames tracked since the last detector run
 
     def _joints(self, q: torch.Tensor) -> np.ndarray:
         kin = forward_kinematics(q[None].to(self.detector.body.lengths), self.detector.body)
@@ -210,26 +240,42 @@ class HybridEstimator:
                 "overlap": float(res.overlap),
                 "surface_error_q97_mm": float(res.surface_error_q97_mm),
             }
-            if not tracking_failed(
+            fail = tracking_failed(
                 res.depth_error_cm, res.overlap, self.cfg, res.surface_error_q97_mm
-            ):
+            )
+            self.passed += 1
+            recheck = self.cfg.keep_better and 0 < self.cfg.recheck_every <= self.passed
+            if not fail and not recheck:
                 self.turned_round = 0
                 return self._tracked(res.q, errors)
+            self.passed = 0
             failed = {f"tracker_{k}": v for k, v in errors.items()}
             if self.cfg.keep_better:
                 before = self.q_prev, self.q_prev2
                 detected = self._detect(depth, m, failed)
-                det_err = detected.errors.get("surface_error_q97_mm")  # None: not refined
-                worse = det_err is not None and det_err >= res.surface_error_q97_mm
+                det = detected.errors
+                worse = "surface_error_q97_mm" in det  # not refined: nothing to compare
+                if worse and self.cfg.compare_all_tests:
+                    mine = fit_badness(
+                        res.depth_error_cm, res.overlap, res.surface_error_q97_mm, self.cfg
+                    )
+                    theirs = fit_badness(
+                        det["depth_error_cm"], det["overlap"], det["surface_error_q97_mm"], self.cfg
+                    )
+                    worse = theirs >= mine
+                elif worse:
+                    worse = det["surface_error_q97_mm"] >= res.surface_error_q97_mm
                 if detected.q is not None and before[0] is not None:
                     turn = root_turn(torch.as_tensor(detected.q).to(before[0]), before[0])
                     turned = turn > self.cfg.max_turn_rad
-                    self.turned_round = self.turned_round + 1 if turned else 0
+                    # Only a track that keeps failing may be turned round; a recheck never.
+                    self.turned_round = self.turned_round + 1 if turned and fail else 0
                     if self.turned_round < self.cfg.max_turn_frames:
                         worse = worse or turned
                 if detected.status == "lost" or worse:
                     self.q_prev, self.q_prev2 = before
-                    return self._tracked(res.q, {**errors, "kept_over_detector": 1.0})
+                    kept = {"kept_over_detector": 1.0} if fail else {"rechecked": 1.0}
+                    return self._tracked(res.q, {**errors, **kept})
                 return detected
             errors = failed
         return self._detect(depth, m, errors)

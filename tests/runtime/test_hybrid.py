@@ -16,6 +16,7 @@ from runtime.hybrid import (
     HybridError,
     HybridEstimator,
     create_estimator,
+    fit_badness,
     root_turn,
     tracking_failed,
 )
@@ -159,6 +160,67 @@ def test_keep_better_takes_the_pose_with_the_smaller_surface_error(
     else:
         assert failed.errors["tracker_surface_error_q97_mm"] == 1e4
         assert est.q_prev2 is None
+
+
+@pytest.mark.parametrize("tracker_surface_mm, status", [(1e4, "detected"), (0.0, "tracked")])
+def test_recheck_asks_the_detector_every_nth_passed_frame(scene, tracker_surface_mm, status):
+    q, depth, labels, mask = scene
+    tracker = FakeTracker(surface_mm=tracker_surface_mm)  # never fails its tests
+    est, calls = make_hybrid(scene, tracker, refine_iterations=1, keep_better=True, recheck_every=3)
+    got = [est.estimate(frame_of(depth, i), mask) for i in range(7)]
+    # Frame 0 detected; tracker calls 1, 2 pass; call 3 is rechecked; 4, 5 pass; 6 rechecked.
+    assert len(calls) == 3
+    assert [g.status for g in got[:3]] == ["detected", "tracked", "tracked"]
+    assert [g.status for g in got[3:6]] == [status, "tracked", "tracked"]
+    assert got[6].status == status
+    if status == "tracked":
+        assert got[3].errors["rechecked"] == 1.0 and "kept_over_detector" not in got[3].errors
+    else:
+        assert got[3].errors["tracker_surface_error_q97_mm"] == 1e4
+
+
+def test_recheck_is_off_without_keep_better_and_never_turns_the_track(scene):
+    q, depth, labels, mask = scene
+    est, calls = make_hybrid(scene, FakeTracker(surface_mm=1e4), recheck_every=1)
+    assert [est.estimate(frame_of(depth, i), mask).status for i in range(3)] == [
+        "detected",
+        "tracked",
+        "tracked",
+    ]
+    assert len(calls) == 1
+    est, calls = make_hybrid(
+        scene,
+        FakeTracker(surface_mm=1e4),
+        keep_better=True,
+        recheck_every=1,
+        max_turn_rad=1.6,
+        max_turn_frames=2,
+    )
+    est.estimate(frame_of(depth, 0), mask)
+    est.q_prev[3:6] = torch.tensor([0.0, 0.0, math.pi])  # the track faces away but passes
+    statuses = [est.estimate(frame_of(depth, i), mask).status for i in range(1, 5)]
+    assert statuses == ["tracked"] * 4 and len(calls) == 5 and est.turned_round == 0
+
+
+def test_fit_badness_golden():
+    cfg = HybridConfig(epsilon1_cm=3.0, epsilon2=0.7, epsilon3_mm=80.0)
+    assert fit_badness(3.0, 0.7, 80.0, cfg) == pytest.approx(3.0)
+    assert fit_badness(0.0, 1.0, 0.0, cfg) == 0.0
+    assert fit_badness(1.5, 0.85, 40.0, cfg) == pytest.approx(1.5)
+    assert fit_badness(3.0, 0.7, 1e6, HybridConfig(epsilon1_cm=3.0, epsilon2=0.7)) == 2.0
+
+
+@pytest.mark.parametrize("compare_all, status", [(False, "tracked"), (True, "detected")])
+def test_keep_better_can_compare_all_three_signals(scene, compare_all, status):
+    q, depth, labels, mask = scene
+    # The tracker fails on depth error alone; its surface error is perfect.
+    tracker = FakeTracker(fail_calls={1}, surface_mm=0.0)
+    est, _ = make_hybrid(
+        scene, tracker, refine_iterations=1, keep_better=True, compare_all_tests=compare_all
+    )
+    est.estimate(frame_of(depth, 0), mask)
+    got = est.estimate(frame_of(depth, 1), mask)
+    assert got.status == status
 
 
 def test_root_turn_golden():
