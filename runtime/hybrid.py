@@ -21,6 +21,10 @@ estimator by default. With ``keep_better`` (the shipped preset) the tracker's po
 the detector's does not explain the observed points better (smaller 97% surface error), or
 when it turns the person round by more than ``max_turn_rad`` in one frame (a profile view fits
 facing either way), unless that has gone on for ``max_turn_frames`` failed frames in a row.
+``compare_all_tests`` makes "better" the smaller sum of all three failure signals (each in
+units of its threshold, :func:`fit_badness`); ``recheck_every`` also asks the detector on
+every n-th frame the tracker passed, so a track that is wrong yet fits well enough (a hidden
+limb on the wrong side after a bad first detection) is questioned too.
 """
 
 from __future__ import annotations
