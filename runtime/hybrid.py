@@ -22,9 +22,10 @@ the detector's does not explain the observed points better (smaller 97% surface 
 when it turns the person round by more than ``max_turn_rad`` in one frame (a profile view fits
 facing either way), unless that has gone on for ``max_turn_frames`` failed frames in a row.
 ``compare_all_tests`` makes "better" the smaller sum of all three failure signals (each in
-units of its threshold, :func:`fit_badness`); ``recheck_every`` also asks the detector on
-every n-th frame the tracker passed, so a track that is wrong yet fits well enough (a hidden
-limb on the wrong side after a bad first detection) is questioned too.
+units of its threshold, :func:`fit_badness`). A track that is wrong yet fits well enough to
+pass (a hidden limb on the wrong side after a bad first detection) is questioned too when
+``recheck_badness`` is set (the detector also runs on passed frames whose badness exceeds it)
+or ``recheck_every`` (on every n-th passed frame).
 """
 
 from __future__ import annotations
@@ -121,6 +122,12 @@ class HybridConfig:
         "passed, and take its pose when it is better by the same rule: a wrong track whose "
         "fit is good enough to pass the tests (a hidden limb on the wrong side, a bad start) "
         "is otherwise never questioned (not in Wei; 0: off)",
+    )
+    recheck_badness: float = field_doc(
+        float("inf"),
+        help="with keep_better, also run the detector on a frame the tracker passed when the "
+        "tracker's fit_badness (its three signals over their thresholds, summed; 3 = on all "
+        "three thresholds) exceeds this: a suspect fit is questioned before it fails (inf: off)",
     )
     hint_from_tracker: bool = field_doc(
         True,
@@ -248,7 +255,13 @@ class HybridEstimator:
                 res.depth_error_cm, res.overlap, self.cfg, res.surface_error_q97_mm
             )
             self.passed += 1
-            recheck = self.cfg.keep_better and 0 < self.cfg.recheck_every <= self.passed
+            suspect = (
+                fit_badness(res.depth_error_cm, res.overlap, res.surface_error_q97_mm, self.cfg)
+                > self.cfg.recheck_badness
+            )
+            recheck = self.cfg.keep_better and (
+                0 < self.cfg.recheck_every <= self.passed or suspect
+            )
             if not fail and not recheck:
                 self.turned_round = 0
                 return self._tracked(res.q, errors)

@@ -179,6 +179,20 @@ def test_recheck_asks_the_detector_every_nth_passed_frame(scene, tracker_surface
         assert got[3].errors["tracker_surface_error_q97_mm"] == 1e4
 
 
+@pytest.mark.parametrize("threshold, rechecked", [(0.5, True), (1.0, False)])
+def test_recheck_badness_questions_suspect_fits(scene, threshold, rechecked):
+    q, depth, labels, mask = scene
+    # The fake tracker passes with depth error 1 cm and overlap 0.95: badness 1/2.5 + 0.05/0.1.
+    est, calls = make_hybrid(
+        scene, FakeTracker(surface_mm=0.0), refine_iterations=1, keep_better=True,
+        recheck_badness=threshold,
+    )  # fmt: skip
+    got = [est.estimate(frame_of(depth, i), mask) for i in range(3)]
+    assert [g.status for g in got] == ["detected", "tracked", "tracked"]
+    assert len(calls) == (3 if rechecked else 1)
+    assert ("rechecked" in got[1].errors) == rechecked
+
+
 def test_recheck_is_off_without_keep_better_and_never_turns_the_track(scene):
     q, depth, labels, mask = scene
     est, calls = make_hybrid(scene, FakeTracker(surface_mm=1e4), recheck_every=1)
