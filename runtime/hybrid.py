@@ -255,12 +255,9 @@ class HybridEstimator:
                 res.depth_error_cm, res.overlap, self.cfg, res.surface_error_q97_mm
             )
             self.passed += 1
-            suspect = (
-                fit_badness(res.depth_error_cm, res.overlap, res.surface_error_q97_mm, self.cfg)
-                > self.cfg.recheck_badness
-            )
+            mine = fit_badness(res.depth_error_cm, res.overlap, res.surface_error_q97_mm, self.cfg)
             recheck = self.cfg.keep_better and (
-                0 < self.cfg.recheck_every <= self.passed or suspect
+                0 < self.cfg.recheck_every <= self.passed or mine > self.cfg.recheck_badness
             )
             if not fail and not recheck:
                 self.turned_round = 0
@@ -273,9 +270,6 @@ class HybridEstimator:
                 det = detected.errors
                 worse = "surface_error_q97_mm" in det  # not refined: nothing to compare
                 if worse and self.cfg.compare_all_tests:
-                    mine = fit_badness(
-                        res.depth_error_cm, res.overlap, res.surface_error_q97_mm, self.cfg
-                    )
                     theirs = fit_badness(
                         det["depth_error_cm"], det["overlap"], det["surface_error_q97_mm"], self.cfg
                     )
