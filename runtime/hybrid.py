@@ -139,6 +139,19 @@ class HybridConfig:
         {}, help="tracker settings (runtime.tracker.TrackerConfig keys); defaults when empty"
     )
 
+    def __post_init__(self) -> None:
+        # fit_badness divides by the thresholds; a NaN would silently switch tests off.
+        if not (self.epsilon1_cm > 0 and 0 <= self.epsilon2 < 1 and self.epsilon3_mm > 0):
+            raise HybridError(
+                "hybrid thresholds need epsilon1_cm > 0, 0 <= epsilon2 < 1 and epsilon3_mm > 0 "
+                f"(inf: off), got {self.epsilon1_cm}, {self.epsilon2}, {self.epsilon3_mm}"
+            )
+        if self.recheck_every < 0 or math.isnan(self.recheck_badness):
+            raise HybridError(
+                f"recheck_every must be >= 0 (0: off) and recheck_badness a number (inf: off), "
+                f"got {self.recheck_every}, {self.recheck_badness}"
+            )
+
     def tracker_config(self):
         """The tracker's settings as a ``TrackerConfig``."""
         cls = _tracker_config_type()

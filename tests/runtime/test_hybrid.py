@@ -310,3 +310,16 @@ def test_config_and_factory_errors(tmp_path):
         make_estimator("hybrid", tmp_path / "missing.npz", BODY, INTR)
     with pytest.raises(HybridError):
         HybridConfig(tracker={"no_such_key": 1}).tracker_config()
+    for bad in (
+        {"epsilon1_cm": 0.0},
+        {"epsilon2": 1.0},
+        {"epsilon3_mm": float("nan")},
+        {"recheck_every": -1},
+        {"recheck_badness": float("nan")},
+    ):
+        with pytest.raises(HybridError, match="epsilon|recheck"):
+            HybridConfig(**bad)
+    with pytest.raises(HybridError, match="recheck_every"):
+        create_estimator(
+            model_path=tmp_path / "f.npz", body=BODY, intrinsics=INTR, config={"recheck_every": -2}
+        )
