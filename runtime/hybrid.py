@@ -25,7 +25,9 @@ facing either way), unless that has gone on for ``max_turn_frames`` failed frame
 units of its threshold, :func:`fit_badness`). A track that is wrong yet fits well enough to
 pass (a hidden limb on the wrong side after a bad first detection) is questioned too when
 ``recheck_badness`` is set (the detector also runs on passed frames whose badness exceeds it)
-or ``recheck_every`` (on every n-th passed frame).
+or ``recheck_every`` (on every n-th passed frame). With ``arm_search_badness`` set, a suspect
+fit whose model hides an arm the forest sees is refined from a few arm poses first, and the
+best-fitting result is kept (:mod:`runtime.hidden_arm_search`).
 """
 
 from __future__ import annotations
@@ -49,6 +51,7 @@ from runtime.detector import (
     load_forest_labeler,
 )
 from runtime.estimator import PoseEstimate, lost
+from runtime.hidden_arm_search import arm_candidates, arm_pixel_fraction
 from shared.body import BodyShape
 from shared.camera import Intrinsics
 from shared.config import ConfigError, config_from_dict, field_doc
@@ -129,6 +132,19 @@ class HybridConfig:
         "tracker's fit_badness (its three signals over their thresholds, summed; 3 = on all "
         "three thresholds) exceeds this: a suspect fit is questioned before it fails (inf: off)",
     )
+    arm_search_badness: float = field_doc(
+        float("inf"),
+        help="when the tracker's fit_badness exceeds this and its model hides an arm "
+        "(visible fraction below hidden_arm_visibility) that the forest labels on at least "
+        "seen_arm_fraction of the person's pixels, refine the frame from each start pose of "
+        "runtime.hidden_arm_search and keep the best fit (not in Wei; inf: off)",
+    )
+    hidden_arm_visibility: float = field_doc(
+        0.3, help="an arm counts as hidden by the model below this visible fraction (0-1)"
+    )
+    seen_arm_fraction: float = field_doc(
+        0.02, help="the camera counts as seeing an arm from this share of the person's pixels"
+    )
     hint_from_tracker: bool = field_doc(
         True,
         help="give the detector's IK the last pose as one more start (it is used only if it "
@@ -151,6 +167,14 @@ class HybridConfig:
                 f"recheck_every must be >= 0 (0: off) and recheck_badness a number (inf: off), "
                 f"got {self.recheck_every}, {self.recheck_badness}"
             )
+        if math.isnan(self.arm_search_badness) or not (
+            0 <= self.hidden_arm_visibility and 0 <= self.seen_arm_fraction <= 1
+        ):
+            raise HybridError(
+                "arm_search_badness must be a number (inf: off), hidden_arm_visibility >= 0 and "
+                f"0 <= seen_arm_fraction <= 1, got {self.arm_search_badness}, "
+                f"{self.hidden_arm_visibility}, {self.seen_arm_fraction}"
+            )
 
     def tracker_config(self):
         """The tracker's settings as a ``TrackerConfig``."""
@@ -159,6 +183,15 @@ class HybridConfig:
             return config_from_dict(cls, dict(self.tracker), "hybrid tracker config")
         except ConfigError as err:
             raise HybridError(str(err)) from None
+
+
+def _signals(res) -> dict[str, float]:
+    """A tracker result's three failure signals, as reported per frame."""
+    return {
+        "depth_error_cm": float(res.depth_error_cm),
+        "overlap": float(res.overlap),
+        "surface_error_q97_mm": float(res.surface_error_q97_mm),
+    }
 
 
 def root_turn(q_a: torch.Tensor, q_b: torch.Tensor) -> float:
@@ -246,6 +279,27 @@ class HybridEstimator:
             det.labels.cpu().numpy().astype(np.uint8),
         )
 
+    def _search_hidden_arms(self, depth, mask, res, badness):
+        """The best refit from the arm starts of every arm the model hides and the forest
+        sees, as (result, its badness), if one fits better than ``res``; else None."""
+        vis = res.limb_visibility
+        if vis is None:
+            return None
+        best, labels = None, None
+        for limb, side in ((0, "l"), (1, "r")):
+            if not bool(vis[limb] < self.cfg.hidden_arm_visibility):
+                continue
+            if labels is None:
+                labels = labels_from(self.labeler(depth, mask)).to(mask.device)
+            if arm_pixel_fraction(labels, mask, side) < self.cfg.seen_arm_fraction:
+                continue
+            for start in arm_candidates(res.q, side):
+                r = self.tracker.step(depth, mask, start, None)
+                b = fit_badness(r.depth_error_cm, r.overlap, r.surface_error_q97_mm, self.cfg)
+                if b < badness:
+                    best, badness = (r, b), b
+        return best
+
     def estimate(self, frame, mask) -> PoseEstimate:
         """Pose of the person in ``frame`` (``frame.depth_mm``: (H, W) millimetres)."""
         depth = depth_frame_to_metres(frame.depth_mm, self.device)
@@ -259,16 +313,20 @@ class HybridEstimator:
         errors: dict[str, float] = {}
         if self.q_prev is not None:
             res = self.tracker.step(depth, m, self.q_prev, self.q_prev2)
-            errors = {
-                "depth_error_cm": float(res.depth_error_cm),
-                "overlap": float(res.overlap),
-                "surface_error_q97_mm": float(res.surface_error_q97_mm),
-            }
+            errors = _signals(res)
             fail = tracking_failed(
                 res.depth_error_cm, res.overlap, self.cfg, res.surface_error_q97_mm
             )
             self.passed += 1
             mine = fit_badness(res.depth_error_cm, res.overlap, res.surface_error_q97_mm, self.cfg)
+            if mine > self.cfg.arm_search_badness:
+                found = self._search_hidden_arms(depth, m, res, mine)
+                if found is not None:
+                    res, mine = found
+                    errors = {**_signals(res), "arm_searched": 1.0}
+                    fail = tracking_failed(
+                        res.depth_error_cm, res.overlap, self.cfg, res.surface_error_q97_mm
+                    )
             recheck = self.cfg.keep_better and (
                 0 < self.cfg.recheck_every <= self.passed or mine > self.cfg.recheck_badness
             )

@@ -10,6 +10,8 @@
 - ``surface_error_q97_mm``: 97% quantile of the distances from observed foreground points
   to the model surface (approximate point-to-capsule distance, see
   :func:`runtime.raycast.surface_distance`); 0 without observed points.
+- ``limb_visibility``: how much of each limb the model shows at its pose (not a failure
+  test: it tells the hybrid which limbs the data cannot be checking).
 """
 
 from __future__ import annotations
@@ -19,7 +21,9 @@ from dataclasses import dataclass
 import torch
 
 from runtime.raycast import BodyRender, surface_distance
+from shared import skeleton as sk
 from shared.body import BodyShape
+from shared.camera import Intrinsics
 
 from .config import TrackerConfig
 from .depth_term import depth_error_sum
@@ -27,16 +31,28 @@ from .extra_depth_term import ExtraResult
 from .observation import Observation
 from .regions import Regions, sample_pixels
 
-__all__ = ["FrameSignals", "frame_signals", "overlap", "surface_error_quantile"]
+__all__ = [
+    "LIMB_SEGMENTS",
+    "FrameSignals",
+    "frame_signals",
+    "limb_visibility",
+    "overlap",
+    "surface_error_quantile",
+]
+
+# The segments of each limb, in the order of ``limb_visibility``: left arm, right arm (upper
+# arm, forearm with hand), left leg, right leg (thigh, shank with foot).
+LIMB_SEGMENTS: tuple[tuple[int, int], ...] = ((7, 9), (8, 10), (11, 13), (12, 14))
 
 
 @dataclass
 class FrameSignals:
-    """Per-pose signals, each (B,)."""
+    """Per-pose signals, each (B,); ``limb_visibility`` (B, 4)."""
 
     depth_error_cm: torch.Tensor
     overlap: torch.Tensor
     surface_error_q97_mm: torch.Tensor
+    limb_visibility: torch.Tensor
 
 
 def overlap(rendered: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
@@ -86,4 +102,33 @@ def frame_signals(
         surf = surface_error_quantile(obs, render, body, cfg.max_surface_points)
     else:
         surf = torch.zeros_like(iou)
-    return FrameSignals(depth_cm, iou, surf)
+    return FrameSignals(depth_cm, iou, surf, limb_visibility(render, obs.intr, body))
+
+
+def limb_visibility(render: BodyRender, intr: Intrinsics, body: BodyShape) -> torch.Tensor:
+    """Visible fraction of each limb in the rendering: (B, 4) in ``LIMB_SEGMENTS`` order.
+
+    The limb's rendered pixels (where it is the front-most segment) over the area it would
+    cover seen side-on, unoccluded, at its segments' mid-points: sum of 2 r L fx fy / z^2
+    (r: mean cross-section radius). About 1 for a limb in plain view (a little more: the
+    hand and foot caps), near 0 for one hidden behind the torso; foreshortening (a limb
+    pointing at the camera) also lowers it.
+
+    Args:
+        render: B poses rendered with ``intr`` (the working resolution).
+        intr: intrinsics of the rendering.
+        body: the body rendered (unbatched).
+    """
+    seg = render.segment.reshape(render.segment.shape[0], -1)
+    B, S = seg.shape[0], sk.NUM_SEGMENTS
+    pixels = seg.new_zeros(B, S + 1, dtype=torch.float64)
+    pixels.scatter_add_(1, seg + 1, torch.ones_like(seg, dtype=torch.float64))
+    kin = render.kin
+    axis = torch.as_tensor(sk.SEGMENT_AXIS, dtype=kin.origins.dtype, device=seg.device)
+    half = (kin.rotations @ axis[None, :, :, None])[..., 0] * (kin.lengths[..., None] / 2)
+    z = (kin.origins + half)[..., 2].clamp_min(0.1)
+    radius = body.radii.to(z).mean(-1)
+    area = (2 * radius * kin.lengths * intr.fx * intr.fy / z**2).double()
+    limbs = torch.as_tensor(LIMB_SEGMENTS, device=seg.device)  # (4, 2)
+    seen = pixels[:, 1:][:, limbs].sum(-1)
+    return seen / area[:, limbs].sum(-1).clamp_min(1e-9)

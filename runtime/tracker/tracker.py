@@ -64,6 +64,8 @@ class TrackResult:
         surface_error_q97_mm: 97% quantile of observed points' distance to the model (mm).
         iterations: Gauss-Newton iterations run.
         converged: the last update was below the stop thresholds.
+        limb_visibility: (4,) visible fraction of the left/right arm and leg in the model's
+            rendering (:func:`runtime.tracker.signals.limb_visibility`); None if unknown.
     """
 
     q: torch.Tensor
@@ -72,6 +74,7 @@ class TrackResult:
     surface_error_q97_mm: float
     iterations: int
     converged: bool
+    limb_visibility: torch.Tensor | None = None
 
 
 @dataclass
@@ -250,6 +253,7 @@ class Tracker:
             surface_error_q97_mm=float(s.surface_error_q97_mm[0]),
             iterations=fit.iterations,
             converged=bool(fit.converged[0]),
+            limb_visibility=s.limb_visibility[0],
         )
 
 
