@@ -54,6 +54,7 @@ class FakeResult:
     surface_error_q97_mm: float
     iterations: int = 1
     converged: bool = True
+    limb_visibility: torch.Tensor | None = None
 
 
 class FakeTracker:
@@ -323,3 +324,76 @@ def test_config_and_factory_errors(tmp_path):
         create_estimator(
             model_path=tmp_path / "f.npz", body=BODY, intrinsics=INTR, config={"recheck_every": -2}
         )
+
+
+class ArmHidingTracker:
+    """Tracks with the left arm hidden (visible fraction 0.1) and a suspect fit; of the refits
+    that follow in the same frame, the one from 40 degrees of flexion and a straight elbow
+    fits best. ``starts``: (flexion, elbow) of every call after the frame's first."""
+
+    GOOD = (math.radians(40), 0.0)
+
+    def __init__(self):
+        self.calls, self.starts = 0, []
+
+    def step(self, depth, mask, q_prev, q_prev2=None):
+        self.calls += 1
+        vis = torch.tensor([0.1, 1.0, 1.0, 1.0])
+        if self.calls == 1:
+            return FakeResult(q_prev.clone(), 2.0, 0.95, 12.0, limb_visibility=vis)
+        start = tuple(
+            float(q_prev[sk.DOF_NAMES.index(f"l_{n}")]) for n in ("humerus_flex", "radius_flex")
+        )
+        self.starts.append(start)
+        err = 1.0 if start == pytest.approx(self.GOOD) else 2.2
+        return FakeResult(q_prev.clone(), err, 0.95, 12.0, limb_visibility=vis)
+
+
+def _track_second_frame(scene, tracker, labels_scale=1, **cfg):
+    q, depth, labels, mask = scene
+    det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
+    first = HybridEstimator(lambda d, m: labels * m, det, tracker, HybridConfig(**cfg))
+    assert first.estimate(frame_of(depth, 0), mask).status == "detected"
+    # The forest's labels on the second frame decide whether the camera sees the arm.
+    first.labeler = lambda d, m: labels * m * labels_scale
+    return first.estimate(frame_of(depth, 1), mask)
+
+
+def test_hidden_arm_search_keeps_the_best_refit(scene):
+    tracker = ArmHidingTracker()
+    # badness of the track: 2.0 / 2.5 + 0.05 / 0.1 = 1.3; of the good refit 0.9
+    out = _track_second_frame(scene, tracker, arm_search_badness=1.0)
+    assert out.status == "tracked" and out.errors["arm_searched"] == 1.0
+    assert out.errors["depth_error_cm"] == 1.0
+    assert len(tracker.starts) == 8  # the left arm's starts only
+    flex = out.q[sk.DOF_NAMES.index("l_humerus_flex")]
+    assert flex == pytest.approx(ArmHidingTracker.GOOD[0], abs=1e-6)
+
+
+@pytest.mark.parametrize(
+    "labels_scale, cfg",
+    [
+        (1, {}),  # off by default
+        (1, {"arm_search_badness": 1.5}),  # the fit is not suspect enough
+        (1, {"arm_search_badness": 1.0, "hidden_arm_visibility": 0.05}),  # not hidden enough
+        (0, {"arm_search_badness": 1.0}),  # the forest does not see the arm
+    ],
+)
+def test_hidden_arm_search_needs_all_its_conditions(scene, labels_scale, cfg):
+    tracker = ArmHidingTracker()
+    out = _track_second_frame(scene, tracker, labels_scale, **cfg)
+    assert out.status == "tracked" and "arm_searched" not in out.errors
+    assert tracker.starts == []
+
+
+@pytest.mark.parametrize(
+    "cfg",
+    [
+        {"arm_search_badness": math.nan},
+        {"hidden_arm_visibility": -0.1},
+        {"seen_arm_fraction": 1.5},
+    ],
+)
+def test_bad_arm_search_settings_are_rejected(cfg):
+    with pytest.raises(HybridError, match="arm_search_badness"):
+        HybridConfig(**cfg)

@@ -4,6 +4,7 @@ sequence rendered from the cylinder model itself (the issue's acceptance test)."
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
 import pytest
@@ -467,3 +468,31 @@ def test_cuda_tracks_like_cpu():
     tracker = Tracker(body, INTR, device="cuda")
     q, _ = track_sequence(depth.cuda(), mask.cuda(), truth[0].cuda(), tracker)
     assert float(_joint_error_mm(q.cpu(), truth, body).mean()) < 5.0
+
+
+def test_limb_visibility_front_and_profile():
+    """About 1 for limbs in plain view; the far arm of a profile view is hidden (0)."""
+    from runtime.tracker.signals import limb_visibility
+    from shared.so3 import matrix_to_rotvec, rotvec_to_matrix
+
+    body, intr = BodyShape.default(torch.float64), Intrinsics.kinect_v1(160)
+    q = rest_pose(1, (0.0, 0.1, 2.5), dtype=torch.float64)
+    turn = rotvec_to_matrix(torch.tensor([[0.0, math.pi / 2, 0.0]], dtype=torch.float64))
+    profile = q.clone()
+    profile[:, 3:6] = matrix_to_rotvec(turn @ rotvec_to_matrix(q[:, 3:6]))
+    both = torch.cat([q, profile])
+    vis = limb_visibility(render_body(both, body, intr), intr, body)
+    assert vis.shape == (2, 4)
+    assert ((vis[0] > 0.8) & (vis[0] < 1.3)).all()
+    assert vis[1, 0] > 0.8 and vis[1, 2] > 0.8  # near arm and leg
+    assert vis[1, 1] < 0.05 and vis[1, 3] < 0.2  # far arm hidden, far leg mostly
+
+
+def test_step_reports_limb_visibility():
+    body = BodyShape.default(torch.float64)
+    q = rest_pose(1, root_position=(0.0, 0.1, 2.5), dtype=torch.float64)
+    depth = render_body(q, body, INTR).depth[0]
+    tracker = Tracker(body, INTR, dtype=torch.float64)
+    res = tracker.step(depth, depth > 0, q[0])
+    assert res.limb_visibility.shape == (4,)
+    assert ((res.limb_visibility > 0.8) & (res.limb_visibility < 1.3)).all()

@@ -1,0 +1,61 @@
+"""Arm start poses and the forest's arm share for the hidden-arm search of the hybrid."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from runtime.hidden_arm_search import (
+    ARM_FLEXION_DEG,
+    ELBOW_FLEXION_DEG,
+    arm_candidates,
+    arm_pixel_fraction,
+)
+from shared import skeleton as sk
+from shared.kinematics import clamp_to_limits, rest_pose
+
+ARM_DOFS = {
+    side: [
+        sk.DOF_NAMES.index(f"{side}_{n}")
+        for n in ("humerus_abd", "humerus_flex", "humerus_twist", "radius_flex")
+    ]  # fmt: skip
+    for side in "lr"
+}
+
+
+@pytest.mark.parametrize("side", ["l", "r"])
+def test_arm_candidates_change_only_that_arm(side):
+    q = rest_pose(1, (0.1, 0.0, 2.5))[0]
+    q[sk.DOF_NAMES.index(f"{side}_humerus_twist")] = 0.7
+    q[sk.DOF_NAMES.index("lower_back_y")] = 0.2
+    out = arm_candidates(q, side)
+    assert out.shape == (len(ARM_FLEXION_DEG) * len(ELBOW_FLEXION_DEG), sk.NUM_DOFS)
+    others = [i for i in range(sk.NUM_DOFS) if i not in ARM_DOFS[side]]
+    torch.testing.assert_close(out[:, others], q[others].expand(len(out), -1))
+    flex, elbow = out[:, ARM_DOFS[side][1]], out[:, ARM_DOFS[side][3]]
+    starts = [(f, e) for f in ARM_FLEXION_DEG for e in ELBOW_FLEXION_DEG]
+    expected = [(math.radians(f), math.radians(e)) for f, e in starts]
+    torch.testing.assert_close(torch.stack([flex, elbow], 1), torch.tensor(expected))
+    assert (out[:, ARM_DOFS[side][0]] == 0).all() and (out[:, ARM_DOFS[side][2]] == 0).all()
+    torch.testing.assert_close(out, clamp_to_limits(out))
+    assert len({tuple(row.tolist()) for row in out}) == len(out)  # all starts distinct
+
+
+def test_arm_candidates_reject_unknown_side():
+    with pytest.raises(ValueError, match="side"):
+        arm_candidates(torch.zeros(sk.NUM_DOFS), "x")
+
+
+def test_arm_pixel_fraction_counts_both_arm_classes_inside_the_mask():
+    labels = torch.zeros(4, 5, dtype=torch.int64)
+    labels[0, :2] = 8  # left upper arm
+    labels[1, 0] = 10  # left forearm
+    labels[2, :3] = 9  # right upper arm
+    labels[3, 4] = 8  # left upper arm, but outside the mask
+    mask = torch.ones(4, 5, dtype=torch.bool)
+    mask[3, 4] = False
+    assert arm_pixel_fraction(labels, mask, "l") == pytest.approx(3 / 19)
+    assert arm_pixel_fraction(labels, mask, "r") == pytest.approx(3 / 19)
+    assert arm_pixel_fraction(labels, torch.zeros_like(mask), "l") == 0.0
