@@ -236,6 +236,9 @@ class HybridEstimator:
     def __init__(self, labeler: Labeler, detector: Detector, tracker, cfg: HybridConfig) -> None:
         self.labeler, self.detector, self.tracker, self.cfg = labeler, detector, tracker, cfg
         self.device = detector.device
+        # The tracker's label term needs the forest on every frame, not only the detector's.
+        self.labels_every_frame = bool(getattr(getattr(tracker, "cfg", None), "use_labels", False))
+        self._frame_labels: torch.Tensor | None = None
         self.reset()
 
     def reset(self) -> None:
@@ -254,8 +257,14 @@ class HybridEstimator:
         self.q_prev, self.q_prev2 = q, self.q_prev
         return PoseEstimate(q.cpu().double().numpy(), self._joints(q), "tracked", errors)
 
+    def _labels(self, depth: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """The forest's part labels of this frame (H, W), computed once per frame."""
+        if self._frame_labels is None:
+            self._frame_labels = labels_from(self.labeler(depth, mask)).to(mask.device)
+        return self._frame_labels
+
     def _detect(self, depth: torch.Tensor, mask: torch.Tensor, errors: dict) -> PoseEstimate:
-        labels = labels_from(self.labeler(depth, mask))
+        labels = self._labels(depth, mask)
         hint = self.q_prev if self.cfg.hint_from_tracker else None
         det: DetectionResult = self.detector.detect(depth, labels, mask, q_hint=hint)
         errors["labelled_pixels"] = float(det.labelled_pixels)
@@ -285,13 +294,12 @@ class HybridEstimator:
         vis = res.limb_visibility
         if vis is None:
             return None
-        best, labels = None, None
+        best = None
         for limb, side in ((0, "l"), (1, "r")):
             if not bool(vis[limb] < self.cfg.hidden_arm_visibility):
                 continue
-            if labels is None:
-                labels = labels_from(self.labeler(depth, mask)).to(mask.device)
-            if arm_pixel_fraction(labels, mask, side) < self.cfg.seen_arm_fraction:
+            seen = arm_pixel_fraction(self._labels(depth, mask), mask, side)
+            if seen < self.cfg.seen_arm_fraction:
                 continue
             for start in arm_candidates(res.q, side):
                 r = self.tracker.step(depth, mask, start, None)
@@ -310,9 +318,11 @@ class HybridEstimator:
         if not bool(m.any()):
             self.reset()
             return lost()
+        self._frame_labels = None
         errors: dict[str, float] = {}
         if self.q_prev is not None:
-            res = self.tracker.step(depth, m, self.q_prev, self.q_prev2)
+            labels = self._labels(depth, m) if self.labels_every_frame else None
+            res = self.tracker.step(depth, m, self.q_prev, self.q_prev2, labels=labels)
             errors = _signals(res)
             fail = tracking_failed(
                 res.depth_error_cm, res.overlap, self.cfg, res.surface_error_q97_mm

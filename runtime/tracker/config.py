@@ -83,6 +83,12 @@ class TrackerConfig:
         True, "silhouette term (Wei eq. 11, 16) on the rendered silhouette's boundary"
     )
     use_prior: bool = field_doc(True, "constant-acceleration prior (Wei eq. 12, 18)")
+    use_labels: bool = field_doc(
+        False,
+        "label term (not in Wei; runtime.tracker.label_term): observed pixels the forest "
+        "labels as a limb pull that limb's surface; needs the frame's part labels (the hybrid "
+        "passes them), otherwise it is skipped",
+    )
     use_limits: bool = field_doc(True, "keep joint angles within shared.skeleton.DOF_LIMITS")
     occlusion_handling: bool = field_doc(
         True,
@@ -125,6 +131,14 @@ class TrackerConfig:
         "silhouette term noise scale per rendered boundary pixel, in working-resolution "
         "pixels of distance to the observed silhouette",
     )
+    sigma_label_m: float = field_doc(
+        0.015, "label term noise scale per labelled pixel, distance to its limb's surface (m)"
+    )
+    label_gate_m: float = field_doc(
+        0.15,
+        "labelled pixels farther than this from their limb's surface are ignored (m): a "
+        "left/right swap of the forest must not drag a limb across the body",
+    )
     sigma_prior_rad: float = field_doc(
         0.05, "prior noise scale of joint angles and root rotation (rad per frame^2)"
     )
@@ -149,6 +163,9 @@ class TrackerConfig:
     )
     max_candidates: int = field_doc(
         1500, "closest-point candidates per side (observed / rendered) at most"
+    )
+    max_label_pixels: int = field_doc(
+        300, "label term pixels per frame at most (a fixed-lattice subsample of the limbs')"
     )
     max_silhouette_pixels: int = field_doc(
         600, "silhouette term: at most this many rendered boundary pixels per iteration"

@@ -39,6 +39,8 @@ class Observation:
         distance: (B, H, W) distance to the nearest silhouette pixel, working pixels,
             truncated (0 inside O).
         distance_grad: (B, H, W, 2) its gradient along (u, v) by central differences.
+        labels: (B, H, W) int64 segment the forest labels each pixel as (-1: none), for the
+            label term; None when the caller gave no labels.
     """
 
     intr: Intrinsics
@@ -48,6 +50,7 @@ class Observation:
     points: torch.Tensor
     distance: torch.Tensor
     distance_grad: torch.Tensor
+    labels: torch.Tensor | None = None
 
 
 def working_intrinsics(intr: Intrinsics, factor: int) -> Intrinsics:
@@ -159,6 +162,7 @@ def observe(
     factor: int,
     max_distance_px: float,
     window: tuple[int, int, int, int] | None = None,
+    labels: torch.Tensor | None = None,
 ) -> Observation:
     """Working-resolution observation of full-resolution frames.
 
@@ -170,10 +174,13 @@ def observe(
             its corner a multiple of ``factor``), None for the whole image. The observation's
             intrinsics are the window's, so everything downstream costs what the person
             covers, not what the image does.
+        labels: (B, H, W) int64 segment per stream pixel (-1: none), optional; working pixel
+            (i, j) takes stream pixel (f i, f j)'s, like the silhouette.
     """
     if window is not None:
         u0, u1, v0, v1 = window
         depth, mask = depth[..., v0:v1, u0:u1], mask[..., v0:v1, u0:u1]
+        labels = None if labels is None else labels[..., v0:v1, u0:u1]
         intr = intr.cropped(u0, v0, u1 - u0, v1 - v0)
     work = working_intrinsics(intr, factor)
     pooled, silhouette = pool_depth(depth, mask.bool(), factor)
@@ -182,4 +189,7 @@ def observe(
     points = depth_to_points(pooled, work)
     distance = distance_to_mask(silhouette, max_distance_px).to(depth.dtype)
     grad = _central_gradient(distance)
-    return Observation(work, pooled, silhouette, valid, points, distance, grad)
+    if labels is not None:
+        h, w = pooled.shape[-2:]
+        labels = labels[..., ::factor, ::factor][..., :h, :w]
+    return Observation(work, pooled, silhouette, valid, points, distance, grad, labels)

@@ -27,6 +27,7 @@ from runtime.raycast import render_body, segment_geometry
 from shared import skeleton as sk
 from shared.body import BodyShape
 from shared.camera import Intrinsics
+from shared.labels import PART_SEGMENT
 
 from .config import TrackerConfig
 from .depth_term import depth_rows
@@ -39,6 +40,7 @@ from .gauss_newton import (
     predicted_decrease,
     solve_step,
 )
+from .label_term import label_rows
 from .observation import Observation, automatic_factor, observe, person_window
 from .prior_term import predict_pose, prior_system
 from .regions import classify
@@ -134,6 +136,8 @@ def fit_frames(
             rows.append(extra.rows)
         if cfg.use_silhouette:
             rows.append(silhouette_rows(render, obs, cfg))
+        if cfg.use_labels and obs.labels is not None:
+            rows.append(label_rows(render.kin, geom, obs, cfg))
         if rows:
             hess, grad = normal_equations(render.kin, cat_rows(rows), B)
         else:
@@ -199,8 +203,14 @@ class Tracker:
         self.dtype = dtype
         self.body = body.to(dtype=dtype, device=self.device)
 
-    def observe(self, depth_m: torch.Tensor, mask: torch.Tensor) -> Observation:
-        """Working-resolution observation of one frame (H, W) or a batch (B, H, W)."""
+    def observe(
+        self, depth_m: torch.Tensor, mask: torch.Tensor, labels: torch.Tensor | None = None
+    ) -> Observation:
+        """Working-resolution observation of one frame (H, W) or a batch (B, H, W).
+
+        ``labels``: the forest's part labels (``shared.labels`` classes, 0 = background) of
+        the same shape, for the label term (kept only with ``cfg.use_labels``).
+        """
         if depth_m.shape[-2:] != (self.intr.height, self.intr.width):
             raise TrackerError(
                 f"depth is {tuple(depth_m.shape[-2:])} (H, W), the tracker's intrinsics are "
@@ -210,6 +220,13 @@ class Tracker:
             raise TrackerError(f"mask {tuple(mask.shape)} does not match depth {depth_m.shape}")
         depth = depth_m.to(device=self.device, dtype=self.dtype)
         mask = mask.to(device=self.device, dtype=torch.bool)
+        segments = None
+        if labels is not None and self.cfg.use_labels:
+            if labels.shape != depth_m.shape:
+                raise TrackerError(f"labels {tuple(labels.shape)} do not match depth {depth.shape}")
+            table = torch.as_tensor(PART_SEGMENT, device=self.device)
+            segments = table[labels.to(device=self.device, dtype=torch.long)]
+            segments = segments[None] if segments.dim() == 2 else segments
         if depth.dim() == 2:
             depth, mask = depth[None], mask[None]
         cfg = self.cfg
@@ -218,7 +235,7 @@ class Tracker:
         if cfg.crop_margin >= 0:
             margin_px = int(cfg.silhouette_max_px) + 2
             window = person_window(mask, factor, cfg.crop_margin, margin_px)
-        return observe(depth, mask, self.intr, factor, cfg.silhouette_max_px, window)
+        return observe(depth, mask, self.intr, factor, cfg.silhouette_max_px, window, segments)
 
     def step(
         self,
@@ -226,6 +243,7 @@ class Tracker:
         mask: torch.Tensor,
         q_prev: torch.Tensor,
         q_prev2: torch.Tensor | None = None,
+        labels: torch.Tensor | None = None,
     ) -> TrackResult:
         """Track one frame.
 
@@ -233,6 +251,8 @@ class Tracker:
             depth_m: (H, W) depth in metres at the stream's resolution, 0 = no reading.
             mask: (H, W) bool observed person silhouette (from the caller's segmentation).
             q_prev: (34,) pose of the previous frame; q_prev2: (34,) the one before, or None.
+            labels: (H, W) forest part labels for the label term (``cfg.use_labels``), or
+                None (the term is then skipped).
         Returns:
             :class:`TrackResult` (q on the tracker's device).
         """
@@ -241,7 +261,7 @@ class Tracker:
         for name, q in (("q_prev", q_prev), ("q_prev2", q_prev2)):
             if q is not None and tuple(q.shape) != (sk.NUM_DOFS,):
                 raise TrackerError(f"{name} must have shape ({sk.NUM_DOFS},), got {q.shape}")
-        obs = self.observe(depth_m, mask)
+        obs = self.observe(depth_m, mask, labels)
         qp = q_prev.to(device=self.device, dtype=self.dtype)[None]
         qp2 = None if q_prev2 is None else q_prev2.to(device=self.device, dtype=self.dtype)[None]
         fit = fit_frames(obs, qp, qp2, self.body, self.cfg)

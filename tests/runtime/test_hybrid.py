@@ -65,7 +65,7 @@ class FakeTracker:
         self.seen_prev2 = []
         self.surface_mm = surface_mm
 
-    def step(self, depth, mask, q_prev, q_prev2=None):
+    def step(self, depth, mask, q_prev, q_prev2=None, labels=None):
         self.calls += 1
         self.seen_prev2.append(q_prev2 is not None)
         err = 5.0 if self.calls in self.fail else 1.0
@@ -336,7 +336,7 @@ class ArmHidingTracker:
     def __init__(self):
         self.calls, self.starts = 0, []
 
-    def step(self, depth, mask, q_prev, q_prev2=None):
+    def step(self, depth, mask, q_prev, q_prev2=None, labels=None):
         self.calls += 1
         vis = torch.tensor([0.1, 1.0, 1.0, 1.0])
         if self.calls == 1:
