@@ -397,3 +397,36 @@ def test_hidden_arm_search_needs_all_its_conditions(scene, labels_scale, cfg):
 def test_bad_arm_search_settings_are_rejected(cfg):
     with pytest.raises(HybridError, match="arm_search_badness"):
         HybridConfig(**cfg)
+
+
+class LabelTracker(FakeTracker):
+    """A tracker with the label term on: records the labels it is given."""
+
+    def __init__(self, **kw):
+        super().__init__(**kw)
+        self.cfg = TrackerConfig(use_labels=True)
+        self.labels_seen = []
+
+    def step(self, depth, mask, q_prev, q_prev2=None, labels=None):
+        self.labels_seen.append(labels)
+        return super().step(depth, mask, q_prev, q_prev2)
+
+
+def test_label_term_gets_the_forest_labels_once_per_frame(scene):
+    q, depth, labels, mask = scene
+    tracker = LabelTracker(fail_calls={2})
+    est, labeler_calls = make_hybrid(scene, tracker)
+    statuses = [est.estimate(frame_of(depth, i), mask).status for i in range(4)]
+    assert statuses == ["detected", "tracked", "detected", "tracked"]
+    # Every frame runs the forest once, also when the tracker fails and the detector runs.
+    assert len(labeler_calls) == 4
+    assert len(tracker.labels_seen) == 3
+    for seen in tracker.labels_seen:
+        torch.testing.assert_close(seen, (labels * torch.as_tensor(mask)).long())
+    # Without the label term the tracker gets no labels, and the forest runs only to detect.
+    plain = LabelTracker()
+    plain.cfg = TrackerConfig()
+    est, labeler_calls = make_hybrid(scene, plain)
+    for i in range(3):
+        est.estimate(frame_of(depth, i), mask)
+    assert plain.labels_seen == [None, None] and len(labeler_calls) == 1
