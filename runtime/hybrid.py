@@ -301,8 +301,9 @@ class HybridEstimator:
             seen = arm_pixel_fraction(self._labels(depth, mask), mask, side)
             if seen < self.cfg.seen_arm_fraction:
                 continue
+            labels = self._labels(depth, mask) if self.labels_every_frame else None
             for start in arm_candidates(res.q, side):
-                r = self.tracker.step(depth, mask, start, None)
+                r = self.tracker.step(depth, mask, start, None, labels=labels)
                 b = fit_badness(r.depth_error_cm, r.overlap, r.surface_error_q97_mm, self.cfg)
                 if b < badness:
                     best, badness = (r, b), b

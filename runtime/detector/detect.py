@@ -172,7 +172,7 @@ def detect_pose(
         mask: (H, W) bool person mask; labels outside it are ignored. Needed for refinement
             (default: labelled pixels).
         tracker: refines the IK pose with ``tracker.step`` when given (its config sets the
-            iteration count; see :class:`Detector`).
+            iteration count and whether its label term uses ``labels``; see :class:`Detector`).
         generator: random source of the RANSAC (default: seeded from ``cfg.seed``).
     Returns:
         :class:`DetectionResult`.
@@ -247,7 +247,7 @@ def detect_pose(
         # which IK turns into crossed legs or arms; refine the pose with each pair of limbs
         # swapped too and keep the one that explains the depth best.
         for cand in limb_swaps(q_ik):
-            res = tracker.step(depth, ref_mask, cand, None)
+            res = tracker.step(depth, ref_mask, cand, None, labels=lab)
             if refined is None or (res.depth_error_cm, -res.overlap) < (
                 refined.depth_error_cm,
                 -refined.overlap,

@@ -209,3 +209,23 @@ def test_limb_swaps_mirror_legs_and_arms():
     assert arms[18] == 21 and arms[25] == 24 and arms[26] == 26
     assert both[26] == 29 and both[21] == 18
     assert torch.equal(limb_swaps(both)[3], q)  # swapping twice is the identity
+
+
+@pytest.mark.parametrize("use_labels", [False, True])
+def test_refinement_gets_the_labels_for_the_label_term(use_labels):
+    """Every limb-swap refinement is given the frame's labels; a tracker with the label term
+    uses them, and the result is as good as without."""
+    q = make_pose("walk")
+    depth, labels, mask = render_labels(q, BODY)
+    tracker = Tracker(BODY, INTR, TrackerConfig(iterations=3, use_labels=use_labels))
+    seen = []
+    step = tracker.step
+
+    def spy(*args, labels=None, **kw):
+        seen.append(labels)
+        return step(*args, labels=labels, **kw)
+
+    tracker.step = spy
+    res = detect_pose(depth, labels, INTR, BODY, DetectorConfig(), mask=mask, tracker=tracker)
+    assert len(seen) == 4 and all(torch.equal(s, labels) for s in seen)
+    assert float((res.joints - true_joints(q)).norm(dim=-1).mean()) < 0.05

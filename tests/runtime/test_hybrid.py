@@ -333,11 +333,13 @@ class ArmHidingTracker:
 
     GOOD = (math.radians(40), 0.0)
 
-    def __init__(self):
-        self.calls, self.starts = 0, []
+    def __init__(self, use_labels=False):
+        self.calls, self.starts, self.labels_seen = 0, [], []
+        self.cfg = TrackerConfig(use_labels=use_labels)
 
     def step(self, depth, mask, q_prev, q_prev2=None, labels=None):
         self.calls += 1
+        self.labels_seen.append(labels)
         vis = torch.tensor([0.1, 1.0, 1.0, 1.0])
         if self.calls == 1:
             return FakeResult(q_prev.clone(), 2.0, 0.95, 12.0, limb_visibility=vis)
@@ -359,8 +361,9 @@ def _track_second_frame(scene, tracker, labels_scale=1, **cfg):
     return first.estimate(frame_of(depth, 1), mask)
 
 
-def test_hidden_arm_search_keeps_the_best_refit(scene):
-    tracker = ArmHidingTracker()
+@pytest.mark.parametrize("use_labels", [False, True])
+def test_hidden_arm_search_keeps_the_best_refit(scene, use_labels):
+    tracker = ArmHidingTracker(use_labels)
     # badness of the track: 2.0 / 2.5 + 0.05 / 0.1 = 1.3; of the good refit 0.9
     out = _track_second_frame(scene, tracker, arm_search_badness=1.0)
     assert out.status == "tracked" and out.errors["arm_searched"] == 1.0
@@ -368,6 +371,8 @@ def test_hidden_arm_search_keeps_the_best_refit(scene):
     assert len(tracker.starts) == 8  # the left arm's starts only
     flex = out.q[sk.DOF_NAMES.index("l_humerus_flex")]
     assert flex == pytest.approx(ArmHidingTracker.GOOD[0], abs=1e-6)
+    # The refits get the frame's labels exactly when the tracker has the label term.
+    assert all((seen is not None) == use_labels for seen in tracker.labels_seen[-8:])
 
 
 @pytest.mark.parametrize(
