@@ -19,6 +19,7 @@ Everything is batch-first (B poses on B frames) and follows the device/dtype of 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -198,6 +199,13 @@ class Tracker:
                 f"downsample must be >= 0 (0: automatic) and person_pixels >= 1, got "
                 f"{self.cfg.downsample}, {self.cfg.person_pixels}"
             )
+        # The weights are 1 / sigma: zero, negative or NaN scales would divide by zero or
+        # silently flip or drop a term.
+        scales = {k: v for k, v in vars(self.cfg).items() if k.startswith("sigma_")}
+        scales["label_gate_m"] = self.cfg.label_gate_m
+        bad = {k: v for k, v in scales.items() if not (v > 0 and math.isfinite(v))}
+        if bad:
+            raise TrackerError(f"noise scales and gates must be positive and finite, got {bad}")
         self.intr = intr
         self.device = torch.device("cpu") if device is None else torch.device(device)
         self.dtype = dtype

@@ -154,3 +154,10 @@ def test_label_term_pulls_a_misplaced_arm_back():
         Tracker(body, INTR, TrackerConfig(use_labels=True)).step(
             depth, depth > 0, q_start[0], labels=labels[:-1]
         )
+
+
+@pytest.mark.parametrize("bad", [{"sigma_label_m": 0.0}, {"label_gate_m": -0.1},
+                                 {"sigma_depth_m": float("nan")}])  # fmt: skip
+def test_bad_noise_scales_are_rejected(bad):
+    with pytest.raises(TrackerError, match="positive and finite"):
+        Tracker(BodyShape.default(), INTR, TrackerConfig(**bad))
