@@ -311,6 +311,7 @@ class HybridEstimator:
 
     def estimate(self, frame, mask) -> PoseEstimate:
         """Pose of the person in ``frame`` (``frame.depth_mm``: (H, W) millimetres)."""
+        self._frame_labels = None  # a new frame: its forest labels are not computed yet
         depth = depth_frame_to_metres(frame.depth_mm, self.device)
         m = torch.as_tensor(np.asarray(mask) if not torch.is_tensor(mask) else mask)
         m = m.to(device=self.device, dtype=torch.bool)
@@ -319,7 +320,6 @@ class HybridEstimator:
         if not bool(m.any()):
             self.reset()
             return lost()
-        self._frame_labels = None
         errors: dict[str, float] = {}
         if self.q_prev is not None:
             labels = self._labels(depth, m) if self.labels_every_frame else None
