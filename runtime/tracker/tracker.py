@@ -233,7 +233,10 @@ class Tracker:
             if labels.shape != depth_m.shape:
                 raise TrackerError(f"labels {tuple(labels.shape)} do not match depth {depth.shape}")
             table = torch.as_tensor(PART_SEGMENT, device=self.device)
-            segments = table[labels.to(device=self.device, dtype=torch.long)]
+            labels = labels.to(device=self.device, dtype=torch.long)
+            if labels.numel() and not (0 <= int(labels.min()) <= int(labels.max()) < len(table)):
+                raise TrackerError(f"labels must be part classes in [0, {len(table) - 1}]")
+            segments = table[labels]
             segments = segments[None] if segments.dim() == 2 else segments
         if depth.dim() == 2:
             depth, mask = depth[None], mask[None]

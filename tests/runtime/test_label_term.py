@@ -150,10 +150,10 @@ def test_label_term_pulls_a_misplaced_arm_back():
         kin = forward_kinematics(res.q[None], body)
         errors[use] = float((named_joint_positions(kin)[0, wrist] - true_wrist).norm())
     assert errors[True] < 0.02 < 0.04 < errors[False]
-    with pytest.raises(TrackerError, match="labels"):
-        Tracker(body, INTR, TrackerConfig(use_labels=True)).step(
-            depth, depth > 0, q_start[0], labels=labels[:-1]
-        )
+    labelled = Tracker(body, INTR, TrackerConfig(use_labels=True))
+    for bad in (labels[:-1], labels + 20, labels - 1):
+        with pytest.raises(TrackerError, match="labels"):
+            labelled.step(depth, depth > 0, q_start[0], labels=bad)
 
 
 @pytest.mark.parametrize("bad", [{"sigma_label_m": 0.0}, {"label_gate_m": -0.1},
