@@ -17,6 +17,7 @@ import torch
 
 from shared import skeleton as sk
 from shared.kinematics import clamp_to_limits
+from shared.labels import PART_NAMES
 
 __all__ = ["ARM_FLEXION_DEG", "ELBOW_FLEXION_DEG", "arm_candidates", "arm_pixel_fraction"]
 
@@ -25,8 +26,11 @@ __all__ = ["ARM_FLEXION_DEG", "ELBOW_FLEXION_DEG", "arm_candidates", "arm_pixel_
 ARM_FLEXION_DEG: tuple[float, ...] = (-40.0, 0.0, 40.0, 80.0)
 ELBOW_FLEXION_DEG: tuple[float, ...] = (0.0, 90.0)
 
-# Forest classes of each arm (shared.labels.PART_NAMES): upper arm, forearm.
-_ARM_CLASSES = {"l": (8, 10), "r": (9, 11)}
+# Forest classes of each arm: upper arm, forearm.
+_ARM_CLASSES = {
+    side: (PART_NAMES.index(f"{side}_upper_arm"), PART_NAMES.index(f"{side}_forearm"))
+    for side in "lr"
+}
 
 
 def arm_candidates(q: torch.Tensor, side: str) -> torch.Tensor:

@@ -54,6 +54,7 @@ __all__ = [
     "surface_normals",
     "surface_local_points",
     "surface_distance",
+    "capsule_signed_distance",
 ]
 
 # Axial semi-axis of each segment's end caps, as a fraction of its smaller cross-section radius.
@@ -347,9 +348,28 @@ def surface_distance(points: torch.Tensor, kin: Kinematics, body: BodyShape) -> 
     coords = torch.einsum("kij,bnkj->bnki", geom.basis, local)
     span = geom.span.expand(B, -1, -1)[:, None]
     scale = geom.scale.expand(B, -1, -1)[:, None]
+    signed, _ = capsule_signed_distance(coords, span, scale)
+    return signed.min(-1).values.abs()
+
+
+def capsule_signed_distance(
+    coords: torch.Tensor, span: torch.Tensor, scale: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Signed distance of points to capsules from the points' capsule coordinates.
+
+    Measured along the line from the point to its nearest point on the capsule's axis:
+    exact for circular sections and spherical caps, an upper bound for elliptic ones.
+
+    Args:
+        coords: (..., 3) the points along the capsule's two cross-section axes and its axis
+            (:class:`SegmentGeometry` ``basis`` rows, from the span-0 axis point).
+        span, scale: (..., 2), (..., 3) the capsule's ``span`` and ``scale`` (broadcast).
+    Returns:
+        signed (...) metres, > 0 outside; the offset (..., 3) from the nearest axis point, in
+        the same coordinates.
+    """
     axial = coords[..., 2] - coords[..., 2].clamp(span[..., 0], span[..., 1])
     offset = torch.stack([coords[..., 0], coords[..., 1], axial], -1)
     length = offset.norm(dim=-1)
     rho = (offset / scale).norm(dim=-1)
-    signed = length * (1.0 - 1.0 / rho.clamp_min(1e-9))
-    return signed.min(-1).values.abs()
+    return length * (1.0 - 1.0 / rho.clamp_min(1e-9)), offset

@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import torch
 
-from runtime.raycast import SegmentGeometry
+from runtime.raycast import SegmentGeometry, capsule_signed_distance
+from shared import skeleton as sk
 from shared.kinematics import Kinematics
 
 from .config import TrackerConfig
@@ -27,8 +28,8 @@ from .regions import sample_pixels
 
 __all__ = ["FIRST_LIMB_SEGMENT", "capsule_offsets", "label_rows"]
 
-# Segments 7-14 are the limbs: upper arms, forearms, thighs, shanks (shared.skeleton).
-FIRST_LIMB_SEGMENT = 7
+# The limbs (upper arms, forearms, thighs, shanks) are the segments from the left upper arm on.
+FIRST_LIMB_SEGMENT = sk.SEGMENT_NAMES.index("l_upper_arm")
 
 
 def capsule_offsets(
@@ -40,10 +41,8 @@ def capsule_offsets(
     scale: torch.Tensor,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Signed distance of each point to its own capsule, and the direction from the capsule's
-    axis to the point.
-
-    Measured along the line to the nearest axis point, as
-    :func:`runtime.raycast.surface_distance` does (exact for circular sections and caps).
+    axis to the point (:func:`runtime.raycast.capsule_signed_distance` for one capsule per
+    point).
 
     Args:
         points: (N, 3) camera-frame points.
@@ -56,13 +55,10 @@ def capsule_offsets(
     """
     local = ((points - origin)[:, None, :] @ rot)[:, 0]
     coords = (basis @ local[..., None])[..., 0]
-    axial = coords[:, 2] - coords[:, 2].clamp(span[:, 0], span[:, 1])
-    offset = torch.stack([coords[:, 0], coords[:, 1], axial], -1)
-    length = offset.norm(dim=-1).clamp_min(1e-12)
-    rho = (offset / scale).norm(dim=-1).clamp_min(1e-12)
-    unit = offset / length[:, None]
+    signed, offset = capsule_signed_distance(coords, span, scale)
+    unit = offset / offset.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     direction = (rot @ (basis.transpose(-1, -2) @ unit[..., None]))[..., 0]
-    return length * (1.0 - 1.0 / rho), direction
+    return signed, direction
 
 
 def label_rows(

@@ -42,7 +42,11 @@ __all__ = [
 
 # The segments of each limb, in the order of ``limb_visibility``: left arm, right arm (upper
 # arm, forearm with hand), left leg, right leg (thigh, shank with foot).
-LIMB_SEGMENTS: tuple[tuple[int, int], ...] = ((7, 9), (8, 10), (11, 13), (12, 14))
+LIMB_SEGMENTS: tuple[tuple[int, int], ...] = tuple(
+    (sk.SEGMENT_NAMES.index(f"{side}_{upper}"), sk.SEGMENT_NAMES.index(f"{side}_{lower}"))
+    for upper, lower in (("upper_arm", "forearm"), ("thigh", "shank"))
+    for side in "lr"
+)
 
 
 @dataclass
