@@ -15,11 +15,20 @@ import math
 
 import torch
 
+from runtime.raycast import segment_distances
+from runtime.tracker.signals import LIMB_SEGMENTS
 from shared import skeleton as sk
-from shared.kinematics import clamp_to_limits
+from shared.body import BodyShape
+from shared.kinematics import Kinematics, clamp_to_limits
 from shared.labels import PART_NAMES
 
-__all__ = ["ARM_FLEXION_DEG", "ELBOW_FLEXION_DEG", "arm_candidates", "arm_pixel_fraction"]
+__all__ = [
+    "ARM_FLEXION_DEG",
+    "ELBOW_FLEXION_DEG",
+    "arm_candidates",
+    "arm_pixel_fraction",
+    "near_other_arm",
+]
 
 # Starting arm poses: shoulder flexion (negative: the arm behind the body) x elbow flexion,
 # abduction and twist at zero; a few tracker iterations take each from there.
@@ -52,9 +61,32 @@ def arm_candidates(q: torch.Tensor, side: str) -> torch.Tensor:
     return clamp_to_limits(out)
 
 
-def arm_pixel_fraction(labels: torch.Tensor, mask: torch.Tensor, side: str) -> float:
+def arm_pixel_fraction(
+    labels: torch.Tensor, mask: torch.Tensor, side: str, explained: torch.Tensor | None = None
+) -> float:
     """Share of the person's pixels (``mask`` (H, W) bool) the forest labels (``labels``
-    (H, W) int) as the ``side`` arm; 0 for an empty mask."""
+    (H, W) int) as the ``side`` arm, leaving out those in ``explained`` (H, W) bool, if
+    given; 0 for an empty mask."""
     upper, fore = _ARM_CLASSES[side]
     arm = ((labels == upper) | (labels == fore)) & mask
+    if explained is not None:
+        arm = arm & ~explained
     return float(arm.sum()) / max(1, int(mask.sum()))
+
+
+def near_other_arm(
+    points: torch.Tensor, kin: Kinematics, body: BodyShape, side: str, margin_m: float
+) -> torch.Tensor:
+    """Which ``points`` (..., 3) lie within ``margin_m`` of the model's other arm (the one
+    that is not ``side``), ``kin`` being one pose (batch 1): (...) bool.
+
+    Forest labels swap left and right; in profile the far arm's labels land on the near
+    arm's pixels (grabHigh), and moving the hidden arm onto them puts both arms on one.
+    Labelled pixels the other arm already explains are no evidence that ``side`` is seen.
+    """
+    other = LIMB_SEGMENTS[1 if side == "l" else 0]  # the right arm's segments, or the left's
+    flat = points.reshape(1, -1, 3)
+    ref = kin.origins
+    signed = segment_distances(flat.to(ref), kin, body.to(dtype=ref.dtype, device=ref.device))
+    near = signed[0][:, list(other)].min(-1).values < margin_m
+    return near.reshape(points.shape[:-1])

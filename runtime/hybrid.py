@@ -51,9 +51,10 @@ from runtime.detector import (
     load_forest_labeler,
 )
 from runtime.estimator import PoseEstimate, lost
-from runtime.hidden_arm_search import arm_candidates, arm_pixel_fraction
+from runtime.hidden_arm_search import arm_candidates, arm_pixel_fraction, near_other_arm
+from runtime.turn_search import TURN_DEG, turn_candidates
 from shared.body import BodyShape
-from shared.camera import Intrinsics
+from shared.camera import Intrinsics, depth_to_points
 from shared.config import ConfigError, config_from_dict, field_doc
 from shared.kinematics import forward_kinematics, named_joint_positions
 from shared.so3 import rotvec_to_matrix
@@ -139,11 +140,26 @@ class HybridConfig:
         "seen_arm_fraction of the person's pixels, refine the frame from each start pose of "
         "runtime.hidden_arm_search and keep the best fit (not in Wei; inf: off)",
     )
+    turn_search_badness: float = field_doc(
+        float("inf"),
+        help="when the tracker's fit_badness exceeds this, also refine the frame from its pose "
+        "turned about the spine by each angle of turn_search_deg and keep the best fit: near "
+        "profile a small turn either way fits about equally (not in Wei; inf: off)",
+    )
+    turn_search_deg: tuple[float, ...] = field_doc(
+        TURN_DEG, help="the turn search's angles about the spine, degrees (one refit each)"
+    )
     hidden_arm_visibility: float = field_doc(
         0.3, help="an arm counts as hidden by the model below this visible fraction (0-1)"
     )
     seen_arm_fraction: float = field_doc(
         0.02, help="the camera counts as seeing an arm from this share of the person's pixels"
+    )
+    other_arm_margin_m: float = field_doc(
+        0.05,
+        help="forest arm pixels within this distance (m) of the model's other arm do not count "
+        "towards seen_arm_fraction: in profile the far arm's labels land on the near arm, and "
+        "the search would put both arms on it (0: every labelled pixel counts)",
     )
     hint_from_tracker: bool = field_doc(
         True,
@@ -167,13 +183,23 @@ class HybridConfig:
                 f"recheck_every must be >= 0 (0: off) and recheck_badness a number (inf: off), "
                 f"got {self.recheck_every}, {self.recheck_badness}"
             )
-        if math.isnan(self.arm_search_badness) or not (
-            0 <= self.hidden_arm_visibility and 0 <= self.seen_arm_fraction <= 1
+        if math.isnan(self.turn_search_badness) or not all(
+            math.isfinite(a) for a in self.turn_search_deg
         ):
             raise HybridError(
-                "arm_search_badness must be a number (inf: off), hidden_arm_visibility >= 0 and "
-                f"0 <= seen_arm_fraction <= 1, got {self.arm_search_badness}, "
-                f"{self.hidden_arm_visibility}, {self.seen_arm_fraction}"
+                "turn_search_badness must be a number (inf: off) and turn_search_deg finite "
+                f"angles, got {self.turn_search_badness}, {self.turn_search_deg}"
+            )
+        if math.isnan(self.arm_search_badness) or not (
+            0 <= self.hidden_arm_visibility
+            and 0 <= self.seen_arm_fraction <= 1
+            and self.other_arm_margin_m >= 0
+        ):
+            raise HybridError(
+                "arm_search_badness must be a number (inf: off), hidden_arm_visibility >= 0, "
+                "0 <= seen_arm_fraction <= 1 and other_arm_margin_m >= 0, got "
+                f"{self.arm_search_badness}, {self.hidden_arm_visibility}, "
+                f"{self.seen_arm_fraction}, {self.other_arm_margin_m}"
             )
 
     def tracker_config(self):
@@ -288,6 +314,19 @@ class HybridEstimator:
             det.labels.cpu().numpy().astype(np.uint8),
         )
 
+    def _best_refit(self, depth, mask, starts, badness):
+        """The tracker's refit of the frame from each pose of ``starts`` (K, 34) with the
+        smallest fit_badness, as (result, badness, index of its start), if below
+        ``badness``; else None."""
+        labels = self._labels(depth, mask) if self.labels_every_frame else None
+        best = None
+        for k, start in enumerate(starts):
+            r = self.tracker.step(depth, mask, start, None, labels=labels)
+            b = fit_badness(r.depth_error_cm, r.overlap, r.surface_error_q97_mm, self.cfg)
+            if b < badness:
+                best, badness = (r, b, k), b
+        return best
+
     def _search_hidden_arms(self, depth, mask, res, badness):
         """The best refit from the arm starts of every arm the model hides and the forest
         sees, as (result, its badness), if one fits better than ``res``; else None."""
@@ -295,18 +334,23 @@ class HybridEstimator:
         if vis is None:
             return None
         best = None
+        points = depth_to_points(depth[None], self.detector.intr)[0]
+        kin = forward_kinematics(res.q[None].to(self.detector.body.lengths), self.detector.body)
         for limb, side in ((0, "l"), (1, "r")):
             if not bool(vis[limb] < self.cfg.hidden_arm_visibility):
                 continue
-            seen = arm_pixel_fraction(self._labels(depth, mask), mask, side)
+            explained = None
+            if self.cfg.other_arm_margin_m > 0:
+                explained = torch.zeros_like(mask)
+                explained[mask] = near_other_arm(
+                    points[mask], kin, self.detector.body, side, self.cfg.other_arm_margin_m
+                )
+            seen = arm_pixel_fraction(self._labels(depth, mask), mask, side, explained)
             if seen < self.cfg.seen_arm_fraction:
                 continue
-            labels = self._labels(depth, mask) if self.labels_every_frame else None
-            for start in arm_candidates(res.q, side):
-                r = self.tracker.step(depth, mask, start, None, labels=labels)
-                b = fit_badness(r.depth_error_cm, r.overlap, r.surface_error_q97_mm, self.cfg)
-                if b < badness:
-                    best, badness = (r, b), b
+            found = self._best_refit(depth, mask, arm_candidates(res.q, side), badness)
+            if found is not None:
+                best, badness = found, found[1]
         return best
 
     def estimate(self, frame, mask) -> PoseEstimate:
@@ -333,8 +377,18 @@ class HybridEstimator:
             if mine > self.cfg.arm_search_badness:
                 found = self._search_hidden_arms(depth, m, res, mine)
                 if found is not None:
-                    res, mine = found
+                    res, mine, _ = found
                     errors = {**_signals(res), "arm_searched": 1.0}
+                    fail = tracking_failed(
+                        res.depth_error_cm, res.overlap, self.cfg, res.surface_error_q97_mm
+                    )
+            if mine > self.cfg.turn_search_badness:
+                angles = self.cfg.turn_search_deg
+                starts = turn_candidates(res.q, self.detector.body, angles)
+                found = self._best_refit(depth, m, starts, mine)
+                if found is not None:
+                    res, mine, k = found
+                    errors = {**_signals(res), "turn_searched_deg": float(angles[k])}
                     fail = tracking_failed(
                         res.depth_error_cm, res.overlap, self.cfg, res.surface_error_q97_mm
                     )

@@ -332,13 +332,13 @@ def render_body_depth(q: torch.Tensor, body: BodyShape, intr: Intrinsics) -> tor
     return render_body(q, body, intr).depth
 
 
-def surface_distance(points: torch.Tensor, kin: Kinematics, body: BodyShape) -> torch.Tensor:
-    """Approximate distance of camera-frame points to the model surface: (B, N).
+def segment_distances(points: torch.Tensor, kin: Kinematics, body: BodyShape) -> torch.Tensor:
+    """Signed distance of camera-frame points to each of the model's P primitives: (B, N, P),
+    > 0 outside.
 
-    Per segment the distance is measured along the line from the point to its nearest point
+    Per primitive the distance is measured along the line from the point to its nearest point
     on the capsule's axis: exact for circular sections and spherical caps, an upper bound for
-    the elliptic torso. The union's signed distance is the minimum over segments; its
-    absolute value is returned (points inside the body count by their depth inside).
+    the elliptic torso.
     """
     geom = segment_geometry(body, points)
     B = points.shape[0]
@@ -349,7 +349,16 @@ def surface_distance(points: torch.Tensor, kin: Kinematics, body: BodyShape) -> 
     span = geom.span.expand(B, -1, -1)[:, None]
     scale = geom.scale.expand(B, -1, -1)[:, None]
     signed, _ = capsule_signed_distance(coords, span, scale)
-    return signed.min(-1).values.abs()
+    return signed
+
+
+def surface_distance(points: torch.Tensor, kin: Kinematics, body: BodyShape) -> torch.Tensor:
+    """Approximate distance of camera-frame points to the model surface: (B, N).
+
+    The union's signed distance is the minimum over :func:`segment_distances`; its absolute
+    value is returned (points inside the body count by their depth inside).
+    """
+    return segment_distances(points, kin, body).min(-1).values.abs()
 
 
 def capsule_signed_distance(

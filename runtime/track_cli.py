@@ -33,7 +33,14 @@ import torch
 
 from shared.body import BodyShape
 from shared.camera import Intrinsics
-from shared.config import ConfigError, add_cli_args, config_from_args, config_to_dict, load_config
+from shared.config import (
+    ConfigError,
+    add_cli_args,
+    config_from_args,
+    config_to_dict,
+    load_config,
+    load_settings,
+)
 from shared.recording import RecordingError
 from shared.skeleton import JOINT_NAMES
 
@@ -207,20 +214,14 @@ def intrinsics_from_args(args: argparse.Namespace) -> Intrinsics | None:
 
 
 def load_mode_config(path: Path | None) -> dict:
-    """The mode's settings from ``--config`` (a YAML mapping; checked by the mode itself)."""
+    """The mode's settings from ``--config`` (a YAML mapping, possibly extending another
+    preset: :func:`shared.config.load_settings`; checked by the mode itself)."""
     if path is None:
         return {}
-    import yaml
-
-    if not Path(path).is_file():
-        raise TrackError(f"config file not found: {path}")
     try:
-        data = yaml.safe_load(Path(path).read_text()) or {}
-    except yaml.YAMLError as err:
-        raise TrackError(f"{path}: not valid YAML ({err})") from None
-    if not isinstance(data, dict):
-        raise TrackError(f"{path}: expected a mapping of settings")
-    return data
+        return load_settings(path)
+    except ConfigError as err:
+        raise TrackError(str(err)) from None
 
 
 def initial_pose(stream, start: int) -> np.ndarray | None:

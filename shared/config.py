@@ -1,7 +1,7 @@
 """Typed configuration: dataclasses filled from YAML presets, and CLIs generated from them.
 
 Every config is a ``@dataclass`` whose fields carry a docstring in ``metadata["help"]`` (use
-:func:`field_doc`). :func:`load_config` reads a preset with ``yaml.safe_load`` and rejects
+:func:`field_doc`). :func:`load_config` reads a preset (which may extend another) and rejects
 unknown keys and wrong types with a message naming the file and the key. :func:`add_cli_args`
 and :func:`config_from_args` turn any config into ``argparse`` options, one per field, so a
 CLI is a few lines and never drifts from its config.
@@ -24,6 +24,7 @@ __all__ = [
     "config_from_dict",
     "config_to_dict",
     "load_config",
+    "load_settings",
     "save_config",
     "add_cli_args",
     "config_from_args",
@@ -135,18 +136,47 @@ def config_to_dict(cfg: Any) -> dict:
     return plain(dataclasses.asdict(cfg))
 
 
-def load_config(cls: type[C], path: str | Path | None) -> C:
-    """Read a YAML preset into ``cls``; ``None`` gives the defaults."""
-    if path is None:
-        return cls()
+def load_settings(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict:
+    """A YAML preset as a plain mapping (empty file: ``{}``).
+
+    A preset may start from another with ``extends: OTHER.yaml`` (a path relative to the
+    preset): its own keys replace the other's, key by key inside nested mappings.
+    """
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"config file not found: {path}")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as err:
         raise ConfigError(f"{path}: not valid YAML ({err})") from None
-    return config_from_dict(cls, data or {}, where=str(path))
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a mapping of settings")
+    base = data.pop("extends", None)
+    if base is None:
+        return data
+    if not isinstance(base, str):
+        raise ConfigError(f"{path}: extends must name a YAML file, got {base!r}")
+    here = path.resolve()
+    if here in _seen:
+        raise ConfigError(f"{path}: extends itself (through {' -> '.join(map(str, _seen))})")
+    return _merged(load_settings(path.parent / base, (*_seen, here)), data)
+
+
+def _merged(base: dict, over: dict) -> dict:
+    """``over`` on top of ``base``, mappings merged key by key."""
+    out = dict(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            value = _merged(out[key], value)
+        out[key] = value
+    return out
+
+
+def load_config(cls: type[C], path: str | Path | None) -> C:
+    """Read a YAML preset (:func:`load_settings`) into ``cls``; ``None`` gives the defaults."""
+    if path is None:
+        return cls()
+    return config_from_dict(cls, load_settings(path), where=str(path))
 
 
 def save_config(cfg: Any, path: str | Path) -> None:

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from shared.config import load_settings
+
 from .evaluation.evaluate import evaluate
 
 # name -> (mode, body, settings overriding the mode's config). Bodies: "gt" (the rendered
@@ -38,6 +40,7 @@ CONFIGS: dict[str, tuple[str, str, dict]] = {
     "tracker, personalized body": ("tracker", "personalized", {}),
     "tracker, calibrated body": ("tracker", "calibrated", {}),
     "hybrid": ("hybrid", "gt", {}),
+    "hybrid, turn search": ("hybrid", "gt", {"turn_search_badness": 1.9}),
     "hybrid, personalized body": ("hybrid", "personalized", {}),
     "hybrid, calibrated body": ("hybrid", "calibrated", {}),
     "detector": ("detector", "gt", {}),
@@ -104,9 +107,9 @@ def run_config(
         cmd += ["--body", str(body_file(body, rec, out.parent.parent / "bodies", model))]
     cfg_path = mode_config if mode == "hybrid" else None  # the hybrid's thresholds preset
     if overrides:
-        base = yaml.safe_load(cfg_path.read_text()) if cfg_path else {}
+        base = load_settings(cfg_path) if cfg_path else {}
         cfg_path = out / "mode_config.yaml"
-        cfg_path.write_text(yaml.safe_dump({**(base or {}), **overrides}))
+        cfg_path.write_text(yaml.safe_dump({**base, **overrides}))
     if cfg_path is not None:
         cmd += ["--config", str(cfg_path)]
     _run(cmd)

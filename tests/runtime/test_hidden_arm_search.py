@@ -12,9 +12,16 @@ from runtime.hidden_arm_search import (
     ELBOW_FLEXION_DEG,
     arm_candidates,
     arm_pixel_fraction,
+    near_other_arm,
 )
 from shared import skeleton as sk
-from shared.kinematics import clamp_to_limits, rest_pose
+from shared.body import BodyShape
+from shared.kinematics import (
+    clamp_to_limits,
+    forward_kinematics,
+    named_joint_positions,
+    rest_pose,
+)
 
 ARM_DOFS = {
     side: [
@@ -59,3 +66,34 @@ def test_arm_pixel_fraction_counts_both_arm_classes_inside_the_mask():
     assert arm_pixel_fraction(labels, mask, "l") == pytest.approx(3 / 19)
     assert arm_pixel_fraction(labels, mask, "r") == pytest.approx(3 / 19)
     assert arm_pixel_fraction(labels, torch.zeros_like(mask), "l") == 0.0
+
+
+def test_arm_pixel_fraction_leaves_out_explained_pixels():
+    labels = torch.full((2, 5), 8, dtype=torch.int64)  # all left upper arm
+    mask = torch.ones(2, 5, dtype=torch.bool)
+    explained = torch.zeros_like(mask)
+    explained[0] = True
+    assert arm_pixel_fraction(labels, mask, "l", explained) == pytest.approx(5 / 10)
+    assert arm_pixel_fraction(labels, mask, "l", torch.zeros_like(mask)) == 1.0
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_near_other_arm_is_measured_from_the_other_arm_surface(dtype):
+    body = BodyShape.default()
+    q = rest_pose(1, (0.0, 0.0, 2.5), dtype=dtype)
+    kin = forward_kinematics(q, body.to(dtype=dtype))
+    joints = named_joint_positions(kin)[0]
+    r_elbow = joints[sk.JOINT_NAMES.index("r_elbow")]
+    l_elbow = joints[sk.JOINT_NAMES.index("l_elbow")]
+    # Along the camera's z axis from the right elbow: inside the arm, just outside, far out.
+    points = torch.stack(
+        [r_elbow, r_elbow - r_elbow.new_tensor([0, 0, 0.12]), r_elbow.new_tensor([0, 0, 1.0])]
+    )
+    near_r = near_other_arm(points, kin, body, "l", 0.05)  # measured from the right arm
+    assert near_r.tolist() == [True, False, False]
+    assert near_other_arm(points, kin, body, "l", 0.5).tolist() == [True, True, False]
+    # Seen from the right arm's side the other arm is the left one, far from these points.
+    assert not near_other_arm(points, kin, body, "r", 0.05).any()
+    assert near_other_arm(l_elbow[None], kin, body, "r", 0.05).tolist() == [True]
+    # Any leading shape, e.g. an image of points.
+    assert near_other_arm(points.reshape(3, 1, 3), kin, body, "l", 0.05).shape == (3, 1)

@@ -11,6 +11,7 @@ from shared.config import (
     config_from_dict,
     field_doc,
     load_config,
+    load_settings,
     save_config,
 )
 
@@ -62,6 +63,47 @@ def test_missing_and_invalid_yaml(tmp_path):
     p.write_text("frames: [1,\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_config(Cfg, p)
+
+
+def test_a_preset_extends_another_key_by_key(tmp_path):
+    (tmp_path / "base").mkdir()
+    (tmp_path / "base" / "base.yaml").write_text("frames: 3\nname: b\ninner: {sigma: 0.2}\n")
+    child = tmp_path / "child.yaml"
+    child.write_text("extends: base/base.yaml\nname: c\ninner: {}\n")
+    assert load_settings(child) == {"frames": 3, "name": "c", "inner": {"sigma": 0.2}}
+    grandchild = tmp_path / "grandchild.yaml"
+    grandchild.write_text("extends: child.yaml\nflag: true\ninner: {sigma: 0.3}\n")
+    cfg = load_config(Cfg, grandchild)
+    assert (cfg.frames, cfg.name, cfg.flag, cfg.inner.sigma) == (3, "c", True, 0.3)
+    assert load_settings(tmp_path / "base" / "base.yaml")["name"] == "b"  # base untouched
+
+
+def test_bad_extends_are_reported(tmp_path):
+    loop = tmp_path / "loop.yaml"
+    loop.write_text("extends: loop.yaml\n")
+    with pytest.raises(ConfigError, match="extends itself"):
+        load_settings(loop)
+    missing = tmp_path / "missing.yaml"
+    missing.write_text("extends: nowhere.yaml\n")
+    with pytest.raises(ConfigError, match="nowhere.yaml"):
+        load_settings(missing)
+    odd = tmp_path / "odd.yaml"
+    odd.write_text("extends: [a, b]\n")
+    with pytest.raises(ConfigError, match="must name a YAML file"):
+        load_settings(odd)
+    listing = tmp_path / "list.yaml"
+    listing.write_text("- 1\n- 2\n")
+    with pytest.raises(ConfigError, match="expected a mapping"):
+        load_settings(listing)
+
+
+def test_shipped_presets_load():
+    from pathlib import Path
+
+    configs = Path(__file__).resolve().parents[2] / "configs"
+    offline = load_settings(configs / "hybrid_offline.yaml")
+    shipped = load_settings(configs / "hybrid.yaml")
+    assert offline == {**shipped, "turn_search_badness": 1.9}
 
 
 def test_cli_overrides_only_given_options():
