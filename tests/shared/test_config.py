@@ -78,23 +78,20 @@ def test_a_preset_extends_another_key_by_key(tmp_path):
     assert load_settings(tmp_path / "base" / "base.yaml")["name"] == "b"  # base untouched
 
 
-def test_bad_extends_are_reported(tmp_path):
-    loop = tmp_path / "loop.yaml"
-    loop.write_text("extends: loop.yaml\n")
-    with pytest.raises(ConfigError, match="extends itself"):
-        load_settings(loop)
-    missing = tmp_path / "missing.yaml"
-    missing.write_text("extends: nowhere.yaml\n")
-    with pytest.raises(ConfigError, match="nowhere.yaml"):
-        load_settings(missing)
-    odd = tmp_path / "odd.yaml"
-    odd.write_text("extends: [a, b]\n")
-    with pytest.raises(ConfigError, match="must name a YAML file"):
-        load_settings(odd)
-    listing = tmp_path / "list.yaml"
-    listing.write_text("- 1\n- 2\n")
-    with pytest.raises(ConfigError, match="expected a mapping"):
-        load_settings(listing)
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("extends: bad.yaml\n", "extends itself"),
+        ("extends: nowhere.yaml\n", "nowhere.yaml"),
+        ("extends: [a, b]\n", "must name a YAML file"),
+        ("- 1\n- 2\n", "expected a mapping"),
+    ],
+)
+def test_bad_presets_are_reported(tmp_path, text, message):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        load_settings(bad)
 
 
 def test_shipped_presets_load():
