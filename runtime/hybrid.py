@@ -27,7 +27,9 @@ pass (a hidden limb on the wrong side after a bad first detection) is questioned
 ``recheck_badness`` is set (the detector also runs on passed frames whose badness exceeds it)
 or ``recheck_every`` (on every n-th passed frame). With ``arm_search_badness`` set, a suspect
 fit whose model hides an arm the forest sees is refined from a few arm poses first, and the
-best-fitting result is kept (:mod:`runtime.hidden_arm_search`).
+best-fitting result is kept (:mod:`runtime.hidden_arm_search`); with ``turn_search_badness``
+set, a suspect fit is also refined from its pose turned about the spine by a few angles
+(:mod:`runtime.turn_search`, the offline preset).
 """
 
 from __future__ import annotations
@@ -329,21 +331,25 @@ class HybridEstimator:
 
     def _search_hidden_arms(self, depth, mask, res, badness):
         """The best refit from the arm starts of every arm the model hides and the forest
-        sees, as (result, its badness), if one fits better than ``res``; else None."""
+        sees, as (result, its badness, index of its start), if one fits better than
+        ``res``; else None."""
         vis = res.limb_visibility
         if vis is None:
             return None
         best = None
-        points = depth_to_points(depth[None], self.detector.intr)[0]
-        kin = forward_kinematics(res.q[None].to(self.detector.body.lengths), self.detector.body)
+        points = kin = None  # only needed once an arm is hidden: most suspect frames have none
         for limb, side in ((0, "l"), (1, "r")):
             if not bool(vis[limb] < self.cfg.hidden_arm_visibility):
                 continue
             explained = None
             if self.cfg.other_arm_margin_m > 0:
+                if points is None:
+                    points = depth_to_points(depth[None], self.detector.intr)[0][mask]
+                    q = res.q[None].to(self.detector.body.lengths)
+                    kin = forward_kinematics(q, self.detector.body)
                 explained = torch.zeros_like(mask)
                 explained[mask] = near_other_arm(
-                    points[mask], kin, self.detector.body, side, self.cfg.other_arm_margin_m
+                    points, kin, self.detector.body, side, self.cfg.other_arm_margin_m
                 )
             seen = arm_pixel_fraction(self._labels(depth, mask), mask, side, explained)
             if seen < self.cfg.seen_arm_fraction:
@@ -369,9 +375,6 @@ class HybridEstimator:
             labels = self._labels(depth, m) if self.labels_every_frame else None
             res = self.tracker.step(depth, m, self.q_prev, self.q_prev2, labels=labels)
             errors = _signals(res)
-            fail = tracking_failed(
-                res.depth_error_cm, res.overlap, self.cfg, res.surface_error_q97_mm
-            )
             self.passed += 1
             mine = fit_badness(res.depth_error_cm, res.overlap, res.surface_error_q97_mm, self.cfg)
             if mine > self.cfg.arm_search_badness:
@@ -379,19 +382,16 @@ class HybridEstimator:
                 if found is not None:
                     res, mine, _ = found
                     errors = {**_signals(res), "arm_searched": 1.0}
-                    fail = tracking_failed(
-                        res.depth_error_cm, res.overlap, self.cfg, res.surface_error_q97_mm
-                    )
             if mine > self.cfg.turn_search_badness:
                 angles = self.cfg.turn_search_deg
                 starts = turn_candidates(res.q, self.detector.body, angles)
                 found = self._best_refit(depth, m, starts, mine)
                 if found is not None:
                     res, mine, k = found
-                    errors = {**_signals(res), "turn_searched_deg": float(angles[k])}
-                    fail = tracking_failed(
-                        res.depth_error_cm, res.overlap, self.cfg, res.surface_error_q97_mm
-                    )
+                    errors = {**errors, **_signals(res), "turn_searched_deg": float(angles[k])}
+            fail = tracking_failed(
+                res.depth_error_cm, res.overlap, self.cfg, res.surface_error_q97_mm
+            )
             recheck = self.cfg.keep_better and (
                 0 < self.cfg.recheck_every <= self.passed or mine > self.cfg.recheck_badness
             )
