@@ -506,3 +506,107 @@ def test_label_term_gets_the_forest_labels_once_per_frame(scene):
     for i in range(3):
         est.estimate(frame_of(depth, i), mask)
     assert plain.labels_seen == [None, None] and len(labeler_calls) == 1
+
+
+class BuryingTracker(FakeTracker):
+    """Each frame's first step buries the left arm in the hip (adducted 20 degrees, about 15
+    cm deep) with badness 1.3; of the refits from the arm starts (which take it out), the one
+    from a hanging straight arm fits with badness 1.5 and shows the arm as ``hanging_vis``,
+    an alternative from 40 degrees of flexion fits with badness 1.7 and shows the arm as
+    0.1, the rest 2.5. ``starts``: (flexion, elbow) of each refit."""
+
+    def __init__(self, bury=True, hanging_vis=0.1):
+        super().__init__()
+        self.bury, self.hanging_vis, self.starts, self.first = bury, hanging_vis, [], True
+
+    def step(self, depth, mask, q_prev, q_prev2=None, labels=None):
+        self.calls += 1
+        vis = torch.tensor([0.1, 1.0, 1.0, 1.0])
+        if self.first:
+            self.first = False
+            q = rest_pose(1, (0.0, 0.1, 2.5), dtype=q_prev.dtype)[0]
+            q[sk.DOF_NAMES.index("l_humerus_abd")] = math.radians(-20 if self.bury else 10)
+            q[sk.DOF_NAMES.index("l_humerus_flex")] = 0.0
+            q[sk.DOF_NAMES.index("l_radius_flex")] = 0.0
+            return FakeResult(q, 2.0, 0.95, 12.0, limb_visibility=vis)
+        start = tuple(
+            round(math.degrees(float(q_prev[sk.DOF_NAMES.index(f"l_{n}")])))
+            for n in ("humerus_flex", "radius_flex")
+        )
+        self.starts.append(start)
+        ov = {(0, 0): 0.93, (40, 0): 0.91}.get(start, 0.87)  # badness 1.5, 1.7, 2.1
+        if start == (0, 0):
+            vis = torch.tensor([self.hanging_vis, 1.0, 1.0, 1.0])
+        return FakeResult(q_prev.clone(), 2.0, ov, 12.0, limb_visibility=vis)
+
+
+def _unbury(scene, tracker, labels=None, **cfg):
+    q, depth, scene_labels, mask = scene
+    labels = scene_labels if labels is None else labels
+    det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
+    est = HybridEstimator(lambda d, m: labels * m, det, tracker, HybridConfig(**cfg))
+    assert est.estimate(frame_of(depth, 0), mask).status == "detected"
+    tracker.first = True
+    return est.estimate(frame_of(depth, 1), mask)
+
+
+def _left_abd_deg(out) -> float:
+    return math.degrees(out.q[sk.DOF_NAMES.index("l_humerus_abd")])
+
+
+def test_a_buried_arm_is_refitted_from_the_arm_starts_within_the_slack(scene):
+    tracker = BuryingTracker()
+    out = _unbury(scene, tracker, penetration_search_m=0.03, penetration_slack=0.5)
+    assert out.status == "tracked" and out.errors["arm_unburied"] == 1.0
+    assert len(tracker.starts) == 8  # the left arm's starts only
+    assert out.errors["overlap"] == 0.93  # badness 1.5: worse than 1.3, within 0.5
+    assert _left_abd_deg(out) == pytest.approx(0.0, abs=1e-4)
+    assert math.degrees(out.q[sk.DOF_NAMES.index("l_humerus_flex")]) == pytest.approx(0.0)
+
+
+@pytest.mark.parametrize(
+    "tracker_kw, cfg",
+    [
+        ({}, {}),  # off by default
+        ({}, {"penetration_search_m": 0.03, "penetration_slack": 0.1}),  # refits too bad
+        ({}, {"penetration_search_m": 0.3}),  # not buried deeply enough
+        ({"bury": False}, {"penetration_search_m": 0.03}),  # the arm is outside the torso
+    ],
+)
+def test_the_buried_arm_search_needs_its_conditions(scene, tracker_kw, cfg):
+    tracker = BuryingTracker(**tracker_kw)
+    out = _unbury(scene, tracker, **cfg)
+    assert out.status == "tracked" and "arm_unburied" not in out.errors
+    assert out.errors["overlap"] == 0.95
+    searched = cfg.get("penetration_search_m", math.inf) == 0.03 and tracker_kw.get("bury", True)
+    assert len(tracker.starts) == (8 if searched else 0)
+    assert _left_abd_deg(out) == pytest.approx(-20.0 if tracker_kw.get("bury", True) else 10.0)
+
+
+@pytest.mark.parametrize("forest_sees_arm, expected_overlap", [(True, 0.93), (False, 0.91)])
+def test_an_arm_the_forest_does_not_see_is_not_unburied_into_view(
+    scene, forest_sees_arm, expected_overlap
+):
+    q, depth, labels, mask = scene
+    if not forest_sees_arm:
+        labels = labels.clone()
+        for part in ("upper_arm", "forearm"):
+            labels[labels == PART_NAMES.index(f"l_{part}")] = PART_NAMES.index("chest")
+    # The best refit shows the arm (visible fraction 0.8): taken only where the forest sees it.
+    tracker = BuryingTracker(hanging_vis=0.8)
+    out = _unbury(scene, tracker, labels=labels, penetration_search_m=0.03)
+    assert out.errors["arm_unburied"] == 1.0
+    assert out.errors["overlap"] == expected_overlap
+
+
+@pytest.mark.parametrize(
+    "cfg",
+    [
+        {"penetration_search_m": 0.0},
+        {"penetration_search_m": math.nan},
+        {"penetration_slack": -0.1},
+    ],  # fmt: skip
+)
+def test_bad_buried_arm_settings_are_rejected(cfg):
+    with pytest.raises(HybridError, match="penetration_search_m"):
+        HybridConfig(**cfg)
