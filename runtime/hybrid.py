@@ -43,7 +43,6 @@ from typing import Any
 import numpy as np
 import torch
 
-from runtime.arm_penetration import arm_penetration
 from runtime.detector import (
     DetectionResult,
     Detector,
@@ -152,19 +151,6 @@ class HybridConfig:
     turn_search_deg: tuple[float, ...] = field_doc(
         TURN_DEG, help="the turn search's angles about the spine, degrees (one refit each)"
     )
-    penetration_search_m: float = field_doc(
-        float("inf"),
-        help="when an arm of the tracker's pose sinks deeper than this into the torso "
-        "(runtime.arm_penetration; the ground truth never goes past 2 cm), refine the frame "
-        "from each arm start pose of runtime.hidden_arm_search and take the best-fitting "
-        "refit that keeps the arm out (not in Wei; inf: off)",
-    )
-    penetration_slack: float = field_doc(
-        0.5,
-        help="a refit that takes a buried arm out of the torso is taken even when its "
-        "fit_badness exceeds the tracker's by up to this much: a hidden arm leaves the data "
-        "nearly the same either way",
-    )
     hidden_arm_visibility: float = field_doc(
         0.3, help="an arm counts as hidden by the model below this visible fraction (0-1)"
     )
@@ -205,11 +191,6 @@ class HybridConfig:
             raise HybridError(
                 "turn_search_badness must be a number (inf: off) and turn_search_deg finite "
                 f"angles, got {self.turn_search_badness}, {self.turn_search_deg}"
-            )
-        if not (self.penetration_search_m > 0 and self.penetration_slack >= 0):
-            raise HybridError(
-                "penetration_search_m must be > 0 (inf: off) and penetration_slack >= 0, got "
-                f"{self.penetration_search_m}, {self.penetration_slack}"
             )
         if math.isnan(self.arm_search_badness) or not (
             0 <= self.hidden_arm_visibility
@@ -348,21 +329,6 @@ class HybridEstimator:
                 best, badness = (r, b, k), b
         return best
 
-    def _forest_sees_arm(self, depth, mask, q, side) -> bool:
-        """Whether the forest labels the ``side`` arm on at least ``seen_arm_fraction`` of the
-        person's pixels, leaving out those within ``other_arm_margin_m`` of the other arm of
-        pose ``q`` (34,)."""
-        explained = None
-        if self.cfg.other_arm_margin_m > 0:
-            points = depth_to_points(depth[None], self.detector.intr)[0][mask]
-            kin = forward_kinematics(q[None].to(self.detector.body.lengths), self.detector.body)
-            explained = torch.zeros_like(mask)
-            explained[mask] = near_other_arm(
-                points, kin, self.detector.body, side, self.cfg.other_arm_margin_m
-            )
-        seen = arm_pixel_fraction(self._labels(depth, mask), mask, side, explained)
-        return seen >= self.cfg.seen_arm_fraction
-
     def _search_hidden_arms(self, depth, mask, res, badness):
         """The best refit from the arm starts of every arm the model hides and the forest
         sees, as (result, its badness, index of its start), if one fits better than
@@ -371,47 +337,26 @@ class HybridEstimator:
         if vis is None:
             return None
         best = None
+        points = kin = None  # only needed once an arm is hidden: most suspect frames have none
         for limb, side in ((0, "l"), (1, "r")):
             if not bool(vis[limb] < self.cfg.hidden_arm_visibility):
                 continue
-            if not self._forest_sees_arm(depth, mask, res.q, side):
+            explained = None
+            if self.cfg.other_arm_margin_m > 0:
+                if points is None:
+                    points = depth_to_points(depth[None], self.detector.intr)[0][mask]
+                    q = res.q[None].to(self.detector.body.lengths)
+                    kin = forward_kinematics(q, self.detector.body)
+                explained = torch.zeros_like(mask)
+                explained[mask] = near_other_arm(
+                    points, kin, self.detector.body, side, self.cfg.other_arm_margin_m
+                )
+            seen = arm_pixel_fraction(self._labels(depth, mask), mask, side, explained)
+            if seen < self.cfg.seen_arm_fraction:
                 continue
             found = self._best_refit(depth, mask, arm_candidates(res.q, side), badness)
             if found is not None:
                 best, badness = found, found[1]
-        return best
-
-    def _penetration(self, q: torch.Tensor) -> torch.Tensor:
-        """Each arm's depth inside the torso for poses ``q`` (K, 34): (K, 2) metres."""
-        q = q.to(self.detector.body.lengths)
-        return arm_penetration(forward_kinematics(q, self.detector.body), self.detector.body)
-
-    def _unbury_arms(self, depth, mask, res, badness):
-        """The best refit from the arm starts of each arm ``res`` buries in the torso that
-        keeps every arm out, as (result, its badness), if its badness is below ``badness``
-        plus the slack; else None."""
-        limit = self.cfg.penetration_search_m
-        buried = self._penetration(res.q[None])[0] > limit
-        if not bool(buried.any()):
-            return None
-        labels = self._labels(depth, mask) if self.labels_every_frame else None
-        best, bound = None, badness + self.cfg.penetration_slack
-        for k, (side, hidden) in enumerate(zip("lr", buried.tolist())):
-            if not hidden:
-                continue
-            # An arm the forest does not see either must stay out of sight: placed in view,
-            # it would lie on pixels of something else (grabHigh: on the reaching right arm).
-            unseen = not self._forest_sees_arm(depth, mask, res.q, side)
-            for start in arm_candidates(res.q, side):
-                r = self.tracker.step(depth, mask, start, None, labels=labels)
-                if bool((self._penetration(r.q[None])[0] > limit).any()):
-                    continue
-                vis = r.limb_visibility
-                if unseen and vis is not None and bool(vis[k] >= self.cfg.hidden_arm_visibility):
-                    continue
-                b = fit_badness(r.depth_error_cm, r.overlap, r.surface_error_q97_mm, self.cfg)
-                if b < bound:
-                    best, bound = (r, b), b
         return best
 
     def estimate(self, frame, mask) -> PoseEstimate:
@@ -444,11 +389,6 @@ class HybridEstimator:
                 if found is not None:
                     res, mine, k = found
                     errors = {**errors, **_signals(res), "turn_searched_deg": float(angles[k])}
-            if math.isfinite(self.cfg.penetration_search_m):
-                found = self._unbury_arms(depth, m, res, mine)
-                if found is not None:
-                    res, mine = found
-                    errors = {**errors, **_signals(res), "arm_unburied": 1.0}
             fail = tracking_failed(
                 res.depth_error_cm, res.overlap, self.cfg, res.surface_error_q97_mm
             )
