@@ -126,6 +126,15 @@ class TrackerConfig:
     sigma_extra_m: float = field_doc(
         0.005, "extra depth term noise scale per correspondence and axis (m)"
     )
+    sigma_extra_torso_m: float = field_doc(
+        0.04,
+        "extra depth term noise scale for correspondences on the torso, neck, head and "
+        "clavicles (m). The capsule torso matches a real one's shape only roughly (an anny "
+        "body's silhouette is covered to 0.75-0.8): at full weight, closest points on the "
+        "unmatched chest and back turned the chest against the pelvis in near-profile views, "
+        "the lower back's twist to its 50 degree limit and the far shoulder 25-35 cm off "
+        "(README). The limbs keep sigma_extra_m: theirs carry the large corrections",
+    )
     sigma_silhouette_px: float = field_doc(
         1.0,
         "silhouette term noise scale per rendered boundary pixel, in working-resolution "

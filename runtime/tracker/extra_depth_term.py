@@ -13,6 +13,10 @@ observed -> rendered for 2, 4). A candidate whose depth differs from the query's
 ``extra_gate_m`` (15 cm; Wei: 8) is not eligible, i.e. each query takes its closest point
 among the eligible ones, and matches farther than ``extra_max_distance_m`` in 3D are dropped.
 The residual is the 3D offset, one row per camera axis, all on the model point's Jacobian.
+Offsets on the torso, neck, head and clavicles are weighed with ``sigma_extra_torso_m``
+(4 cm) instead of ``sigma_extra_m`` (5 mm): there they mostly measure how far the capsule
+torso's shape is from the person's, not a pose error, and at full weight they twisted the
+chest against the pelvis in near-profile views.
 
 Pixels within ``extra_margin_px`` of the other silhouette (B1, B3) or of G (B2) are skipped:
 there the region is a one-pixel quantization band of an edge, and its closest-point offsets
@@ -30,6 +34,7 @@ from runtime.raycast import BodyRender
 
 from .config import TrackerConfig
 from .gauss_newton import Rows
+from .label_term import FIRST_LIMB_SEGMENT
 from .observation import Observation
 from .regions import Regions, rendered_points, sample_pixels
 
@@ -183,7 +188,12 @@ def extra_rows(
     batch = torch.cat([q_idx[:, 0], b])
     offset = torch.cat([off_r, off_o])
     weight = torch.cat([found * q_ratio**0.5, found_o * o_ratio**0.5]).to(dtype)
-    weight = weight / cfg.sigma_extra_m
+    sigma = torch.where(
+        segment < FIRST_LIMB_SEGMENT,
+        torch.full_like(weight, cfg.sigma_extra_torso_m),
+        torch.full_like(weight, cfg.sigma_extra_m),
+    )
+    weight = weight / sigma
     # One row per camera axis.
     n = points.shape[0]
     eye = torch.eye(3, dtype=dtype, device=points.device)

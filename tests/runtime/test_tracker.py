@@ -198,6 +198,28 @@ def test_extra_term_pulls_the_model_towards_the_observation():
     assert float(extra.error_sum[0] / extra.count[0]) > 0.01
 
 
+def test_extra_term_weighs_torso_and_limb_offsets_by_their_own_scales():
+    body = BodyShape.default(torch.float64)
+    truth = _pose()
+    q = truth.clone()
+    q[0, D["l_humerus_abd"]] += 0.35  # the arm off
+    q[0, D["root_tx"]] += 0.04  # and the whole body: torso offsets too
+    obs = _frame(truth, body)
+    render = render_body(q, body, obs.intr)
+    regions = classify(render, obs, 0.08, True)
+    observed = observed_candidates(obs, 5000)
+    base = TrackerConfig(sigma_extra_m=0.005, sigma_extra_torso_m=0.005)
+    rows = extra_rows(render, obs, regions, observed, base, 1).rows
+    torso = rows.segment < sk.SEGMENT_NAMES.index("l_upper_arm")
+    assert bool((torso & (rows.weight > 0)).any()) and bool((~torso & (rows.weight > 0)).any())
+    cfg = dataclasses.replace(base, sigma_extra_torso_m=0.04)
+    scaled = extra_rows(render, obs, regions, observed, cfg, 1).rows
+    # Same correspondences; torso rows weigh 8 times less, limb rows the same.
+    assert torch.equal(scaled.residual, rows.residual)
+    torch.testing.assert_close(scaled.weight[torso], rows.weight[torso] / 8)
+    torch.testing.assert_close(scaled.weight[~torso], rows.weight[~torso])
+
+
 def test_closest_points_respect_gate_and_batch():
     query = torch.tensor([[0.0, 0.0, 2.0], [0.0, 0.0, 2.0], [1.0, 0.0, 2.0]])
     qb = torch.tensor([0, 1, 0])
