@@ -27,9 +27,7 @@ pass (a hidden limb on the wrong side after a bad first detection) is questioned
 ``recheck_badness`` is set (the detector also runs on passed frames whose badness exceeds it)
 or ``recheck_every`` (on every n-th passed frame). With ``arm_search_badness`` set, a suspect
 fit whose model hides an arm the forest sees is refined from a few arm poses first, and the
-best-fitting result is kept (:mod:`runtime.hidden_arm_search`); with ``turn_search_badness``
-set, a suspect fit is also refined from its pose turned about the spine by a few angles
-(:mod:`runtime.turn_search`, the offline preset).
+best-fitting result is kept (:mod:`runtime.hidden_arm_search`).
 """
 
 from __future__ import annotations
@@ -54,7 +52,6 @@ from runtime.detector import (
 )
 from runtime.estimator import PoseEstimate, lost
 from runtime.hidden_arm_search import arm_candidates, arm_pixel_fraction, near_other_arm
-from runtime.turn_search import TURN_DEG, turn_candidates
 from shared.body import BodyShape
 from shared.camera import Intrinsics, depth_to_points
 from shared.config import ConfigError, config_from_dict, field_doc
@@ -142,15 +139,6 @@ class HybridConfig:
         "seen_arm_fraction of the person's pixels, refine the frame from each start pose of "
         "runtime.hidden_arm_search and keep the best fit (not in Wei; inf: off)",
     )
-    turn_search_badness: float = field_doc(
-        float("inf"),
-        help="when the tracker's fit_badness exceeds this, also refine the frame from its pose "
-        "turned about the spine by each angle of turn_search_deg and keep the best fit: near "
-        "profile a small turn either way fits about equally (not in Wei; inf: off)",
-    )
-    turn_search_deg: tuple[float, ...] = field_doc(
-        TURN_DEG, help="the turn search's angles about the spine, degrees (one refit each)"
-    )
     hidden_arm_visibility: float = field_doc(
         0.3, help="an arm counts as hidden by the model below this visible fraction (0-1)"
     )
@@ -184,13 +172,6 @@ class HybridConfig:
             raise HybridError(
                 f"recheck_every must be >= 0 (0: off) and recheck_badness a number (inf: off), "
                 f"got {self.recheck_every}, {self.recheck_badness}"
-            )
-        if math.isnan(self.turn_search_badness) or not all(
-            math.isfinite(a) for a in self.turn_search_deg
-        ):
-            raise HybridError(
-                "turn_search_badness must be a number (inf: off) and turn_search_deg finite "
-                f"angles, got {self.turn_search_badness}, {self.turn_search_deg}"
             )
         if math.isnan(self.arm_search_badness) or not (
             0 <= self.hidden_arm_visibility
@@ -382,13 +363,6 @@ class HybridEstimator:
                 if found is not None:
                     res, mine, _ = found
                     errors = {**_signals(res), "arm_searched": 1.0}
-            if mine > self.cfg.turn_search_badness:
-                angles = self.cfg.turn_search_deg
-                starts = turn_candidates(res.q, self.detector.body, angles)
-                found = self._best_refit(depth, m, starts, mine)
-                if found is not None:
-                    res, mine, k = found
-                    errors = {**errors, **_signals(res), "turn_searched_deg": float(angles[k])}
             fail = tracking_failed(
                 res.depth_error_cm, res.overlap, self.cfg, res.surface_error_q97_mm
             )

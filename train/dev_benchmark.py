@@ -40,7 +40,6 @@ CONFIGS: dict[str, tuple[str, str, dict]] = {
     "tracker, personalized body": ("tracker", "personalized", {}),
     "tracker, calibrated body": ("tracker", "calibrated", {}),
     "hybrid": ("hybrid", "gt", {}),
-    "hybrid, turn search": ("hybrid", "gt", {"turn_search_badness": 1.9}),
     "hybrid, personalized body": ("hybrid", "personalized", {}),
     "hybrid, calibrated body": ("hybrid", "calibrated", {}),
     "detector": ("detector", "gt", {}),

@@ -23,7 +23,6 @@ from runtime.hybrid import (
 from runtime.raycast import render_body
 from runtime.streams.base import DepthFrame
 from runtime.tracker import Tracker, TrackerConfig
-from runtime.turn_search import TURN_DEG
 from shared import skeleton as sk
 from shared.body import BodyShape
 from shared.camera import Intrinsics
@@ -425,54 +424,6 @@ def test_forest_arm_pixels_on_the_other_arm_do_not_start_an_arm_search(scene):
         assert len(tracker.starts) == (8 if searched else 0)
     with pytest.raises(HybridError, match="other_arm_margin_m"):
         HybridConfig(other_arm_margin_m=-0.01)
-
-
-class TurnTracker(FakeTracker):
-    """A suspect first fit; of the refits, the one started from the pose turned by
-    ``best_deg`` about the spine fits best (badness 0.5 against 1.3)."""
-
-    def __init__(self, best_deg):
-        super().__init__()
-        self.best_deg, self.starts, self.q0 = best_deg, [], None
-
-    def step(self, depth, mask, q_prev, q_prev2=None, labels=None):
-        self.calls += 1
-        if self.q0 is None:
-            self.q0 = q_prev.clone()
-            return FakeResult(q_prev.clone(), 2.0, 0.95, 12.0)
-        turn = math.degrees(root_turn(q_prev, self.q0))
-        self.starts.append(turn)
-        good = turn == pytest.approx(abs(self.best_deg), abs=1e-3)
-        return FakeResult(q_prev.clone(), 1.0 if good else 2.2, 1.0 if good else 0.95, 12.0)
-
-
-@pytest.mark.parametrize("threshold, searched", [(1.0, True), (1.5, False), (math.inf, False)])
-def test_turn_search_keeps_the_best_turned_refit(scene, threshold, searched):
-    q, depth, labels, mask = scene
-    angles = (10.0, -25.0, 40.0)  # distinct sizes: the fake tells the starts apart by them
-    tracker = TurnTracker(best_deg=-25.0)
-    det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
-    cfg = HybridConfig(turn_search_badness=threshold, turn_search_deg=angles)
-    # badness of the track: 2.0 / 2.5 + 0.05 / 0.1 = 1.3
-    est = HybridEstimator(lambda d, m: labels * m, det, tracker, cfg)
-    assert est.estimate(frame_of(depth, 0), mask).status == "detected"
-    tracker.q0 = None  # the second frame's first step sets the pose the turns start from
-    out = est.estimate(frame_of(depth, 1), mask)
-    assert out.status == "tracked"
-    assert ("turn_searched_deg" in out.errors) == searched
-    if searched:
-        assert tracker.starts == pytest.approx([abs(a) for a in angles], abs=1e-3)
-        assert out.errors["depth_error_cm"] == 1.0
-        assert out.errors["turn_searched_deg"] == -25.0
-        turned = math.degrees(root_turn(torch.as_tensor(out.q), tracker.q0.double()))
-        assert turned == pytest.approx(25.0, abs=1e-3)
-    else:
-        assert tracker.starts == []
-    assert HybridConfig().turn_search_deg == TURN_DEG
-    with pytest.raises(HybridError, match="turn_search_badness"):
-        HybridConfig(turn_search_badness=math.nan)
-    with pytest.raises(HybridError, match="turn_search_deg"):
-        HybridConfig(turn_search_deg=(10.0, math.inf))
 
 
 class LabelTracker(FakeTracker):
