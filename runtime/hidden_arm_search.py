@@ -23,10 +23,13 @@ from shared.kinematics import Kinematics, clamp_to_limits
 from shared.labels import PART_NAMES
 
 __all__ = [
+    "AGREEMENT_MARGIN_M",
     "ARM_FLEXION_DEG",
     "ELBOW_FLEXION_DEG",
     "arm_candidates",
+    "arm_label_agreement",
     "arm_pixel_fraction",
+    "arm_pixels",
     "near_other_arm",
 ]
 
@@ -34,6 +37,10 @@ __all__ = [
 # abduction and twist at zero; a few tracker iterations take each from there.
 ARM_FLEXION_DEG: tuple[float, ...] = (-40.0, 0.0, 40.0, 80.0)
 ELBOW_FLEXION_DEG: tuple[float, ...] = (0.0, 90.0)
+
+# A forest arm pixel counts as on the model's arm within this distance of its surface: about
+# a forearm's radius, so labels on the torso next to the arm do not count.
+AGREEMENT_MARGIN_M = 0.05
 
 # Forest classes of each arm: upper arm, forearm.
 _ARM_CLASSES = {
@@ -61,14 +68,38 @@ def arm_candidates(q: torch.Tensor, side: str) -> torch.Tensor:
     return clamp_to_limits(out)
 
 
+def arm_pixels(labels: torch.Tensor, mask: torch.Tensor, side: str) -> torch.Tensor:
+    """Pixels of the person (``mask`` (H, W) bool) the forest labels (``labels`` (H, W)
+    int) as the ``side`` arm: (H, W) bool."""
+    upper, fore = _ARM_CLASSES[side]
+    return ((labels == upper) | (labels == fore)) & mask
+
+
+def arm_label_agreement(
+    points: torch.Tensor, kin: Kinematics, body: BodyShape, side: str, margin_m: float
+) -> torch.Tensor:
+    """Share of ``points`` (N, 3), the forest's pixels of the ``side`` arm, within
+    ``margin_m`` of that arm's surface in the pose ``kin`` (batch B): (B,), NaN for N = 0.
+
+    The fit's signals hardly tell a hidden arm's places apart (a refit 40 cm off can fit
+    as well as the truth), but the forest's labels of that arm do: a refit that leaves
+    them farther from the arm than the track does has moved the arm somewhere else.
+    """
+    segs = list(LIMB_SEGMENTS[0 if side == "l" else 1])
+    ref = kin.origins
+    flat = points.to(ref).expand(ref.shape[0], -1, -1)
+    signed = segment_distances(flat, kin, body.to(dtype=ref.dtype, device=ref.device))
+    near = signed[..., segs].min(-1).values < margin_m
+    return near.to(ref.dtype).mean(-1)
+
+
 def arm_pixel_fraction(
     labels: torch.Tensor, mask: torch.Tensor, side: str, explained: torch.Tensor | None = None
 ) -> float:
     """Share of the person's pixels (``mask`` (H, W) bool) the forest labels (``labels``
     (H, W) int) as the ``side`` arm, leaving out those in ``explained`` (H, W) bool, if
     given; 0 for an empty mask."""
-    upper, fore = _ARM_CLASSES[side]
-    arm = ((labels == upper) | (labels == fore)) & mask
+    arm = arm_pixels(labels, mask, side)
     if explained is not None:
         arm = arm & ~explained
     return float(arm.sum()) / max(1, int(mask.sum()))

@@ -51,7 +51,14 @@ from runtime.detector import (
     load_forest_labeler,
 )
 from runtime.estimator import PoseEstimate, lost
-from runtime.hidden_arm_search import arm_candidates, arm_pixel_fraction, near_other_arm
+from runtime.hidden_arm_search import (
+    AGREEMENT_MARGIN_M,
+    arm_candidates,
+    arm_label_agreement,
+    arm_pixel_fraction,
+    arm_pixels,
+    near_other_arm,
+)
 from shared.body import BodyShape
 from shared.camera import Intrinsics, depth_to_points
 from shared.config import ConfigError, config_from_dict, field_doc
@@ -151,6 +158,13 @@ class HybridConfig:
         "towards seen_arm_fraction: in profile the far arm's labels land on the near arm, and "
         "the search would put both arms on it (0: every labelled pixel counts)",
     )
+    arm_agreement_slack: float = field_doc(
+        0.1,
+        help="an arm search's refit is taken only if the share of the forest's pixels of that "
+        "arm (those not near the other arm) lying within 5 cm of the refit's arm is at least "
+        "the track's share minus this: the signals hardly tell a hidden arm's places apart, "
+        "and a refit that fits as well may have moved the arm away from its labels (inf: off)",
+    )
     hint_from_tracker: bool = field_doc(
         True,
         help="give the detector's IK the last pose as one more start (it is used only if it "
@@ -177,12 +191,14 @@ class HybridConfig:
             0 <= self.hidden_arm_visibility
             and 0 <= self.seen_arm_fraction <= 1
             and self.other_arm_margin_m >= 0
+            and self.arm_agreement_slack >= 0
         ):
             raise HybridError(
                 "arm_search_badness must be a number (inf: off), hidden_arm_visibility >= 0, "
-                "0 <= seen_arm_fraction <= 1 and other_arm_margin_m >= 0, got "
-                f"{self.arm_search_badness}, {self.hidden_arm_visibility}, "
-                f"{self.seen_arm_fraction}, {self.other_arm_margin_m}"
+                "0 <= seen_arm_fraction <= 1, other_arm_margin_m >= 0 and arm_agreement_slack "
+                f">= 0, got {self.arm_search_badness}, {self.hidden_arm_visibility}, "
+                f"{self.seen_arm_fraction}, {self.other_arm_margin_m}, "
+                f"{self.arm_agreement_slack}"
             )
 
     def tracker_config(self):
@@ -297,45 +313,61 @@ class HybridEstimator:
             det.labels.cpu().numpy().astype(np.uint8),
         )
 
-    def _best_refit(self, depth, mask, starts, badness):
+    def _best_refit(self, depth, mask, starts, badness, agreement=None, floor=0.0):
         """The tracker's refit of the frame from each pose of ``starts`` (K, 34) with the
         smallest fit_badness, as (result, badness, index of its start), if below
-        ``badness``; else None."""
+        ``badness`` and, given ``agreement`` (a pose's arm label agreement), with an
+        agreement of at least ``floor``; else None."""
         labels = self._labels(depth, mask) if self.labels_every_frame else None
         best = None
         for k, start in enumerate(starts):
             r = self.tracker.step(depth, mask, start, None, labels=labels)
             b = fit_badness(r.depth_error_cm, r.overlap, r.surface_error_q97_mm, self.cfg)
-            if b < badness:
+            if b < badness and (agreement is None or agreement(r.q) >= floor):
                 best, badness = (r, b, k), b
         return best
 
     def _search_hidden_arms(self, depth, mask, res, badness):
         """The best refit from the arm starts of every arm the model hides and the forest
         sees, as (result, its badness, index of its start), if one fits better than
-        ``res``; else None."""
+        ``res`` and keeps the forest's pixels of that arm near it; else None."""
         vis = res.limb_visibility
         if vis is None:
             return None
         best = None
         points = kin = None  # only needed once an arm is hidden: most suspect frames have none
+        body = self.detector.body
         for limb, side in ((0, "l"), (1, "r")):
             if not bool(vis[limb] < self.cfg.hidden_arm_visibility):
                 continue
-            explained = None
+            if points is None:
+                points = depth_to_points(depth[None], self.detector.intr)[0][mask]
+                kin = forward_kinematics(res.q[None].to(body.lengths), body)
+            explained = torch.zeros_like(mask)
             if self.cfg.other_arm_margin_m > 0:
-                if points is None:
-                    points = depth_to_points(depth[None], self.detector.intr)[0][mask]
-                    q = res.q[None].to(self.detector.body.lengths)
-                    kin = forward_kinematics(q, self.detector.body)
-                explained = torch.zeros_like(mask)
                 explained[mask] = near_other_arm(
-                    points, kin, self.detector.body, side, self.cfg.other_arm_margin_m
+                    points, kin, body, side, self.cfg.other_arm_margin_m
                 )
             seen = arm_pixel_fraction(self._labels(depth, mask), mask, side, explained)
             if seen < self.cfg.seen_arm_fraction:
                 continue
-            found = self._best_refit(depth, mask, arm_candidates(res.q, side), badness)
+            agreement, floor = None, 0.0
+            if math.isfinite(self.cfg.arm_agreement_slack):
+                arm = arm_pixels(self._labels(depth, mask), mask, side) & ~explained
+                arm_points = points[arm[mask]]
+
+                def agreement(q, arm_points=arm_points, side=side):
+                    pose = forward_kinematics(q[None].to(body.lengths), body)
+                    return float(
+                        arm_label_agreement(arm_points, pose, body, side, AGREEMENT_MARGIN_M)[0]
+                    )
+
+                floor = (
+                    float(arm_label_agreement(arm_points, kin, body, side, AGREEMENT_MARGIN_M)[0])
+                    - self.cfg.arm_agreement_slack
+                )
+            starts = arm_candidates(res.q, side)
+            found = self._best_refit(depth, mask, starts, badness, agreement, floor)
             if found is not None:
                 best, badness = found, found[1]
         return best

@@ -11,7 +11,9 @@ from runtime.hidden_arm_search import (
     ARM_FLEXION_DEG,
     ELBOW_FLEXION_DEG,
     arm_candidates,
+    arm_label_agreement,
     arm_pixel_fraction,
+    arm_pixels,
     near_other_arm,
 )
 from shared import skeleton as sk
@@ -97,3 +99,39 @@ def test_near_other_arm_is_measured_from_the_other_arm_surface(dtype):
     assert near_other_arm(l_elbow[None], kin, body, "r", 0.05).tolist() == [True]
     # Any leading shape, e.g. an image of points.
     assert near_other_arm(points.reshape(3, 1, 3), kin, body, "l", 0.05).shape == (3, 1)
+
+
+def test_arm_pixels_are_both_arm_classes_of_one_side_inside_the_mask():
+    labels = torch.tensor([[8, 10, 9, 0], [8, 11, 10, 8]])
+    mask = torch.ones(2, 4, dtype=torch.bool)
+    mask[1, 3] = False
+    assert arm_pixels(labels, mask, "l").tolist() == [[True, True, False, False]] + [
+        [True, False, True, False]
+    ]
+    assert arm_pixels(labels, mask, "r").tolist() == [[False, False, True, False]] + [
+        [False, True, False, False]
+    ]
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_arm_label_agreement_is_the_share_of_labels_on_that_arm(dtype):
+    body = BodyShape.default()
+    q = rest_pose(1, (0.0, 0.0, 2.5), dtype=dtype)
+    kin = forward_kinematics(q, body.to(dtype=dtype))
+    joints = named_joint_positions(kin)[0]
+    elbow, wrist = (joints[sk.JOINT_NAMES.index(f"l_{j}")] for j in ("elbow", "wrist"))
+    # Three points on the left forearm's axis (inside it), one 30 cm in front of the elbow.
+    points = torch.stack(
+        [elbow, 0.5 * (elbow + wrist), wrist, elbow - elbow.new_tensor([0, 0, 0.3])]
+    )
+    assert float(arm_label_agreement(points, kin, body, "l", 0.05)[0]) == pytest.approx(0.75)
+    assert float(arm_label_agreement(points, kin, body, "r", 0.05)[0]) == 0.0
+    # A batch of poses: the left arm raised forward takes the forearm away from the points.
+    raised = q.repeat(2, 1)
+    raised[1, sk.DOF_NAMES.index("l_humerus_flex")] = math.radians(90)
+    out = arm_label_agreement(
+        points, forward_kinematics(raised, body.to(dtype=dtype)), body, "l", 0.05
+    )
+    assert out.shape == (2,) and out.dtype == dtype
+    assert float(out[0]) == pytest.approx(0.75) and float(out[1]) < 0.5
+    assert math.isnan(float(arm_label_agreement(points[:0], kin, body, "l", 0.05)[0]))

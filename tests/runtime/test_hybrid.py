@@ -365,7 +365,7 @@ def _track_second_frame(scene, tracker, labels_scale=1, **cfg):
 def test_hidden_arm_search_keeps_the_best_refit(scene, use_labels):
     tracker = ArmHidingTracker(use_labels)
     # badness of the track: 2.0 / 2.5 + 0.05 / 0.1 = 1.3; of the good refit 0.9
-    out = _track_second_frame(scene, tracker, arm_search_badness=1.0)
+    out = _track_second_frame(scene, tracker, arm_search_badness=1.0, arm_agreement_slack=math.inf)
     assert out.status == "tracked" and out.errors["arm_searched"] == 1.0
     assert out.errors["depth_error_cm"] == 1.0
     assert len(tracker.starts) == 8  # the left arm's starts only
@@ -373,6 +373,18 @@ def test_hidden_arm_search_keeps_the_best_refit(scene, use_labels):
     assert flex == pytest.approx(ArmHidingTracker.GOOD[0], abs=1e-6)
     # The refits get the frame's labels exactly when the tracker has the label term.
     assert all((seen is not None) == use_labels for seen in tracker.labels_seen[-8:])
+
+
+@pytest.mark.parametrize("slack, searched", [(0.1, False), (1.0, True)])
+def test_an_arm_search_refit_must_keep_the_forest_s_arm_pixels(scene, slack, searched):
+    # The forest labels the left arm where the track has it; the best-fitting refit lifts
+    # the arm 40 degrees away from those pixels, and is refused unless the slack allows it.
+    tracker = ArmHidingTracker()
+    out = _track_second_frame(scene, tracker, arm_search_badness=1.0, arm_agreement_slack=slack)
+    assert len(tracker.starts) == 8
+    assert ("arm_searched" in out.errors) == searched
+    flex = out.q[sk.DOF_NAMES.index("l_humerus_flex")]
+    assert (flex == pytest.approx(ArmHidingTracker.GOOD[0], abs=1e-6)) == searched
 
 
 @pytest.mark.parametrize(
@@ -397,6 +409,7 @@ def test_hidden_arm_search_needs_all_its_conditions(scene, labels_scale, cfg):
         {"arm_search_badness": math.nan},
         {"hidden_arm_visibility": -0.1},
         {"seen_arm_fraction": 1.5},
+        {"arm_agreement_slack": -0.1},
     ],
 )
 def test_bad_arm_search_settings_are_rejected(cfg):
@@ -415,7 +428,9 @@ def test_forest_arm_pixels_on_the_other_arm_do_not_start_an_arm_search(scene):
     for margin, searched in ((0.05, False), (0.0, True)):
         tracker = ArmHidingTracker()
         det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
-        cfg = HybridConfig(arm_search_badness=1.0, other_arm_margin_m=margin)
+        cfg = HybridConfig(
+            arm_search_badness=1.0, other_arm_margin_m=margin, arm_agreement_slack=math.inf
+        )
         est = HybridEstimator(lambda d, m: labels * m, det, tracker, cfg)
         est.estimate(frame_of(depth, 0), mask)
         est.labeler = lambda d, m: swapped * m
