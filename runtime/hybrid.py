@@ -158,6 +158,19 @@ class HybridConfig:
         "towards seen_arm_fraction: in profile the far arm's labels land on the near arm, and "
         "the search would put both arms on it (0: every labelled pixel counts)",
     )
+    partial_arm_visibility: float = field_doc(
+        0.6,
+        help="an arm the model shows partly (visible fraction below this, at or above "
+        "hidden_arm_visibility) is searched too when the forest's pixels of it mostly lie off "
+        "the model's arm (agreement below partial_arm_agreement): such an arm can be as wrong "
+        "as a hidden one (jog: a far forearm folded back while the camera sees it reach "
+        "forward)",
+    )
+    partial_arm_agreement: float = field_doc(
+        0.5,
+        help="the share of the forest's pixels of a partly shown arm (those not near the other "
+        "arm) within 5 cm of the model's arm under which that arm is searched",
+    )
     arm_agreement_slack: float = field_doc(
         0.1,
         help="an arm search's refit is taken only if the share of the forest's pixels of that "
@@ -192,13 +205,17 @@ class HybridConfig:
             and 0 <= self.seen_arm_fraction <= 1
             and self.other_arm_margin_m >= 0
             and self.arm_agreement_slack >= 0
+            and 0 <= self.partial_arm_visibility
+            and 0 <= self.partial_arm_agreement <= 1
         ):
             raise HybridError(
                 "arm_search_badness must be a number (inf: off), hidden_arm_visibility >= 0, "
-                "0 <= seen_arm_fraction <= 1, other_arm_margin_m >= 0 and arm_agreement_slack "
-                f">= 0, got {self.arm_search_badness}, {self.hidden_arm_visibility}, "
+                "0 <= seen_arm_fraction <= 1, other_arm_margin_m >= 0, arm_agreement_slack "
+                ">= 0, partial_arm_visibility >= 0 and 0 <= partial_arm_agreement <= 1, got "
+                f"{self.arm_search_badness}, {self.hidden_arm_visibility}, "
                 f"{self.seen_arm_fraction}, {self.other_arm_margin_m}, "
-                f"{self.arm_agreement_slack}"
+                f"{self.arm_agreement_slack}, {self.partial_arm_visibility}, "
+                f"{self.partial_arm_agreement}"
             )
 
     def tracker_config(self):
@@ -328,46 +345,47 @@ class HybridEstimator:
         return best
 
     def _search_hidden_arms(self, depth, mask, res, badness):
-        """The best refit from the arm starts of every arm the model hides and the forest
-        sees, as (result, its badness, index of its start), if one fits better than
-        ``res`` and keeps the forest's pixels of that arm near it; else None."""
+        """The best refit from the arm starts of every arm the model hides (or shows partly
+        and away from its forest pixels) while the forest sees it, as (result, its badness,
+        index of its start), if one fits better than ``res`` and keeps the forest's pixels
+        of that arm near it; else None."""
         vis = res.limb_visibility
         if vis is None:
             return None
+        cfg = self.cfg
         best = None
         points = kin = None  # only needed once an arm is hidden: most suspect frames have none
         body = self.detector.body
         for limb, side in ((0, "l"), (1, "r")):
-            if not bool(vis[limb] < self.cfg.hidden_arm_visibility):
+            shown = float(vis[limb])
+            if shown >= max(cfg.hidden_arm_visibility, cfg.partial_arm_visibility):
                 continue
             if points is None:
                 points = depth_to_points(depth[None], self.detector.intr)[0][mask]
                 kin = forward_kinematics(res.q[None].to(body.lengths), body)
             explained = torch.zeros_like(mask)
-            if self.cfg.other_arm_margin_m > 0:
-                explained[mask] = near_other_arm(
-                    points, kin, body, side, self.cfg.other_arm_margin_m
-                )
-            seen = arm_pixel_fraction(self._labels(depth, mask), mask, side, explained)
-            if seen < self.cfg.seen_arm_fraction:
+            if cfg.other_arm_margin_m > 0:
+                explained[mask] = near_other_arm(points, kin, body, side, cfg.other_arm_margin_m)
+            labels = self._labels(depth, mask)
+            if arm_pixel_fraction(labels, mask, side, explained) < cfg.seen_arm_fraction:
                 continue
-            agreement, floor = None, 0.0
-            if math.isfinite(self.cfg.arm_agreement_slack):
-                arm = arm_pixels(self._labels(depth, mask), mask, side) & ~explained
-                arm_points = points[arm[mask]]
+            arm_points = points[(arm_pixels(labels, mask, side) & ~explained)[mask]]
+            mine = float(arm_label_agreement(arm_points, kin, body, side, AGREEMENT_MARGIN_M)[0])
+            if shown >= cfg.hidden_arm_visibility and not mine < cfg.partial_arm_agreement:
+                continue  # shown partly, where the forest sees it: no search
 
-                def agreement(q, arm_points=arm_points, side=side):
-                    pose = forward_kinematics(q[None].to(body.lengths), body)
-                    return float(
-                        arm_label_agreement(arm_points, pose, body, side, AGREEMENT_MARGIN_M)[0]
-                    )
-
-                floor = (
-                    float(arm_label_agreement(arm_points, kin, body, side, AGREEMENT_MARGIN_M)[0])
-                    - self.cfg.arm_agreement_slack
+            def agreement(q, arm_points=arm_points, side=side):
+                pose = forward_kinematics(q[None].to(body.lengths), body)
+                return float(
+                    arm_label_agreement(arm_points, pose, body, side, AGREEMENT_MARGIN_M)[0]
                 )
+
+            check = math.isfinite(cfg.arm_agreement_slack)
+            floor = mine - cfg.arm_agreement_slack if check else 0.0
             starts = arm_candidates(res.q, side)
-            found = self._best_refit(depth, mask, starts, badness, agreement, floor)
+            found = self._best_refit(
+                depth, mask, starts, badness, agreement if check else None, floor
+            )
             if found is not None:
                 best, badness = found, found[1]
         return best

@@ -333,14 +333,15 @@ class ArmHidingTracker:
 
     GOOD = (math.radians(40), 0.0)
 
-    def __init__(self, use_labels=False):
+    def __init__(self, use_labels=False, shown=0.1):
         self.calls, self.starts, self.labels_seen = 0, [], []
         self.cfg = TrackerConfig(use_labels=use_labels)
+        self.shown = shown
 
     def step(self, depth, mask, q_prev, q_prev2=None, labels=None):
         self.calls += 1
         self.labels_seen.append(labels)
-        vis = torch.tensor([0.1, 1.0, 1.0, 1.0])
+        vis = torch.tensor([self.shown, 1.0, 1.0, 1.0])
         if self.calls == 1:
             return FakeResult(q_prev.clone(), 2.0, 0.95, 12.0, limb_visibility=vis)
         start = tuple(
@@ -410,11 +411,47 @@ def test_hidden_arm_search_needs_all_its_conditions(scene, labels_scale, cfg):
         {"hidden_arm_visibility": -0.1},
         {"seen_arm_fraction": 1.5},
         {"arm_agreement_slack": -0.1},
+        {"partial_arm_visibility": -0.1},
+        {"partial_arm_agreement": 1.5},
     ],
 )
 def test_bad_arm_search_settings_are_rejected(cfg):
     with pytest.raises(HybridError, match="arm_search_badness"):
         HybridConfig(**cfg)
+
+
+@pytest.mark.parametrize("swap, searched", [(False, False), (True, True)])
+def test_a_partly_shown_arm_is_searched_only_away_from_its_forest_pixels(scene, swap, searched):
+    q, depth, labels, mask = scene
+    # The model shows 45% of the left arm. Where the forest labels the left arm on the
+    # model's left arm there is nothing to search; where it labels it elsewhere (here: on
+    # the right arm, counted with other_arm_margin_m 0) the arm is searched.
+    seen = labels.clone()
+    if swap:
+        for part in ("upper_arm", "forearm"):
+            seen[labels == PART_NAMES.index(f"r_{part}")] = PART_NAMES.index(f"l_{part}")
+            seen[labels == PART_NAMES.index(f"l_{part}")] = PART_NAMES.index("chest")
+    tracker = ArmHidingTracker(shown=0.45)
+    det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
+    cfg = HybridConfig(arm_search_badness=1.0, other_arm_margin_m=0.0, arm_agreement_slack=math.inf)
+    est = HybridEstimator(lambda d, m: labels * m, det, tracker, cfg)
+    est.estimate(frame_of(depth, 0), mask)
+    est.labeler = lambda d, m: seen * m
+    out = est.estimate(frame_of(depth, 1), mask)
+    assert ("arm_searched" in out.errors) == searched
+    assert len(tracker.starts) == (8 if searched else 0)
+    # Below hidden_arm_visibility the arm counts as hidden and is searched either way.
+    tracker = ArmHidingTracker(shown=0.45)
+    cfg = HybridConfig(
+        arm_search_badness=1.0,
+        other_arm_margin_m=0.0,
+        arm_agreement_slack=math.inf,
+        hidden_arm_visibility=0.5,
+    )
+    est = HybridEstimator(lambda d, m: labels * m, det, tracker, cfg)
+    est.estimate(frame_of(depth, 0), mask)
+    est.labeler = lambda d, m: seen * m
+    assert "arm_searched" in est.estimate(frame_of(depth, 1), mask).errors
 
 
 def test_forest_arm_pixels_on_the_other_arm_do_not_start_an_arm_search(scene):
