@@ -79,12 +79,18 @@ def test_arm_pixel_fraction_leaves_out_explained_pixels():
     assert arm_pixel_fraction(labels, mask, "l", torch.zeros_like(mask)) == 1.0
 
 
-@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_near_other_arm_is_measured_from_the_other_arm_surface(dtype):
+def _rest(dtype):
+    """The default body at rest 2.5 m in front of the camera: body, pose (1, 34), its
+    kinematics and named joints (J, 3)."""
     body = BodyShape.default()
     q = rest_pose(1, (0.0, 0.0, 2.5), dtype=dtype)
     kin = forward_kinematics(q, body.to(dtype=dtype))
-    joints = named_joint_positions(kin)[0]
+    return body, q, kin, named_joint_positions(kin)[0]
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_near_other_arm_is_measured_from_the_other_arm_surface(dtype):
+    body, _, kin, joints = _rest(dtype)
     r_elbow = joints[sk.JOINT_NAMES.index("r_elbow")]
     l_elbow = joints[sk.JOINT_NAMES.index("l_elbow")]
     # Along the camera's z axis from the right elbow: inside the arm, just outside, far out.
@@ -115,10 +121,7 @@ def test_arm_pixels_are_both_arm_classes_of_one_side_inside_the_mask():
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_arm_label_agreement_is_the_share_of_labels_on_that_arm(dtype):
-    body = BodyShape.default()
-    q = rest_pose(1, (0.0, 0.0, 2.5), dtype=dtype)
-    kin = forward_kinematics(q, body.to(dtype=dtype))
-    joints = named_joint_positions(kin)[0]
+    body, q, kin, joints = _rest(dtype)
     elbow, wrist = (joints[sk.JOINT_NAMES.index(f"l_{j}")] for j in ("elbow", "wrist"))
     # Three points on the left forearm's axis (inside it), one 30 cm in front of the elbow.
     points = torch.stack(

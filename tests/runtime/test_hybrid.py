@@ -420,58 +420,55 @@ def test_bad_arm_search_settings_are_rejected(cfg):
         HybridConfig(**cfg)
 
 
-@pytest.mark.parametrize("swap, searched", [(False, False), (True, True)])
-def test_a_partly_shown_arm_is_searched_only_away_from_its_forest_pixels(scene, swap, searched):
-    q, depth, labels, mask = scene
-    # The model shows 45% of the left arm. Where the forest labels the left arm on the
-    # model's left arm there is nothing to search; where it labels it elsewhere (here: on
-    # the right arm, counted with other_arm_margin_m 0) the arm is searched.
-    seen = labels.clone()
-    if swap:
-        for part in ("upper_arm", "forearm"):
-            seen[labels == PART_NAMES.index(f"r_{part}")] = PART_NAMES.index(f"l_{part}")
-            seen[labels == PART_NAMES.index(f"l_{part}")] = PART_NAMES.index("chest")
-    tracker = ArmHidingTracker(shown=0.45)
-    det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
-    cfg = HybridConfig(arm_search_badness=1.0, other_arm_margin_m=0.0, arm_agreement_slack=math.inf)
-    est = HybridEstimator(lambda d, m: labels * m, det, tracker, cfg)
-    est.estimate(frame_of(depth, 0), mask)
-    est.labeler = lambda d, m: seen * m
-    out = est.estimate(frame_of(depth, 1), mask)
-    assert ("arm_searched" in out.errors) == searched
-    assert len(tracker.starts) == (8 if searched else 0)
-    # Below hidden_arm_visibility the arm counts as hidden and is searched either way.
-    tracker = ArmHidingTracker(shown=0.45)
-    cfg = HybridConfig(
-        arm_search_badness=1.0,
-        other_arm_margin_m=0.0,
-        arm_agreement_slack=math.inf,
-        hidden_arm_visibility=0.5,
-    )
-    est = HybridEstimator(lambda d, m: labels * m, det, tracker, cfg)
-    est.estimate(frame_of(depth, 0), mask)
-    est.labeler = lambda d, m: seen * m
-    assert "arm_searched" in est.estimate(frame_of(depth, 1), mask).errors
-
-
-def test_forest_arm_pixels_on_the_other_arm_do_not_start_an_arm_search(scene):
-    q, depth, labels, mask = scene
-    # The forest calls the right arm's pixels left arm (a left/right swap in profile) and
-    # sees no other arm: the hidden left arm is not moved onto the right one.
+def _left_arm_labelled_on_the_right(labels):
+    """The forest's left/right swap in profile: the right arm's pixels labelled left arm, the
+    left arm's pixels labelled chest."""
     swapped = labels.clone()
     for part in ("upper_arm", "forearm"):
         swapped[labels == PART_NAMES.index(f"r_{part}")] = PART_NAMES.index(f"l_{part}")
         swapped[labels == PART_NAMES.index(f"l_{part}")] = PART_NAMES.index("chest")
+    return swapped
+
+
+def _second_frame_with_labels(scene, tracker, cfg, seen):
+    """Detect the scene's first frame, then track the second with the forest's labels
+    ``seen``."""
+    q, depth, labels, mask = scene
+    det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
+    est = HybridEstimator(lambda d, m: labels * m, det, tracker, cfg)
+    est.estimate(frame_of(depth, 0), mask)
+    est.labeler = lambda d, m: seen * m
+    return est.estimate(frame_of(depth, 1), mask)
+
+
+@pytest.mark.parametrize("swap, searched", [(False, False), (True, True)])
+def test_a_partly_shown_arm_is_searched_only_away_from_its_forest_pixels(scene, swap, searched):
+    labels = scene[2]
+    # The model shows 45% of the left arm. Where the forest labels the left arm on the
+    # model's left arm there is nothing to search; where it labels it elsewhere (here: on
+    # the right arm, counted with other_arm_margin_m 0) the arm is searched.
+    seen = _left_arm_labelled_on_the_right(labels) if swap else labels
+    common = dict(arm_search_badness=1.0, other_arm_margin_m=0.0, arm_agreement_slack=math.inf)
+    tracker = ArmHidingTracker(shown=0.45)
+    out = _second_frame_with_labels(scene, tracker, HybridConfig(**common), seen)
+    assert ("arm_searched" in out.errors) == searched
+    assert len(tracker.starts) == (8 if searched else 0)
+    # Below hidden_arm_visibility the arm counts as hidden and is searched either way.
+    cfg = HybridConfig(**common, hidden_arm_visibility=0.5)
+    out = _second_frame_with_labels(scene, ArmHidingTracker(shown=0.45), cfg, seen)
+    assert "arm_searched" in out.errors
+
+
+def test_forest_arm_pixels_on_the_other_arm_do_not_start_an_arm_search(scene):
+    # The forest calls the right arm's pixels left arm (a left/right swap in profile) and
+    # sees no other arm: the hidden left arm is not moved onto the right one.
+    swapped = _left_arm_labelled_on_the_right(scene[2])
     for margin, searched in ((0.05, False), (0.0, True)):
         tracker = ArmHidingTracker()
-        det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
         cfg = HybridConfig(
             arm_search_badness=1.0, other_arm_margin_m=margin, arm_agreement_slack=math.inf
         )
-        est = HybridEstimator(lambda d, m: labels * m, det, tracker, cfg)
-        est.estimate(frame_of(depth, 0), mask)
-        est.labeler = lambda d, m: swapped * m
-        out = est.estimate(frame_of(depth, 1), mask)
+        out = _second_frame_with_labels(scene, tracker, cfg, swapped)
         assert ("arm_searched" in out.errors) == searched
         assert len(tracker.starts) == (8 if searched else 0)
     with pytest.raises(HybridError, match="other_arm_margin_m"):
