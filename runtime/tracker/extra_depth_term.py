@@ -188,12 +188,8 @@ def extra_rows(
     batch = torch.cat([q_idx[:, 0], b])
     offset = torch.cat([off_r, off_o])
     weight = torch.cat([found * q_ratio**0.5, found_o * o_ratio**0.5]).to(dtype)
-    sigma = torch.where(
-        segment < FIRST_LIMB_SEGMENT,
-        torch.full_like(weight, cfg.sigma_extra_torso_m),
-        torch.full_like(weight, cfg.sigma_extra_m),
-    )
-    weight = weight / sigma
+    sigma = weight.new_tensor([cfg.sigma_extra_torso_m, cfg.sigma_extra_m])
+    weight = weight / sigma[(segment >= FIRST_LIMB_SEGMENT).long()]
     # One row per camera axis.
     n = points.shape[0]
     eye = torch.eye(3, dtype=dtype, device=points.device)

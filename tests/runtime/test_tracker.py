@@ -480,6 +480,9 @@ def test_bad_input_is_rejected_clearly():
     for bad in ({"downsample": -1}, {"person_pixels": 0}):
         with pytest.raises(TrackerError, match="downsample must be >= 0"):
             Tracker(BodyShape.default(), INTR, TrackerConfig(**bad))
+    for bad in (0.0, -0.04, math.nan):
+        with pytest.raises(TrackerError, match="sigma_extra_torso_m"):
+            Tracker(BodyShape.default(), INTR, TrackerConfig(sigma_extra_torso_m=bad))
     with pytest.raises(TrackerError, match="q_prev"):
         tracker.step(torch.zeros(240, 320), torch.zeros(240, 320, dtype=torch.bool), rest_pose(1))
 
