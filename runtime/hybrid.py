@@ -380,7 +380,8 @@ class HybridEstimator:
                     arm_label_agreement(arm_points, pose, body, side, AGREEMENT_MARGIN_M)[0]
                 )
 
-            check = math.isfinite(cfg.arm_agreement_slack)
+            # No forest pixels of the arm (seen_arm_fraction 0): nothing to keep it near.
+            check = math.isfinite(cfg.arm_agreement_slack) and math.isfinite(mine)
             floor = mine - cfg.arm_agreement_slack if check else 0.0
             starts = arm_candidates(res.q, side)
             found = self._best_refit(

@@ -388,6 +388,16 @@ def test_an_arm_search_refit_must_keep_the_forest_s_arm_pixels(scene, slack, sea
     assert (flex == pytest.approx(ArmHidingTracker.GOOD[0], abs=1e-6)) == searched
 
 
+def test_an_arm_the_forest_does_not_label_is_searched_without_the_agreement_test(scene):
+    # With seen_arm_fraction 0 a hidden arm is searched even where the forest labels none of
+    # it; there is then no label to keep the arm near, and the best refit is taken.
+    tracker = ArmHidingTracker()
+    out = _track_second_frame(scene, tracker, 0, arm_search_badness=1.0, seen_arm_fraction=0.0)
+    assert out.errors["arm_searched"] == 1.0 and len(tracker.starts) == 8
+    flex = out.q[sk.DOF_NAMES.index("l_humerus_flex")]
+    assert flex == pytest.approx(ArmHidingTracker.GOOD[0], abs=1e-6)
+
+
 @pytest.mark.parametrize(
     "labels_scale, cfg",
     [
