@@ -25,7 +25,7 @@ import numpy as np
 
 from shared.config import load_settings
 
-from .evaluation.evaluate import evaluate
+from .evaluation.evaluate import evaluate, format_failed_frames
 
 # name -> (mode, body, settings overriding the mode's config). Bodies: "gt" (the rendered
 # body's skeleton), "default" (average adult), "personalized" (runtime-personalize on the same
@@ -146,6 +146,17 @@ def format_row(name: str, agg: dict) -> str:
     )
 
 
+def format_failures(name: str, per_recording: dict[str, dict]) -> str:
+    """The system-failure frames of one configuration, one line per recording that has any:
+    frame index and worst joint in cm ("no pose" for frames without one)."""
+    lines = [f"{name}: system-failure frames (any joint beyond the threshold)"]
+    for rec, report in per_recording.items():
+        frames = report.get("system_failure_frames") or []
+        if frames:
+            lines.append(f"  {rec}: {format_failed_frames(frames)}")
+    return "\n".join(lines if len(lines) > 1 else lines + ["  none"])
+
+
 HEADER = (
     "| configuration | joint error mm | offset-normalized mm | precision 10 cm | "
     "surface q97 mm | tracking failure | detector frames | system failure | frames/s |\n"
@@ -194,6 +205,8 @@ def main(argv: list[str] | None = None) -> int:
         results[name] = {"mean": agg, "per_recording": dict(zip([r.name for r in recs], reports))}
         print(format_row(name, agg), flush=True)
         results[name]["seconds"] = time.perf_counter() - t0
+    for name, res in results.items():
+        print("\n" + format_failures(name, res["per_recording"]))
     Path(args.out).mkdir(parents=True, exist_ok=True)
     (Path(args.out) / "report.json").write_text(json.dumps(results, indent=1))
     print(f"\nfull report: {Path(args.out) / 'report.json'}")

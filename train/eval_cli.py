@@ -19,7 +19,13 @@ from pathlib import Path
 
 from shared.config import ConfigError, add_cli_args, config_from_args
 from shared.recording import RecordingError
-from train.evaluation.evaluate import EvalConfig, Evaluation, EvaluationError, evaluate
+from train.evaluation.evaluate import (
+    EvalConfig,
+    Evaluation,
+    EvaluationError,
+    evaluate,
+    format_failed_frames,
+)
 from train.evaluation.plot import render_plot, save_plot
 from train.evaluation.result_io import ResultFileError
 
@@ -47,6 +53,7 @@ def format_table(ev: Evaluation) -> str:
             f"{_fmt(r['per_joint_error_offset_normalized_mm'][name]):>16}"
             f"{_fmt(r['per_joint_precision_10cm'][name], digits=3):>11}"
         )
+    failed = r.get("system_failure_frames") or []
     lines += [
         f"{'mean':<14}{_fmt(r['mean_joint_error_mm']):>10}"
         f"{_fmt(r['mean_joint_error_offset_normalized_mm']):>16}"
@@ -56,7 +63,8 @@ def format_table(ev: Evaluation) -> str:
         f" ({r['surface_error_frames']} frames)",
         f"tracking failure      {_fmt(r['tracking_failure_pct'], ' %', 2)}"
         f" (detector frames, the first included: {_fmt(r['detector_frames_pct'], ' %', 2)})",
-        f"system failure        {_fmt(r['system_failure_pct'], ' %', 2)}",
+        f"system failure        {_fmt(r['system_failure_pct'], ' %', 2)}"
+        + (f" (frames {format_failed_frames(failed, 12)})" if failed else ""),
         f"processing rate       {_fmt(r['fps'], ' frames/s')}",
         f"offset-norm frames    {r['offset_frame']}",
     ]

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from train.dev_benchmark import HEADER, format_row
+from train.dev_benchmark import HEADER, format_failures, format_row
 
 
 def test_rows_match_the_header_and_detector_modes_have_no_tracking_failure():
@@ -14,3 +14,17 @@ def test_rows_match_the_header_and_detector_modes_have_no_tracking_failure():
     assert "| 36.1 |" in hybrid and "| 96.3% |" in hybrid and "| 2.0% | 3.9% | 7.2% |" in hybrid
     assert "| (every frame) | 3.9% |" in detector and "2.0%" not in detector
     assert "| n/a |" in hybrid  # missing metrics are marked, not invented
+
+
+def test_failure_lines_name_frames_and_worst_joints():
+    reports = {
+        "HDM_a": {"system_failure_frames": [
+            {"frame": 0, "worst_joint": "l_wrist", "error_mm": 312.4},
+            {"frame": 7, "worst_joint": None, "error_mm": None},
+        ]},
+        "HDM_b": {"system_failure_frames": []},
+        "HDM_c": {},  # a report from before the field existed
+    }  # fmt: skip
+    text = format_failures("hybrid", reports)
+    assert text.splitlines()[1:] == ["  HDM_a: 0 l_wrist 31 cm, 7 no pose"]
+    assert format_failures("hybrid", {"HDM_b": reports["HDM_b"]}).endswith("\n  none")

@@ -18,6 +18,7 @@ from shared.recording import RecordingWriter
 from shared.so3 import rotvec_to_matrix
 from train.eval_cli import main
 from train.evaluation import metrics as m
+from train.evaluation.evaluate import format_failed_frames
 from train.evaluation.plot import render_plot
 
 
@@ -182,13 +183,17 @@ def test_cli_end_to_end(recording, tmp_path, capsys):
     assert r["detector_frames_pct"] == pytest.approx(100 * 2 / 8)  # detected + lost of 8
     assert r["tracking_failure_pct"] == pytest.approx(100 * 1 / 8)  # frame 0 starts the track
     assert r["system_failure_pct"] == pytest.approx(100 * 2 / 9)  # missing 3 + lost 6
+    assert r["system_failure_frames"] == [
+        {"frame": 3, "worst_joint": None, "error_mm": None},
+        {"frame": 6, "worst_joint": None, "error_mm": None},
+    ]
     # Surface error: mean of the per-frame values of the frames written (lost ones too).
     assert r["surface_error_q97_mm"] == pytest.approx(10.0 * np.mean(frames))
     assert r["status_counts"] == {"tracked": 6, "detected": 1, "lost": 1}
     assert (tmp_path / "res" / "evaluation.png").is_file()
 
 
-def test_cli_offset_only_result_normalizes_to_zero(recording, tmp_path):
+def test_cli_offset_only_result_normalizes_to_zero(recording, tmp_path, capsys):
     rec, q, body = recording
     # Shift every joint by a fixed displacement in its own (ground-truth) segment frame.
     kin = forward_kinematics(torch.as_tensor(q), body)
@@ -202,7 +207,18 @@ def test_cli_offset_only_result_normalizes_to_zero(recording, tmp_path):
     assert r["mean_joint_error_mm"] == pytest.approx(np.sqrt(14e-4) * 1e3, abs=1e-2)
     assert r["mean_joint_error_offset_normalized_mm"] < 0.01
     assert r["system_failure_pct"] == 0.0 and r["tracking_failure_pct"] == 0.0
+    assert r["system_failure_frames"] == []
     assert not (tmp_path / "res" / "evaluation.png").exists()
+    # At a 3 cm threshold every frame fails, each by its worst joint.
+    assert main(args + ["--plot", "", "--failure-threshold-m", "0.03"]) == 0
+    failed = json.loads(out.read_text())["system_failure_frames"]
+    assert [f["frame"] for f in failed] == list(range(FRAMES))
+    assert all(f["worst_joint"] in sk.JOINT_NAMES for f in failed)
+    assert "system failure        100.00 % (frames 0 " in capsys.readouterr().out
+    # Every joint is off by the same |shift| = sqrt(14) cm here.
+    assert [f["error_mm"] for f in failed] == pytest.approx(
+        [np.sqrt(14e-4) * 1e3] * FRAMES, abs=0.01
+    )
 
 
 def _expect_error(capsys, args, pattern):
@@ -234,3 +250,11 @@ def test_cli_bad_inputs_exit_2(recording, tmp_path, capsys):
         w.write_groundtruth(np.zeros((1, 2, 3)), ["nose", "toe"])
     _result(res, q, body, range(1), ["tracked"])
     _expect_error(capsys, ["--recording", str(other), "--result", str(res)], "no joint names")
+
+
+def test_failed_frames_text():
+    frames = [{"frame": i, "worst_joint": "l_wrist", "error_mm": 212.0} for i in range(4)]
+    frames.append({"frame": 9, "worst_joint": None, "error_mm": None})
+    assert format_failed_frames(frames[3:]) == "3 l_wrist 21 cm, 9 no pose"
+    assert format_failed_frames(frames, 2) == "0 l_wrist 21 cm, 1 l_wrist 21 cm ... and 3 more"
+    assert format_failed_frames([]) == ""

@@ -26,7 +26,14 @@ from shared.recording import Recording
 from . import metrics as m
 from .result_io import STATUSES, ResultFileError, TrackingResult, load_result
 
-__all__ = ["EvalConfig", "Evaluation", "evaluate", "EvaluationError", "ResultFileError"]
+__all__ = [
+    "EvalConfig",
+    "Evaluation",
+    "evaluate",
+    "format_failed_frames",
+    "EvaluationError",
+    "ResultFileError",
+]
 
 SURFACE_KEY = "surface_error_q97_mm"
 
@@ -87,6 +94,33 @@ def _finite(x: float) -> float | None:
 
 def _per_joint(names, values, scale: float = 1.0) -> dict:
     return {n: _finite(float(v) * scale) for n, v in zip(names, values)}
+
+
+def _failed_frames(errors: np.ndarray, failed: np.ndarray, names) -> list[dict]:
+    """Each failed frame with its worst joint and that joint's error (None without a pose)."""
+    out = []
+    for f in np.flatnonzero(failed):
+        row = errors[f]
+        if np.isfinite(row).any():
+            j = int(np.nanargmax(row))
+            out.append(
+                {"frame": int(f), "worst_joint": names[j], "error_mm": _finite(row[j] * 1e3)}
+            )
+        else:
+            out.append({"frame": int(f), "worst_joint": None, "error_mm": None})
+    return out
+
+
+def format_failed_frames(frames: list[dict], limit: int | None = None) -> str:
+    """``system_failure_frames`` as text: "60 l_wrist 21 cm, 7 no pose", at most ``limit``
+    of them (then "... and N more")."""
+    shown = [
+        f"{f['frame']} {f['worst_joint']} {f['error_mm'] / 10:.0f} cm"
+        if f["worst_joint"] else f"{f['frame']} no pose"
+        for f in frames[:limit]
+    ]  # fmt: skip
+    more = len(frames) - len(shown)
+    return ", ".join(shown) + (f" ... and {more} more" if more > 0 else "")
 
 
 def _match(result: TrackingResult, rec: Recording, gt: dict) -> tuple:
@@ -181,6 +215,7 @@ def evaluate(
         "tracking_failure_pct": _finite(m.tracking_failure_pct(result.status)),
         "detector_frames_pct": _finite(m.detector_frames_pct(result.status)),
         "system_failure_pct": _finite(m.percent(failures)),
+        "system_failure_frames": _failed_frames(errors, failures, names),
         "status_counts": {s: int((result.status == s).sum()) for s in STATUSES},
         "fps": _finite(result.summary.get("fps") or math.nan),
         "stream_fps": _finite(result.summary.get("stream_fps") or rec.fps),
