@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from train.dev_benchmark import HEADER, format_failures, format_row
+from train.dev_benchmark import HEADER, format_failures, format_row, mean_of_runs
 
 
 def test_rows_match_the_header_and_detector_modes_have_no_tracking_failure():
@@ -28,3 +28,14 @@ def test_failure_lines_name_frames_and_worst_joints():
     text = format_failures("hybrid", reports)
     assert text.splitlines()[1:] == ["  HDM_a: 0 l_wrist 31 cm, 7 no pose"]
     assert format_failures("hybrid", {"HDM_b": reports["HDM_b"]}).endswith("\n  none")
+
+
+def test_mean_of_runs_and_rows_of_runs():
+    a = {"mean_joint_error_mm": 34.0, "system_failure_pct": 1.1, "fps": None}
+    b = {"mean_joint_error_mm": 35.0, "system_failure_pct": 1.5, "fps": 12.0}
+    mean = mean_of_runs([a, b])
+    assert mean["mean_joint_error_mm"] == 34.5 and mean["system_failure_pct"] == 1.3
+    assert mean["fps"] is None and mean["precision_10cm"] is None  # missing in a run: no mean
+    # Rows of a run are named freely; the mode decides the tracking column.
+    assert "| 1.3% | n/a |" in format_row("hybrid, mean of 2", mean, "hybrid")
+    assert "(every frame)" in format_row("detector @ run 2", mean, "detector")
