@@ -60,6 +60,7 @@ __all__ = [
     "DOF_SLOT",
     "SEGMENT_ANCESTORS",
     "DOF_AFFECTS_SEGMENT",
+    "FIRST_LIMB_SEGMENT",
     "JOINT_NAMES",
     "JOINT_SEGMENT",
     "JOINT_FRACTION",
@@ -206,6 +207,12 @@ for _i, _d in enumerate(_ANGLE_DOFS):
     _slot = int((SEGMENT_DOF_SLOTS[_d[1]] >= 0).sum())
     SEGMENT_DOF_SLOTS[_d[1], _slot] = _dof
     DOF_SLOT[_dof] = _slot
+
+# The limbs (upper arms, forearms, thighs, shanks) are the segments from the left upper arm on;
+# the torso, neck, head and clavicles come before them.
+FIRST_LIMB_SEGMENT = SEGMENT_NAMES.index("l_upper_arm")
+assert all(SEGMENT_NAMES[k][2:] in ("upper_arm", "forearm", "thigh", "shank")
+           for k in range(FIRST_LIMB_SEGMENT, NUM_SEGMENTS))  # fmt: skip
 
 # SEGMENT_ANCESTORS[k, j]: segment j is k or one of k's ancestors.
 SEGMENT_ANCESTORS = np.zeros((NUM_SEGMENTS, NUM_SEGMENTS), dtype=bool)

@@ -31,10 +31,10 @@ from dataclasses import dataclass
 import torch
 
 from runtime.raycast import BodyRender
+from shared import skeleton as sk
 
 from .config import TrackerConfig
 from .gauss_newton import Rows
-from .label_term import FIRST_LIMB_SEGMENT
 from .observation import Observation
 from .regions import Regions, rendered_points, sample_pixels
 
@@ -189,7 +189,7 @@ def extra_rows(
     offset = torch.cat([off_r, off_o])
     weight = torch.cat([found * q_ratio**0.5, found_o * o_ratio**0.5]).to(dtype)
     sigma = weight.new_tensor([cfg.sigma_extra_torso_m, cfg.sigma_extra_m])
-    weight = weight / sigma[(segment >= FIRST_LIMB_SEGMENT).long()]
+    weight = weight / sigma[(segment >= sk.FIRST_LIMB_SEGMENT).long()]
     # One row per camera axis.
     n = points.shape[0]
     eye = torch.eye(3, dtype=dtype, device=points.device)

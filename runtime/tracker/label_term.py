@@ -26,10 +26,7 @@ from .gauss_newton import Rows
 from .observation import Observation
 from .regions import sample_pixels
 
-__all__ = ["FIRST_LIMB_SEGMENT", "capsule_offsets", "label_rows"]
-
-# The limbs (upper arms, forearms, thighs, shanks) are the segments from the left upper arm on.
-FIRST_LIMB_SEGMENT = sk.SEGMENT_NAMES.index("l_upper_arm")
+__all__ = ["capsule_offsets", "label_rows"]
 
 
 def capsule_offsets(
@@ -67,7 +64,7 @@ def label_rows(
     """Label-term rows for a subsample of the labelled limb pixels of ``obs`` (needs
     ``obs.labels``; no rows without it)."""
     labels = obs.labels if obs.labels is not None else torch.full_like(obs.depth, -1).long()
-    use = obs.valid & (labels >= FIRST_LIMB_SEGMENT)
+    use = obs.valid & (labels >= sk.FIRST_LIMB_SEGMENT)
     idx, _, ratio = sample_pixels(use, cfg.max_label_pixels)
     b, v, u = idx.unbind(1)
     points, segment = obs.points[b, v, u], labels[b, v, u]
