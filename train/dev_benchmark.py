@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import subprocess
 import sys
 import time
@@ -216,6 +217,10 @@ def main(argv: list[str] | None = None) -> int:
         "radians) and add the runs' mean (the README's three-run figures: 0.18 0.2 0.22)",
     )
     args = p.parse_args(argv)
+    if args.trust_regions and not all(v > 0 and math.isfinite(v) for v in args.trust_regions):
+        p.error(f"--trust-regions must be positive radians, got {args.trust_regions}")
+    if args.mode_config is not None and not args.mode_config.is_file():
+        p.error(f"--mode-config: no such file {args.mode_config}")
     recs = sorted(d for d in Path(args.recordings).glob("*") if (d / "groundtruth.npz").is_file())
     if args.limit:
         recs = recs[: args.limit]

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from train.dev_benchmark import HEADER, format_failures, format_row, mean_of_runs
+import pytest
+
+from train.dev_benchmark import HEADER, format_failures, format_row, main, mean_of_runs
 
 
 def test_rows_match_the_header_and_detector_modes_have_no_tracking_failure():
@@ -39,3 +41,18 @@ def test_mean_of_runs_and_rows_of_runs():
     # Rows of a run are named freely; the mode decides the tracking column.
     assert "| 1.3% | n/a |" in format_row("hybrid, mean of 2", mean, "hybrid")
     assert "(every frame)" in format_row("detector @ run 2", mean, "detector")
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--trust-regions", "0.2", "nan"], "--trust-regions must be positive radians"),
+        (["--trust-regions", "-0.1"], "--trust-regions must be positive radians"),
+        (["--mode-config", "no/such.yaml"], "--mode-config: no such file"),
+    ],
+)
+def test_bad_arguments_exit_2_before_running_anything(tmp_path, capsys, args, message):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--recordings", str(tmp_path), "--out", str(tmp_path / "out"), *args])
+    assert exit_info.value.code == 2 and message in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
