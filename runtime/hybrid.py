@@ -28,12 +28,16 @@ pass (a hidden limb on the wrong side after a bad first detection) is questioned
 or ``recheck_every`` (on every n-th passed frame). With ``arm_search_badness`` set, a suspect
 fit whose model hides an arm the forest sees is refined from a few arm poses first, and the
 best-fitting result is kept (:mod:`runtime.hidden_arm_search`).
+
+``labels_from_recording`` replaces the forest's part labels by a synthetic recording's own
+(ground truth) everywhere the hybrid uses labels: a diagnostic of what the forest's label
+errors cost, not a way to run on real data.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -178,6 +182,13 @@ class HybridConfig:
         "the track's share minus this: the signals hardly tell a hidden arm's places apart, "
         "and a refit that fits as well may have moved the arm away from its labels (inf: off)",
     )
+    labels_from_recording: str = field_doc(
+        "",
+        help="directory of a synthetic recording (shared.recording) whose ground-truth part "
+        "labels (labels/) stand in for the forest's, frame by frame, in the detector, the "
+        "label term and the arm search: what the forest's label errors cost (diagnostics; the "
+        "forest is then not loaded). Empty: the forest",
+    )
     hint_from_tracker: bool = field_doc(
         True,
         help="give the detector's IK the last pose as one more start (it is used only if it "
@@ -275,8 +286,19 @@ class HybridEstimator:
         cfg: thresholds.
     """
 
-    def __init__(self, labeler: Labeler, detector: Detector, tracker, cfg: HybridConfig) -> None:
+    def __init__(
+        self,
+        labeler: Labeler | None,
+        detector: Detector,
+        tracker,
+        cfg: HybridConfig,
+        frame_labels: Callable[[int], torch.Tensor] | None = None,
+    ) -> None:
+        if labeler is None and frame_labels is None:
+            raise HybridError("the hybrid needs a labeler (the forest) or frame_labels")
         self.labeler, self.detector, self.tracker, self.cfg = labeler, detector, tracker, cfg
+        self.frame_labels = frame_labels
+        self._frame_index = 0
         self.device = detector.device
         # The tracker's label term needs the forest on every frame, not only the detector's.
         self.labels_every_frame = bool(getattr(getattr(tracker, "cfg", None), "use_labels", False))
@@ -302,7 +324,17 @@ class HybridEstimator:
     def _labels(self, depth: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """The forest's part labels of this frame (H, W), computed once per frame."""
         if self._frame_labels is None:
-            self._frame_labels = labels_from(self.labeler(depth, mask)).to(mask.device)
+            if self.frame_labels is None:
+                labels = labels_from(self.labeler(depth, mask))
+            else:
+                labels = self.frame_labels(self._frame_index)
+                if labels.shape != mask.shape:
+                    raise HybridError(
+                        f"frame {self._frame_index}: labels {tuple(labels.shape)} do not match "
+                        f"the frame {tuple(mask.shape)}"
+                    )
+                labels = labels.to(mask.device).long() * mask
+            self._frame_labels = labels.to(mask.device)
         return self._frame_labels
 
     def _detect(self, depth: torch.Tensor, mask: torch.Tensor, errors: dict) -> PoseEstimate:
@@ -394,6 +426,7 @@ class HybridEstimator:
     def estimate(self, frame, mask) -> PoseEstimate:
         """Pose of the person in ``frame`` (``frame.depth_mm``: (H, W) millimetres)."""
         self._frame_labels = None  # a new frame: its forest labels are not computed yet
+        self._frame_index = frame.index
         depth = depth_frame_to_metres(frame.depth_mm, self.device)
         m = torch.as_tensor(np.asarray(mask) if not torch.is_tensor(mask) else mask)
         m = m.to(device=self.device, dtype=torch.bool)
@@ -474,7 +507,37 @@ def create_estimator(
     from runtime.tracker import Tracker
 
     tcfg = cfg.tracker_config()
-    labeler = load_forest_labeler(model_path, device, intrinsics)
+    labeler = frame_labels = None
+    if cfg.labels_from_recording:
+        frame_labels = recording_labels(Path(cfg.labels_from_recording))
+    else:
+        labeler = load_forest_labeler(model_path, device, intrinsics)
     detector = Detector(body, intrinsics, cfg.detector, tcfg, device=device)
     tracker = Tracker(body, intrinsics, tcfg, device=device)
-    return HybridEstimator(labeler, detector, tracker, cfg)
+    return HybridEstimator(labeler, detector, tracker, cfg, frame_labels)
+
+
+def recording_labels(path: Path) -> Callable[[int], torch.Tensor]:
+    """The ground-truth part labels of the recording at ``path``, by frame index: (H, W)
+    int64 part classes (``shared.labels``).
+
+    Raises:
+        HybridError: not a readable recording, no labels/, or (when called) a frame the
+            recording does not have or cannot read.
+    """
+    from shared.recording import Recording
+
+    try:
+        rec = Recording(path)
+    except (OSError, ValueError) as err:
+        raise HybridError(f"labels_from_recording: {err}") from None
+    if not rec.has_labels:
+        raise HybridError(f"labels_from_recording: {path} has no labels/")
+
+    def read(index: int) -> torch.Tensor:
+        try:
+            return torch.from_numpy(rec.read_labels(index).astype(np.int64))
+        except (OSError, ValueError, IndexError) as err:
+            raise HybridError(f"labels_from_recording, frame {index}: {err}") from None
+
+    return read

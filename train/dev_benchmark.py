@@ -9,7 +9,9 @@ configuration averaged over the recordings (frame-weighted), as a Markdown table
   ``no silhouette``, ``no extra depth``) and ``tracker, default body``;
 - ``hybrid``, ``detector`` and ``shotton`` (no ground truth at run time; need the forest);
   ``hybrid, calibrated body`` is Wei's whole system: the body from ``runtime-calibrate`` on
-  the same person's T-pose recording, the pose from the forest, no ground truth anywhere.
+  the same person's T-pose recording, the pose from the forest, no ground truth anywhere;
+  ``hybrid, ground-truth labels`` is a diagnostic, not a system: the recording's own part
+  labels instead of the forest's (what the forest's label errors cost).
 
 The tracker is chaotic where a limb is hidden: a small change anywhere moves a few frames of
 a far arm across the 20 cm system-failure line, so one run's system failure varies by about
@@ -36,7 +38,9 @@ from .evaluation.evaluate import evaluate, format_failed_frames
 # name -> (mode, body, settings overriding the mode's config). Bodies: "gt" (the rendered
 # body's skeleton), "default" (average adult), "personalized" (runtime-personalize on the same
 # anny body's two calibration views, Helten III), "calibrated" (runtime-calibrate, Wei 6, on
-# the body holding the T-pose: data/dev_calib, forest labels).
+# the body holding the T-pose: data/dev_calib, forest labels). A setting equal to RECORDING
+# is replaced by the recording's directory.
+RECORDING = "<recording>"
 CONFIGS: dict[str, tuple[str, str, dict]] = {
     "tracker": ("tracker", "gt", {}),
     "tracker, no occlusion handling": ("tracker", "gt", {"occlusion_handling": False}),
@@ -48,6 +52,7 @@ CONFIGS: dict[str, tuple[str, str, dict]] = {
     "hybrid": ("hybrid", "gt", {}),
     "hybrid, personalized body": ("hybrid", "personalized", {}),
     "hybrid, calibrated body": ("hybrid", "calibrated", {}),
+    "hybrid, ground-truth labels": ("hybrid", "gt", {"labels_from_recording": RECORDING}),
     "detector": ("detector", "gt", {}),
     "shotton": ("shotton", "gt", {}),
 }
@@ -113,6 +118,7 @@ def run_config(
     import yaml
 
     mode, body, overrides = CONFIGS[name]
+    overrides = {k: str(rec) if v == RECORDING else v for k, v in overrides.items()}
     if mode == "hybrid" and tracker:
         base = load_settings(mode_config) if mode_config else {}
         overrides = {**overrides, "tracker": {**base.get("tracker", {}), **tracker}}

@@ -516,3 +516,63 @@ def test_label_term_gets_the_forest_labels_once_per_frame(scene):
     for i in range(3):
         est.estimate(frame_of(depth, i), mask)
     assert plain.labels_seen == [None, None] and len(labeler_calls) == 1
+
+
+def _write_recording(path, depth, labels, frames, with_labels=True):
+    from shared.recording import RecordingWriter
+
+    depth_mm = (depth.numpy() * 1000).round().astype(np.uint16)
+    with RecordingWriter(path, INTR) as w:
+        for _ in range(frames):
+            w.write_frame(depth_mm, labels.numpy().astype(np.uint8) if with_labels else None)
+
+
+def test_labels_from_a_recording_stand_in_for_the_forest(scene, tmp_path):
+    """A synthetic recording's own labels replace the forest's, frame by frame; no forest is
+    loaded (model_path None) and the detector finds the rendered pose from them."""
+    q, depth, labels, mask = scene
+    _write_recording(tmp_path / "rec", depth, labels, 3)
+    est = create_estimator(
+        model_path=None, body=BODY, intrinsics=INTR,
+        config={"labels_from_recording": str(tmp_path / "rec"),
+                "detector": {"refine_iterations": 2},
+                "tracker": {"use_labels": True, "iterations": 3}},
+    )  # fmt: skip
+    assert est.labeler is None
+    outs = [est.estimate(frame_of(depth, i), mask) for i in range(3)]
+    assert [o.status for o in outs] == ["detected", "tracked", "tracked"]
+    torch.testing.assert_close(est._labels(None, mask), labels * mask)
+    true = named_joint_positions(forward_kinematics(q[None], BODY))[0].numpy()
+    assert np.linalg.norm(outs[-1].joints - true, axis=-1).mean() < 0.03
+    # Each frame reads its own labels: another frame's labels are not reused.
+    seen = []
+    est.frame_labels = lambda i: seen.append(i) or labels
+    est.reset()
+    for i in (5, 6):
+        est.estimate(frame_of(depth, i), mask)
+    assert seen == [5, 6]
+
+
+def test_labels_from_a_recording_errors(scene, tmp_path):
+    q, depth, labels, mask = scene
+
+    def make(path):
+        # The label term reads the labels on every frame, not only on detected ones.
+        config = {"labels_from_recording": str(path), "tracker": {"use_labels": True}}
+        return create_estimator(model_path=None, body=BODY, intrinsics=INTR, config=config)
+
+    with pytest.raises(HybridError, match="no such recording"):
+        make(tmp_path / "missing")
+    _write_recording(tmp_path / "plain", depth, labels, 1, with_labels=False)
+    with pytest.raises(HybridError, match="has no labels"):
+        make(tmp_path / "plain")
+    _write_recording(tmp_path / "rec", depth, labels, 1)
+    est = make(tmp_path / "rec")
+    est.estimate(frame_of(depth, 0), mask)
+    with pytest.raises(HybridError, match="frame 1: .*out of range"):
+        est.estimate(frame_of(depth, 1), mask)
+    est.frame_labels = lambda i: labels[:-1]
+    with pytest.raises(HybridError, match="do not match the frame"):
+        est.estimate(frame_of(depth, 2), mask)
+    with pytest.raises(HybridError, match="labeler"):
+        HybridEstimator(None, est.detector, est.tracker, HybridConfig())

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from train.dev_benchmark import HEADER, format_failures, format_row, main, mean_of_runs
@@ -56,3 +58,24 @@ def test_bad_arguments_exit_2_before_running_anything(tmp_path, capsys, args, me
         main(["--recordings", str(tmp_path), "--out", str(tmp_path / "out"), *args])
     assert exit_info.value.code == 2 and message in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_the_ground_truth_labels_row_reads_each_recording_s_own_labels(tmp_path, monkeypatch):
+    import yaml
+
+    import train.dev_benchmark as bench
+
+    commands = []
+    monkeypatch.setattr(bench, "_run", commands.append)
+    monkeypatch.setattr(bench, "evaluate", lambda rec, result: type("E", (), {"report": {}})())
+    rec, out = tmp_path / "HDM_a", tmp_path / "out" / "hybrid" / "HDM_a"
+    cfg = tmp_path / "hybrid.yaml"
+    cfg.write_text("epsilon1_cm: 3.0\ntracker:\n  use_labels: true\n")
+    bench.run_config(
+        "hybrid, ground-truth labels", rec, out, "forest.npz", "cpu", cfg, {"max_step_rad": 0.2}
+    )
+    cmd = commands[0]
+    written = yaml.safe_load(Path(cmd[cmd.index("--config") + 1]).read_text())
+    assert written["labels_from_recording"] == str(rec)
+    assert written["epsilon1_cm"] == 3.0  # the preset's other settings stay
+    assert written["tracker"] == {"use_labels": True, "max_step_rad": 0.2}
