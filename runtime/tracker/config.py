@@ -133,7 +133,7 @@ class TrackerConfig:
         "body's silhouette is covered to 0.75-0.8): at full weight, closest points on the "
         "unmatched chest and back turned the chest against the pelvis in near-profile views, "
         "the lower back's twist to its 50 degree limit and the far shoulder 25-35 cm off "
-        "(README). The limbs keep sigma_extra_m: theirs carry the large corrections",
+        "(docs/experiments.md). The limbs keep sigma_extra_m: theirs carry the large corrections",
     )
     sigma_silhouette_px: float = field_doc(
         1.0,
