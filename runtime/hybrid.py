@@ -322,7 +322,8 @@ class HybridEstimator:
         return PoseEstimate(q.cpu().double().numpy(), self._joints(q), "tracked", errors)
 
     def _labels(self, depth: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        """The forest's part labels of this frame (H, W), computed once per frame."""
+        """This frame's part labels (H, W): the forest's, or with ``frame_labels`` the
+        recording's own (zero off ``mask``); computed once per frame."""
         if self._frame_labels is None:
             if self.frame_labels is None:
                 labels = labels_from(self.labeler(depth, mask))
@@ -333,7 +334,7 @@ class HybridEstimator:
                         f"frame {self._frame_index}: labels {tuple(labels.shape)} do not match "
                         f"the frame {tuple(mask.shape)}"
                     )
-                labels = labels.to(mask.device).long() * mask
+                labels = labels.to(device=mask.device, dtype=torch.long) * mask
             self._frame_labels = labels.to(mask.device)
         return self._frame_labels
 
