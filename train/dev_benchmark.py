@@ -64,6 +64,7 @@ METRICS = (
     "tracking_failure_pct",
     "detector_frames_pct",
     "system_failure_pct",
+    "system_failure_visible_pct",
     "fps",
 )
 
@@ -182,15 +183,22 @@ def format_row(name: str, agg: dict, mode: str | None = None) -> str:
     )
 
 
-def format_failures(name: str, per_recording: dict[str, dict]) -> str:
+def format_failures(name: str, per_recording: dict[str, dict], agg: dict | None = None) -> str:
     """The system-failure frames of one configuration, one line per recording that has any:
-    frame index and worst joint in cm ("no pose" for frames without one)."""
+    frame index and worst joint in cm ("no pose" for frames without one, "(hidden)" for a
+    joint the camera did not see); then, given the configuration's ``agg``, the rate counting
+    only the joints the camera sees."""
     lines = [f"{name}: system-failure frames (any joint beyond the threshold)"]
     for rec, report in per_recording.items():
         frames = report.get("system_failure_frames") or []
         if frames:
             lines.append(f"  {rec}: {format_failed_frames(frames)}")
-    return "\n".join(lines if len(lines) > 1 else lines + ["  none"])
+    if len(lines) == 1:
+        lines.append("  none")
+    seen = (agg or {}).get("system_failure_visible_pct")
+    if seen is not None:
+        lines.append(f"  counting only the joints the camera sees: {seen:.1f}%")
+    return "\n".join(lines)
 
 
 HEADER = (
@@ -265,7 +273,7 @@ def main(argv: list[str] | None = None) -> int:
             print(format_row(row, results[row]["mean"], CONFIGS[name][0]), flush=True)
     for row, res in results.items():
         if "per_recording" in res:
-            print("\n" + format_failures(row, res["per_recording"]))
+            print("\n" + format_failures(row, res["per_recording"], res["mean"]))
     Path(args.out).mkdir(parents=True, exist_ok=True)
     (Path(args.out) / "report.json").write_text(json.dumps(results, indent=1))
     print(f"\nfull report: {Path(args.out) / 'report.json'}")

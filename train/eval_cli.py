@@ -65,6 +65,8 @@ def format_table(ev: Evaluation) -> str:
         f" (detector frames, the first included: {_fmt(r['detector_frames_pct'], ' %', 2)})",
         f"system failure        {_fmt(r['system_failure_pct'], ' %', 2)}"
         + (f" (frames {format_failed_frames(failed, 12)})" if failed else ""),
+        f"  seen joints only    {_fmt(r.get('system_failure_visible_pct'), ' %', 2)}"
+        + ("" if r.get("system_failure_visible_pct") is not None else " (no part labels)"),
         f"processing rate       {_fmt(r['fps'], ' frames/s')}",
         f"offset-norm frames    {r['offset_frame']}",
     ]

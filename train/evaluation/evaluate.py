@@ -25,6 +25,7 @@ from shared.recording import Recording
 
 from . import metrics as m
 from .result_io import STATUSES, ResultFileError, TrackingResult, load_result
+from .visibility import recording_joint_visibility
 
 __all__ = [
     "EvalConfig",
@@ -96,8 +97,9 @@ def _per_joint(names, values, scale: float = 1.0) -> dict:
     return {n: _finite(float(v) * scale) for n, v in zip(names, values)}
 
 
-def _failed_frames(errors: np.ndarray, failed: np.ndarray, names) -> list[dict]:
-    """Each failed frame with its worst joint and that joint's error (None without a pose)."""
+def _failed_frames(errors: np.ndarray, failed: np.ndarray, names, visible=None) -> list[dict]:
+    """Each failed frame with its worst joint and that joint's error (None without a pose),
+    and, given ``visible`` (F, J) bool, whether the camera saw that joint."""
     out = []
     for f in np.flatnonzero(failed):
         row = errors[f]
@@ -106,16 +108,20 @@ def _failed_frames(errors: np.ndarray, failed: np.ndarray, names) -> list[dict]:
             out.append(
                 {"frame": int(f), "worst_joint": names[j], "error_mm": _finite(row[j] * 1e3)}
             )
+            if visible is not None:
+                out[-1]["worst_joint_visible"] = bool(visible[f, j])
         else:
             out.append({"frame": int(f), "worst_joint": None, "error_mm": None})
     return out
 
 
 def format_failed_frames(frames: list[dict], limit: int | None = None) -> str:
-    """``system_failure_frames`` as text: "60 l_wrist 21 cm, 7 no pose", at most ``limit``
-    of them (then "... and N more")."""
+    """``system_failure_frames`` as text: "60 l_wrist 21 cm (hidden), 7 no pose", at most
+    ``limit`` of them (then "... and N more"); "(hidden)": the camera did not see that joint."""
+    hidden = {False: " (hidden)"}
     shown = [
         f"{f['frame']} {f['worst_joint']} {f['error_mm'] / 10:.0f} cm"
+        f"{hidden.get(f.get('worst_joint_visible'), '')}"
         if f["worst_joint"] else f"{f['frame']} no pose"
         for f in frames[:limit]
     ]  # fmt: skip
@@ -192,6 +198,10 @@ def evaluate(
         notes.append("summary.json is missing or not marked complete (interrupted run?)")
 
     failures = m.system_failures(errors, cfg.failure_threshold_m)
+    visible = recording_joint_visibility(rec, names, n_eval)
+    failures_seen = (
+        m.system_failures(errors, cfg.failure_threshold_m, visible) if visible is not None else None
+    )
     per_joint = m.per_joint_error_mm(errors)
     per_joint_norm = m.per_joint_error_mm(norm_errors)
     frame_mm = m.per_frame_error_mm(errors)
@@ -215,7 +225,10 @@ def evaluate(
         "tracking_failure_pct": _finite(m.tracking_failure_pct(result.status)),
         "detector_frames_pct": _finite(m.detector_frames_pct(result.status)),
         "system_failure_pct": _finite(m.percent(failures)),
-        "system_failure_frames": _failed_frames(errors, failures, names),
+        "system_failure_frames": _failed_frames(errors, failures, names, visible),
+        "system_failure_visible_pct": (
+            _finite(m.percent(failures_seen)) if failures_seen is not None else None
+        ),
         "status_counts": {s: int((result.status == s).sum()) for s in STATUSES},
         "fps": _finite(result.summary.get("fps") or math.nan),
         "stream_fps": _finite(result.summary.get("stream_fps") or rec.fps),

@@ -32,7 +32,10 @@ Definitions (F frames, J joints; a missing prediction is NaN and is never "corre
   truth we label a frame failed when it has no pose, or when any of its joints is more than
   ``failure_threshold_m`` (default 20 cm, twice the 10 cm "perfectly tracked" tolerance, so
   that anatomical offsets and noise never trip it) from the ground truth: one limb visibly in
-  the wrong place is what a person marking failures would flag.
+  the wrong place is what a person marking failures would flag. Where the recording has
+  part labels, ``system_failure_visible_pct`` counts only the joints the camera sees
+  (:mod:`train.evaluation.visibility`; Wei 7.4: a segment out of view "is often ambiguous and
+  cannot be reliably estimated"), as a diagnostic beside the rate over all joints.
 * **Surface error, 97% quantile** (Helten IV-C "Surface Tracking Error"): per frame, the 97%
   quantile over all foreground depth points of the distance to the tracked body surface
   (the tracker reports it per frame as ``errors["surface_error_q97_mm"]``); the sequence value
@@ -159,16 +162,23 @@ def per_joint_precision_at(errors: np.ndarray, threshold_m: float = 0.10) -> np.
         return hits / np.where(finite.sum(0) > 0, finite.sum(0), np.nan)
 
 
-def system_failures(errors: np.ndarray, failure_threshold_m: float = 0.20) -> np.ndarray:
+def system_failures(
+    errors: np.ndarray, failure_threshold_m: float = 0.20, counted: np.ndarray | None = None
+) -> np.ndarray:
     """Failed frames (F,) bool: no joint estimated, or any joint beyond the threshold.
 
     Args:
         errors: (F, J) joint errors, NaN rows for frames without a pose.
+        counted: (F, J) bool, the joints whose errors count (e.g. only those the camera
+            sees, :mod:`train.evaluation.visibility`); None: all. A frame without a pose
+            fails either way.
     """
     errors = np.asarray(errors)
     no_pose = ~np.isfinite(errors).any(1)
-    too_far = (np.where(np.isfinite(errors), errors, 0.0) > failure_threshold_m).any(1)
-    return no_pose | too_far
+    far = np.where(np.isfinite(errors), errors, 0.0) > failure_threshold_m
+    if counted is not None:
+        far &= np.asarray(counted, dtype=bool)
+    return no_pose | far.any(1)
 
 
 def initializations(status: np.ndarray) -> np.ndarray:

@@ -1,0 +1,117 @@
+"""Which ground-truth joints the camera sees, from a synthetic recording's part labels.
+
+One depth camera cannot place a limb it does not see: "when a bone segment is not visible to
+the current camera, its 3D joint angle value is often ambiguous and cannot be reliably
+estimated" (Wei 2012, 7.4). The system failure rate counts every joint, seen or not; this
+module lets the evaluation say which failed frames failed on a joint that was in view.
+
+A joint is *visible* in a frame when at least ``min_pixels`` pixels labelled as one of the
+parts meeting at it (:data:`JOINT_PARTS`), with a depth reading, lie within the joint's radius
+of it in 3D. The radius spans the flesh between the joint centre and the surface the camera
+sees: 10 cm at the limbs' joints (upper arm 5-6 cm, forearm 3.6 cm, thigh about 9 cm on the
+dev bodies), 15 cm at the hips (inside the thigh's top) and 20 cm at the trunk's joints (the
+spine lies some 5 cm behind the middle of a trunk 25 cm deep).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from shared.camera import Intrinsics
+from shared.labels import PART_NAMES
+
+__all__ = ["JOINT_PARTS", "visible_joints", "recording_joint_visibility"]
+
+_LIMB_M, _HIP_M, _TRUNK_M = 0.10, 0.15, 0.20
+
+
+def _sided(parts: tuple[str, ...], radius: float) -> dict[str, tuple[tuple[str, ...], float]]:
+    return {side: (tuple(f"{side}_{p}" for p in parts), radius) for side in ("l", "r")}
+
+
+def _joint_parts() -> dict[str, tuple[tuple[str, ...], float]]:
+    table = {
+        "head": (("head", "neck"), _TRUNK_M),
+        "neck": (("neck", "chest", "l_clavicle", "r_clavicle"), _TRUNK_M),
+        "spine": (("abdomen", "chest"), _TRUNK_M),
+        "pelvis": (("pelvis", "abdomen"), _TRUNK_M),
+    }
+    limbs = {
+        "shoulder": (("clavicle", "upper_arm"), _LIMB_M),
+        "elbow": (("upper_arm", "forearm"), _LIMB_M),
+        "wrist": (("forearm",), _LIMB_M),
+        "hip": (("thigh_upper",), _HIP_M),
+        "knee": (("thigh_lower", "shank_upper"), _LIMB_M),
+        "ankle": (("shank_lower",), _LIMB_M),
+    }
+    for joint, (parts, radius) in limbs.items():
+        for side, entry in _sided(parts, radius).items():
+            table[f"{side}_{joint}"] = entry
+    return table
+
+
+# Joint name -> (the part labels that meet at it, radius in metres).
+JOINT_PARTS: dict[str, tuple[tuple[str, ...], float]] = _joint_parts()
+
+
+def visible_joints(
+    depth_m: np.ndarray,
+    labels: np.ndarray,
+    joints: np.ndarray,
+    joint_names: tuple[str, ...] | list[str],
+    intr: Intrinsics,
+    min_pixels: int = 5,
+) -> np.ndarray:
+    """Which joints one frame shows (module docstring).
+
+    Args:
+        depth_m: (H, W) metres, 0 = no reading; labels: (H, W) part labels
+            (``shared.labels.PART_NAMES``); joints: (J, 3) ground-truth joints, camera frame.
+        joint_names: (J,) names; a name not in :data:`JOINT_PARTS` counts as visible.
+        intr: the recording's intrinsics; min_pixels: labelled pixels needed near a joint.
+    Returns:
+        (J,) bool.
+    """
+    depth = np.asarray(depth_m, dtype=np.float64)
+    labels = np.asarray(labels)
+    if depth.shape != labels.shape:
+        raise ValueError(f"depth {depth.shape} and labels {labels.shape} differ in size")
+    v, u = np.nonzero((depth > 0) & (labels > 0))
+    z = depth[v, u]
+    points = np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], -1)
+    part = labels[v, u]
+    joints = np.asarray(joints, dtype=np.float64)
+    out = np.ones(len(joint_names), dtype=bool)
+    for j, name in enumerate(joint_names):
+        if name not in JOINT_PARTS:
+            continue
+        parts, radius = JOINT_PARTS[name]
+        ids = [PART_NAMES.index(p) for p in parts]
+        near = np.linalg.norm(points[np.isin(part, ids)] - joints[j], axis=-1) < radius
+        out[j] = int(near.sum()) >= min_pixels
+    return out
+
+
+def recording_joint_visibility(
+    recording, joint_names: tuple[str, ...] | list[str], frames: int, min_pixels: int = 5
+) -> np.ndarray | None:
+    """(F, J) bool joint visibility of a recording's first ``frames`` frames, or None when it
+    has no part labels or no ground-truth joints of those names.
+
+    Args:
+        recording: a :class:`shared.recording.Recording`.
+    """
+    if not recording.has_labels or not recording.has_groundtruth:
+        return None
+    gt = recording.groundtruth()
+    gt_names = [str(n) for n in gt["joint_names"]]
+    if not all(n in gt_names for n in joint_names):
+        return None
+    joints = np.asarray(gt["joints"], dtype=np.float64)[:, [gt_names.index(n) for n in joint_names]]
+    return np.stack([
+        visible_joints(
+            recording.read_depth(f), recording.read_labels(f), joints[f], joint_names,
+            recording.intrinsics, min_pixels,
+        )
+        for f in range(frames)
+    ])  # fmt: skip
