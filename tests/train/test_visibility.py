@@ -109,7 +109,7 @@ def labelled_recording(tmp_path):
 def test_evaluation_reports_failures_on_seen_joints(labelled_recording, tmp_path, capsys):
     rec, q, joints, body = labelled_recording
     wrist = sk.JOINT_NAMES.index("l_wrist")
-    vis = recording_joint_visibility(Recording(rec), sk.JOINT_NAMES, FRAMES)
+    vis = recording_joint_visibility(Recording(rec), joints, sk.JOINT_NAMES)
     np.testing.assert_array_equal(vis[:, wrist], [True, True, False, False])
     pred = joints.copy()
     pred[1:3, wrist, 0] += 0.3  # the wrist 30 cm off in frame 1 (seen) and 2 (hidden)
@@ -134,4 +134,9 @@ def test_recordings_without_labels_have_no_seen_joints_rate(tmp_path):
     with RecordingWriter(tmp_path / "rec", CAM, fps=30.0, source="test") as w:
         w.write_frame(np.zeros((CAM.height, CAM.width), np.uint16))
         w.write_groundtruth(np.zeros((1, 16, 3)), sk.JOINT_NAMES, q=q)
-    assert recording_joint_visibility(Recording(tmp_path / "rec"), sk.JOINT_NAMES, 1) is None
+    assert (
+        recording_joint_visibility(
+            Recording(tmp_path / "rec"), np.zeros((1, 16, 3)), sk.JOINT_NAMES
+        )
+        is None
+    )

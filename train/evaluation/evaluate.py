@@ -118,10 +118,9 @@ def _failed_frames(errors: np.ndarray, failed: np.ndarray, names, visible=None) 
 def format_failed_frames(frames: list[dict], limit: int | None = None) -> str:
     """``system_failure_frames`` as text: "60 l_wrist 21 cm (hidden), 7 no pose", at most
     ``limit`` of them (then "... and N more"); "(hidden)": the camera did not see that joint."""
-    hidden = {False: " (hidden)"}
     shown = [
         f"{f['frame']} {f['worst_joint']} {f['error_mm'] / 10:.0f} cm"
-        f"{hidden.get(f.get('worst_joint_visible'), '')}"
+        f"{' (hidden)' if f.get('worst_joint_visible') is False else ''}"
         if f["worst_joint"] else f"{f['frame']} no pose"
         for f in frames[:limit]
     ]  # fmt: skip
@@ -198,7 +197,7 @@ def evaluate(
         notes.append("summary.json is missing or not marked complete (interrupted run?)")
 
     failures = m.system_failures(errors, cfg.failure_threshold_m)
-    visible = recording_joint_visibility(rec, names, n_eval)
+    visible = recording_joint_visibility(rec, gt_joints, names)
     failures_seen = (
         m.system_failures(errors, cfg.failure_threshold_m, visible) if visible is not None else None
     )

@@ -25,10 +25,6 @@ __all__ = ["JOINT_PARTS", "visible_joints", "recording_joint_visibility"]
 _LIMB_M, _HIP_M, _TRUNK_M = 0.10, 0.15, 0.20
 
 
-def _sided(parts: tuple[str, ...], radius: float) -> dict[str, tuple[tuple[str, ...], float]]:
-    return {side: (tuple(f"{side}_{p}" for p in parts), radius) for side in ("l", "r")}
-
-
 def _joint_parts() -> dict[str, tuple[tuple[str, ...], float]]:
     table = {
         "head": (("head", "neck"), _TRUNK_M),
@@ -45,8 +41,8 @@ def _joint_parts() -> dict[str, tuple[tuple[str, ...], float]]:
         "ankle": (("shank_lower",), _LIMB_M),
     }
     for joint, (parts, radius) in limbs.items():
-        for side, entry in _sided(parts, radius).items():
-            table[f"{side}_{joint}"] = entry
+        for side in "lr":
+            table[f"{side}_{joint}"] = (tuple(f"{side}_{p}" for p in parts), radius)
     return table
 
 
@@ -93,25 +89,20 @@ def visible_joints(
 
 
 def recording_joint_visibility(
-    recording, joint_names: tuple[str, ...] | list[str], frames: int, min_pixels: int = 5
+    recording, joints: np.ndarray, joint_names: tuple[str, ...] | list[str], min_pixels: int = 5
 ) -> np.ndarray | None:
-    """(F, J) bool joint visibility of a recording's first ``frames`` frames, or None when it
-    has no part labels or no ground-truth joints of those names.
+    """(F, J) bool visibility of the ground-truth ``joints`` (F, J, 3) in a recording's first F
+    frames, or None when it has no part labels.
 
     Args:
-        recording: a :class:`shared.recording.Recording`.
+        recording: a :class:`shared.recording.Recording` (its frames are read here).
     """
-    if not recording.has_labels or not recording.has_groundtruth:
+    if not recording.has_labels:
         return None
-    gt = recording.groundtruth()
-    gt_names = [str(n) for n in gt["joint_names"]]
-    if not all(n in gt_names for n in joint_names):
-        return None
-    joints = np.asarray(gt["joints"], dtype=np.float64)[:, [gt_names.index(n) for n in joint_names]]
     return np.stack([
         visible_joints(
             recording.read_depth(f), recording.read_labels(f), joints[f], joint_names,
             recording.intrinsics, min_pixels,
         )
-        for f in range(frames)
+        for f in range(len(joints))
     ])  # fmt: skip
