@@ -4,7 +4,7 @@ PY := .venv/bin/python
 SETUP_STAMP := .venv/.setup-stamp
 export PYTHONUNBUFFERED := 1
 
-.PHONY: setup demo test lint format bench clean synth dev-recordings train-forest train-forest-eval \
+.PHONY: setup demo test lint format bench clean synth dev-recordings dev-recordings-all train-forest train-forest-eval \
 	synth-calib train-forest-calib
 
 setup: ## create .venv, install system packages (root), torch and the project with all extras
@@ -44,6 +44,9 @@ synth: $(SETUP_STAMP) ## the ~20k-frame training set into data/synth (resumable)
 
 dev-recordings: $(SETUP_STAMP) ## evaluation recordings from the HDM05 dev clips into data/dev
 	$(PY) -m train.dev_recordings --out data/dev
+
+dev-recordings-all: $(SETUP_STAMP) ## every tracked dev take (39 clips, 2,433 frames) into data/dev_all
+	$(PY) -m train.dev_recordings --all-clips --out data/dev_all
 
 train-forest: $(SETUP_STAMP) ## the body-part forest from data/synth into models/forest.npz
 	$(PY) -m train.forest.train_cli --data data/synth --out models/forest.npz --config configs/forest.yaml

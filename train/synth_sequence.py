@@ -32,7 +32,11 @@ from .synth_frames import (
     render_frame,
 )
 
-__all__ = ["sequence_poses", "render_sequence"]
+__all__ = ["OutOfRangeError", "sequence_poses", "render_sequence"]
+
+
+class OutOfRangeError(RuntimeError):
+    """No camera keeps the whole motion within the sensor's range."""
 
 
 def sequence_poses(
@@ -72,8 +76,13 @@ def render_sequence(
     cfg: SceneConfig | None = None,
     front_only: bool = True,
     progress: bool = False,
+    require_in_range: bool = False,
 ) -> Path:
-    """Render ``motion`` into the recording directory ``out``; returns its path."""
+    """Render ``motion`` into the recording directory ``out``; returns its path.
+
+    ``require_in_range``: raise :class:`OutOfRangeError` (writing nothing) when no sampled
+    camera keeps the whole motion within the sensor's range, instead of rendering it anyway.
+    """
     from .body_posing import skeleton_body_of
     from .render import DepthLabelRenderer
     from .sensor_noise import random_background_scene
@@ -112,6 +121,10 @@ def render_sequence(
             max_depth=in_range,
         )  # fmt: skip
         if view is not None:
+            if attempt >= 16 and require_in_range:
+                raise OutOfRangeError(
+                    f"{motion}: no camera keeps the whole motion within {max_depth} m"
+                )
             if attempt >= 16:
                 warnings.warn(
                     f"{motion}: no camera keeps the whole motion within {max_depth} m; parts of "

@@ -126,6 +126,30 @@ def test_sequence_out_of_sensor_range_warns_and_still_renders(tmp_path):
     assert len(Recording(out)) == 2
 
 
+def test_sequence_out_of_sensor_range_raises_when_required(tmp_path):
+    _need_egl()
+    from train.synth_frames import SceneConfig
+    from train.synth_sequence import OutOfRangeError, render_sequence
+
+    near = SceneConfig()
+    near = replace(near, noise=replace(near.noise, max_depth_m=1.0))
+    with pytest.raises(OutOfRangeError, match="within 1.0 m"):
+        render_sequence("wave", tmp_path / "rec", frames=2, seed=2, cfg=near, require_in_range=True)
+    assert not (tmp_path / "rec").exists()
+
+
+def test_all_dev_clips_keeps_tracked_classes_in_order(tmp_path):
+    from train.dev_recordings import all_dev_clips
+
+    names = ["HDM_mm_squat1Reps_038_120.amc", "HDM_mm_lieDownFloor_015_120.amc",
+             "HDM_mm_depositFloorR_019_120.amc", "HDM_mm.asf"]  # fmt: skip
+    for n in names:
+        (tmp_path / n).write_text("")
+    assert all_dev_clips(tmp_path) == [
+        "HDM_mm_depositFloorR_019_120.amc", "HDM_mm_squat1Reps_038_120.amc"
+    ]  # fmt: skip
+
+
 def test_sequence_mode_rejects_unknown_motion(tmp_path):
     from train.synth_cli import main
 
