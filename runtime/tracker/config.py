@@ -148,15 +148,6 @@ class TrackerConfig:
         "labelled pixels farther than this from their limb's surface are ignored (m): a "
         "left/right swap of the forest must not drag a limb across the body",
     )
-    hidden_arm_share: float = field_doc(
-        0.0,
-        "hidden-arm prior (not in Wei; runtime.tracker.hidden_arm_prior): an arm the forest "
-        "labels on fewer than this share of the person's pixels is pulled towards a relaxed "
-        "pose; needs the frame's labels (0: off)",
-    )
-    sigma_hidden_arm_rad: float = field_doc(
-        0.3, "noise scale of a hidden arm's pull towards the relaxed pose (rad)"
-    )
     sigma_prior_rad: float = field_doc(
         0.05, "prior noise scale of joint angles and root rotation (rad per frame^2)"
     )

@@ -41,7 +41,6 @@ from .gauss_newton import (
     predicted_decrease,
     solve_step,
 )
-from .hidden_arm_prior import arm_label_shares, hidden_arm_weights, rest_pull_system
 from .label_term import label_rows
 from .observation import Observation, automatic_factor, observe, person_window
 from .prior_term import predict_pose, prior_system
@@ -127,10 +126,6 @@ def fit_frames(
     geom = segment_geometry(body, q)
     iterations = 0
     last = None
-    hidden_w2 = None
-    if cfg.hidden_arm_share > 0 and obs.labels is not None:
-        shares = arm_label_shares(obs.labels, obs.silhouette)
-        hidden_w2 = hidden_arm_weights(shares, cfg.hidden_arm_share, cfg.sigma_hidden_arm_rad, q)
     for _ in range(cfg.iterations):
         render = render_body(q, body, obs.intr, geom=geom, details=False)
         regions = classify(render, obs, cfg.depth_gate_m, cfg.occlusion_handling)
@@ -151,10 +146,6 @@ def fit_frames(
             grad = q.new_zeros(B, sk.NUM_DOFS, dtype=torch.float64)
         if cfg.use_prior:
             diag, rhs, _ = prior_system(q, q_pred, cfg.sigma_prior_rad, cfg.sigma_prior_m)
-            hess = hess + torch.diag_embed(diag.double())
-            grad = grad + rhs.double()
-        if hidden_w2 is not None:
-            diag, rhs = rest_pull_system(q, hidden_w2)
             hess = hess + torch.diag_embed(diag.double())
             grad = grad + rhs.double()
         dq = limit_step(solve_step(hess, grad, q, cfg.damping, cfg.use_limits), cfg.max_step_rad)
