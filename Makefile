@@ -45,7 +45,7 @@ synth: $(SETUP_STAMP) ## the ~20k-frame training set into data/synth (resumable)
 dev-recordings: $(SETUP_STAMP) ## evaluation recordings from the HDM05 dev clips into data/dev
 	$(PY) -m train.dev_recordings --out data/dev
 
-dev-recordings-all: $(SETUP_STAMP) ## every tracked dev take (39 clips, 2,433 frames) into data/dev_all
+dev-recordings-all: $(SETUP_STAMP) ## every tracked dev take (39 clips, 2,433 frames) into data/dev_all, data/dev_all_calib
 	$(PY) -m train.dev_recordings --all-clips --out data/dev_all
 
 train-forest: $(SETUP_STAMP) ## the body-part forest from data/synth into models/forest.npz

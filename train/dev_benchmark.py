@@ -91,7 +91,9 @@ def body_file(kind: str, rec: Path, bodies: Path, model: str) -> Path:
         _run([py, "-m", "runtime.personalize_cli", "--input", str(out / "views"),
               "--output", str(path)])  # fmt: skip
     elif kind == "calibrated":
-        calib = rec.parent.parent / "dev_calib" / rec.name
+        # Beside the recordings' folder: data/dev -> data/dev_calib, data/dev_all ->
+        # data/dev_all_calib (the same clip names hold other bodies there).
+        calib = rec.parent.with_name(rec.parent.name + "_calib") / rec.name
         if not calib.is_dir():
             raise RuntimeError(f"{calib}: no calibration recording (run make dev-recordings)")
         # The recording is known to hold the pose: skip the automatic pose check. Labels come

@@ -58,12 +58,13 @@ def main(argv: list[str] | None = None) -> int:
         "--all-clips",
         action="store_true",
         help="every dev take of the tracked motion classes, skipping takes no camera keeps "
-        "within the sensor's range (no calibration recordings)",
+        "within the sensor's range",
     )
     p.add_argument(
         "--calibration-out",
-        default="data/dev_calib",
-        help="also render each dev body holding the calibration T-pose (1 s) here",
+        default=None,
+        help="also render each dev body holding the calibration T-pose (1 s) here (default: "
+        "OUT_calib, where the dev benchmark looks for it; '' for none)",
     )
     args = p.parse_args(argv)
     folder = Path(args.clips)
@@ -72,6 +73,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     clips = all_dev_clips(folder) if args.all_clips else list(DEV_CLIPS)
     clips = clips[: args.count]
+    calibration_out = f"{args.out}_calib" if args.calibration_out is None else args.calibration_out
     for seed, name in enumerate(clips):
         out = Path(args.out) / Path(name).stem
         if (out / "groundtruth.npz").is_file():
@@ -85,12 +87,12 @@ def main(argv: list[str] | None = None) -> int:
             print(f"skipped: {e}")
             continue
         print(f"wrote {out}")
-    if args.all_clips:
-        return 0
     for seed, name in enumerate(clips):
         # Same seed -> same anny body as the dev recording of that name.
-        out = Path(args.calibration_out) / Path(name).stem
-        if args.calibration_out and not (out / "groundtruth.npz").is_file():
+        out = Path(calibration_out) / Path(name).stem
+        if not (Path(args.out) / Path(name).stem / "groundtruth.npz").is_file():
+            continue  # a take skipped above
+        if calibration_out and not (out / "groundtruth.npz").is_file():
             render_sequence("t_pose", out, frames=30, seed=100 + seed, overwrite=True)
             print(f"wrote {out}")
     return 0

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from train.dev_benchmark import HEADER, format_failures, format_row, main, mean_of_runs
+from train.dev_benchmark import HEADER, body_file, format_failures, format_row, main, mean_of_runs
 
 
 def test_rows_match_the_header_and_detector_modes_have_no_tracking_failure():
@@ -79,3 +79,13 @@ def test_the_ground_truth_labels_row_reads_each_recording_s_own_labels(tmp_path,
     assert written["labels_from_recording"] == str(rec)
     assert written["epsilon1_cm"] == 3.0  # the preset's other settings stay
     assert written["tracker"] == {"use_labels": True, "max_step_rad": 0.2}
+
+
+def test_calibration_recordings_are_looked_up_beside_the_recordings_folder(tmp_path):
+    """data/dev_all's clips hold other bodies than data/dev's of the same name: each set's
+    calibration recordings live in its own OUT_calib folder."""
+    rec = tmp_path / "dev_all" / "HDM_mm_squat1Reps_037_120"
+    rec.mkdir(parents=True)
+    (tmp_path / "dev_calib" / rec.name).mkdir(parents=True)  # the other set's: not used
+    with pytest.raises(RuntimeError, match=r"dev_all_calib/HDM_mm_squat1Reps_037_120"):
+        body_file("calibrated", rec, tmp_path / "bodies", "forest.npz")
