@@ -6,8 +6,8 @@ by the clip's position in the list), a frontal camera, floor/background and Kine
 same bodies also hold the calibration T-pose for one second (``--calibration-out``), for
 evaluating skeleton calibration and personalization against the known body.
 
-``--all-clips`` renders every dev take of the tracked motion classes instead (about 2,300
-frames against the default set's 545), for failure rates too small for ten clips to measure:
+``--all-clips`` renders every dev take of the tracked motion classes instead (39 takes, 2,433
+frames, against the default set's 545), for failure rates too small for ten clips to measure:
 one failed frame of the default set moves the mean system failure by 0.1-0.5 points.
 """
 
