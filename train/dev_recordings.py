@@ -74,25 +74,26 @@ def main(argv: list[str] | None = None) -> int:
     clips = all_dev_clips(folder) if args.all_clips else list(DEV_CLIPS)
     clips = clips[: args.count]
     calibration_out = f"{args.out}_calib" if args.calibration_out is None else args.calibration_out
+    recorded = []  # (seed, name) of the takes that have a recording
     for seed, name in enumerate(clips):
         out = Path(args.out) / Path(name).stem
-        if (out / "groundtruth.npz").is_file():
-            continue
-        try:
-            render_sequence(
-                str(folder / name), out, frames=args.frames, seed=100 + seed, overwrite=True,
-                require_in_range=args.all_clips,
-            )  # fmt: skip
-        except OutOfRangeError as e:
-            print(f"skipped: {e}")
-            continue
-        print(f"wrote {out}")
-    for seed, name in enumerate(clips):
+        if not (out / "groundtruth.npz").is_file():
+            try:
+                render_sequence(
+                    str(folder / name), out, frames=args.frames, seed=100 + seed,
+                    overwrite=True, require_in_range=args.all_clips,
+                )  # fmt: skip
+            except OutOfRangeError as e:
+                print(f"skipped: {e}")
+                continue
+            print(f"wrote {out}")
+        recorded.append((seed, name))
+    if not calibration_out:
+        return 0
+    for seed, name in recorded:
         # Same seed -> same anny body as the dev recording of that name.
         out = Path(calibration_out) / Path(name).stem
-        if not (Path(args.out) / Path(name).stem / "groundtruth.npz").is_file():
-            continue  # a take skipped above
-        if calibration_out and not (out / "groundtruth.npz").is_file():
+        if not (out / "groundtruth.npz").is_file():
             render_sequence("t_pose", out, frames=30, seed=100 + seed, overwrite=True)
             print(f"wrote {out}")
     return 0
