@@ -24,10 +24,12 @@ from shared.labels import PART_NAMES
 
 __all__ = [
     "AGREEMENT_MARGIN_M",
+    "CONFLICT_MARGIN_M",
     "ARM_FLEXION_DEG",
     "ELBOW_FLEXION_DEG",
     "arm_candidates",
     "arm_label_agreement",
+    "arm_label_conflict",
     "arm_pixel_fraction",
     "arm_pixels",
     "near_other_arm",
@@ -41,6 +43,10 @@ ELBOW_FLEXION_DEG: tuple[float, ...] = (0.0, 90.0)
 # A forest arm pixel counts as on the model's arm within this distance of its surface: about
 # a forearm's radius, so labels on the torso next to the arm do not count.
 AGREEMENT_MARGIN_M = 0.05
+
+# An observed point belongs to the model's arm within this distance of its surface (and
+# nearer to it than to any other part): the depth term's points the arm explains.
+CONFLICT_MARGIN_M = 0.03
 
 # Forest classes of each arm: upper arm, forearm.
 _ARM_CLASSES = {
@@ -91,6 +97,40 @@ def arm_label_agreement(
     signed = segment_distances(flat, kin, body.to(dtype=ref.dtype, device=ref.device))
     near = signed[..., segs].min(-1).values < margin_m
     return near.to(ref.dtype).mean(-1)
+
+
+def arm_label_conflict(
+    points: torch.Tensor,
+    labels: torch.Tensor,
+    kin: Kinematics,
+    body: BodyShape,
+    side: str,
+    margin_m: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """How much of what the ``side`` arm explains the forest calls something else.
+
+    Of the person's ``points`` (N, 3), with forest ``labels`` (N,) int, those whose nearest
+    model part in the pose ``kin`` (batch B) is that arm and that lie within ``margin_m`` of
+    its surface are the arm's points; the share of them the forest does not label as that
+    arm, and their number, are returned: ((B,), (B,)), the share NaN where the arm has none.
+
+    A track can lay a hidden or lost arm on a leg or the torso (kick: the forearm along the
+    kicking thigh, 40-60 cm from the real one): the depth data fit, the failure signals
+    pass, and only the forest, which labels those pixels leg or torso, says the arm is not
+    there (dev takes: the forest labels 80-95% of a well placed visible arm's points as
+    that arm).
+    """
+    segs = torch.as_tensor(list(LIMB_SEGMENTS[0 if side == "l" else 1]), device=points.device)
+    ref = kin.origins
+    flat = points.to(ref).expand(ref.shape[0], -1, -1)
+    signed = segment_distances(flat, kin, body.to(dtype=ref.dtype, device=ref.device))
+    best = signed.min(-1)
+    own = torch.isin(best.indices, segs) & (best.values < margin_m)  # (B, N)
+    upper, fore = _ARM_CLASSES[side]
+    other = ((labels != upper) & (labels != fore)).to(points.device)
+    count = own.sum(-1)
+    share = (own & other).sum(-1).to(ref.dtype) / count.to(ref.dtype)
+    return share, count
 
 
 def arm_pixel_fraction(

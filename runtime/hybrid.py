@@ -57,8 +57,10 @@ from runtime.detector import (
 from runtime.estimator import PoseEstimate, lost
 from runtime.hidden_arm_search import (
     AGREEMENT_MARGIN_M,
+    CONFLICT_MARGIN_M,
     arm_candidates,
     arm_label_agreement,
+    arm_label_conflict,
     arm_pixel_fraction,
     arm_pixels,
     near_other_arm,
@@ -182,6 +184,21 @@ class HybridConfig:
         "the track's share minus this: the signals hardly tell a hidden arm's places apart, "
         "and a refit that fits as well may have moved the arm away from its labels (inf: off)",
     )
+    misplaced_arm_conflict: float = field_doc(
+        float("inf"),
+        help="with arm_search_badness, an arm the model shows is searched too when the forest "
+        "labels more than this share of the person's points it explains (nearest to it, "
+        "within 3 cm) as something else: a lost arm laid on a leg or the torso fits the depth "
+        "data and passes every test (runtime.hidden_arm_search.arm_label_conflict; inf: off)",
+    )
+    misplaced_arm_points: int = field_doc(
+        20, help="... and it explains at least this many of the person's points"
+    )
+    misplaced_arm_relief: float = field_doc(
+        0.5,
+        help="a misplaced arm's refit is taken only if the number of its points the forest "
+        "labels as something else is at most this fraction of the track's (0-1)",
+    )
     labels_from_recording: str = field_doc(
         "",
         help="directory of a synthetic recording (shared.recording) whose ground-truth part "
@@ -218,15 +235,21 @@ class HybridConfig:
             and self.arm_agreement_slack >= 0
             and 0 <= self.partial_arm_visibility
             and 0 <= self.partial_arm_agreement <= 1
+            and not math.isnan(self.misplaced_arm_conflict)
+            and self.misplaced_arm_points >= 1
+            and 0 <= self.misplaced_arm_relief <= 1
         ):
             raise HybridError(
                 "arm_search_badness must be a number (inf: off), hidden_arm_visibility >= 0, "
                 "0 <= seen_arm_fraction <= 1, other_arm_margin_m >= 0, arm_agreement_slack "
-                ">= 0, partial_arm_visibility >= 0 and 0 <= partial_arm_agreement <= 1, got "
-                f"{self.arm_search_badness}, {self.hidden_arm_visibility}, "
-                f"{self.seen_arm_fraction}, {self.other_arm_margin_m}, "
-                f"{self.arm_agreement_slack}, {self.partial_arm_visibility}, "
-                f"{self.partial_arm_agreement}"
+                ">= 0, partial_arm_visibility >= 0, 0 <= partial_arm_agreement <= 1, "
+                "misplaced_arm_conflict a number (inf: off), misplaced_arm_points >= 1 and "
+                f"0 <= misplaced_arm_relief <= 1, got {self.arm_search_badness}, "
+                f"{self.hidden_arm_visibility}, {self.seen_arm_fraction}, "
+                f"{self.other_arm_margin_m}, {self.arm_agreement_slack}, "
+                f"{self.partial_arm_visibility}, {self.partial_arm_agreement}, "
+                f"{self.misplaced_arm_conflict}, {self.misplaced_arm_points}, "
+                f"{self.misplaced_arm_relief}"
             )
 
     def tracker_config(self):
@@ -363,63 +386,89 @@ class HybridEstimator:
             det.labels.cpu().numpy().astype(np.uint8),
         )
 
-    def _best_refit(self, depth, mask, starts, badness, agreement=None, floor=0.0):
+    def _best_refit(self, depth, mask, starts, badness, accept=None):
         """The tracker's refit of the frame from each pose of ``starts`` (K, 34) with the
-        smallest fit_badness, as (result, badness, index of its start), if below
-        ``badness`` and, given ``agreement`` (a pose's arm label agreement), with an
-        agreement of at least ``floor``; else None."""
+        smallest fit_badness, as (result, badness, index of its start), if below ``badness``
+        and, given ``accept`` (a refit's pose -> bool), accepted; else None."""
         labels = self._labels(depth, mask) if self.labels_every_frame else None
         best = None
         for k, start in enumerate(starts):
             r = self.tracker.step(depth, mask, start, None, labels=labels)
             b = fit_badness(r.depth_error_cm, r.overlap, r.surface_error_q97_mm, self.cfg)
-            if b < badness and (agreement is None or agreement(r.q) >= floor):
+            if b < badness and (accept is None or accept(r.q)):
                 best, badness = (r, b, k), b
         return best
 
     def _search_hidden_arms(self, depth, mask, res, badness):
         """The best refit from the arm starts of every arm the model hides (or shows partly
-        and away from its forest pixels) while the forest sees it, as (result, its badness,
-        index of its start), if one fits better than ``res`` and keeps the forest's pixels
-        of that arm near it; else None."""
+        and away from its forest pixels, or shows on pixels the forest calls something else)
+        while the forest sees it, as (result, its badness, index of its start), if one fits
+        better than ``res`` and keeps the forest's pixels of that arm near it; else None."""
         vis = res.limb_visibility
         if vis is None:
             return None
         cfg = self.cfg
         best = None
-        points = kin = None  # only needed once an arm is hidden: most suspect frames have none
+        points = kin = None  # only needed once an arm is suspect: most suspect frames have none
         body = self.detector.body
+        check_placement = math.isfinite(cfg.misplaced_arm_conflict)
+
+        def pose_kinematics(q):
+            return forward_kinematics(q[None].to(body.lengths), body)
+
         for limb, side in ((0, "l"), (1, "r")):
             shown = float(vis[limb])
-            if shown >= max(cfg.hidden_arm_visibility, cfg.partial_arm_visibility):
+            hidden = shown < max(cfg.hidden_arm_visibility, cfg.partial_arm_visibility)
+            if not (hidden or check_placement):
                 continue
             if points is None:
                 points = depth_to_points(depth[None], self.detector.intr)[0][mask]
-                kin = forward_kinematics(res.q[None].to(body.lengths), body)
+                kin = pose_kinematics(res.q)
+                labels = self._labels(depth, mask)
+                point_labels = labels[mask]
+            conflicts = None
+            if check_placement:
+                share, count = arm_label_conflict(
+                    points, point_labels, kin, body, side, CONFLICT_MARGIN_M
+                )
+                share, count = float(share[0]), int(count[0])
+                if count >= cfg.misplaced_arm_points and share > cfg.misplaced_arm_conflict:
+                    conflicts = share * count
+            if not hidden and conflicts is None:
+                continue
             explained = torch.zeros_like(mask)
             if cfg.other_arm_margin_m > 0:
                 explained[mask] = near_other_arm(points, kin, body, side, cfg.other_arm_margin_m)
-            labels = self._labels(depth, mask)
-            if arm_pixel_fraction(labels, mask, side, explained) < cfg.seen_arm_fraction:
+            seen = arm_pixel_fraction(labels, mask, side, explained) >= cfg.seen_arm_fraction
+            if not seen and conflicts is None:
                 continue
             arm_points = points[(arm_pixels(labels, mask, side) & ~explained)[mask]]
             mine = float(arm_label_agreement(arm_points, kin, body, side, AGREEMENT_MARGIN_M)[0])
-            if shown >= cfg.hidden_arm_visibility and not mine < cfg.partial_arm_agreement:
+            partly = shown >= cfg.hidden_arm_visibility
+            if conflicts is None and partly and not mine < cfg.partial_arm_agreement:
                 continue  # shown partly, where the forest sees it: no search
-
-            def agreement(q, arm_points=arm_points, side=side):
-                pose = forward_kinematics(q[None].to(body.lengths), body)
-                return float(
-                    arm_label_agreement(arm_points, pose, body, side, AGREEMENT_MARGIN_M)[0]
-                )
 
             # No forest pixels of the arm (seen_arm_fraction 0): nothing to keep it near.
             check = math.isfinite(cfg.arm_agreement_slack) and math.isfinite(mine)
             floor = mine - cfg.arm_agreement_slack if check else 0.0
+
+            def accept(q, arm_points=arm_points, side=side, check=check, floor=floor,
+                       conflicts=conflicts, points=points, point_labels=point_labels):  # fmt: skip
+                pose = pose_kinematics(q)
+                if check:
+                    agree = arm_label_agreement(arm_points, pose, body, side, AGREEMENT_MARGIN_M)
+                    if not float(agree[0]) >= floor:
+                        return False
+                if conflicts is None:
+                    return True
+                share, count = arm_label_conflict(
+                    points, point_labels, pose, body, side, CONFLICT_MARGIN_M
+                )
+                theirs = float(share[0]) * int(count[0]) if int(count[0]) else 0.0
+                return theirs <= cfg.misplaced_arm_relief * conflicts
+
             starts = arm_candidates(res.q, side)
-            found = self._best_refit(
-                depth, mask, starts, badness, agreement if check else None, floor
-            )
+            found = self._best_refit(depth, mask, starts, badness, accept)
             if found is not None:
                 best, badness = found, found[1]
         return best

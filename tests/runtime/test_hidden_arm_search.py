@@ -12,12 +12,14 @@ from runtime.hidden_arm_search import (
     ELBOW_FLEXION_DEG,
     arm_candidates,
     arm_label_agreement,
+    arm_label_conflict,
     arm_pixel_fraction,
     arm_pixels,
     near_other_arm,
 )
 from shared import skeleton as sk
 from shared.body import BodyShape
+from shared.labels import PART_NAMES
 from shared.kinematics import (
     clamp_to_limits,
     forward_kinematics,
@@ -138,3 +140,31 @@ def test_arm_label_agreement_is_the_share_of_labels_on_that_arm(dtype):
     assert out.shape == (2,) and out.dtype == dtype
     assert float(out[0]) == pytest.approx(0.75) and float(out[1]) < 0.5
     assert math.isnan(float(arm_label_agreement(points[:0], kin, body, "l", 0.05)[0]))
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_arm_label_conflict_is_the_share_of_the_arm_s_points_labelled_otherwise(dtype):
+    body, q, kin, joints = _rest(dtype)
+    elbow, wrist, head = (joints[sk.JOINT_NAMES.index(j)] for j in ("l_elbow", "l_wrist", "head"))
+    # Three points on the left forearm's axis, one in the head, one 30 cm in front of the
+    # elbow: only the first three are the arm's.
+    points = torch.stack(
+        [elbow, 0.5 * (elbow + wrist), wrist, head, elbow - elbow.new_tensor([0, 0, 0.3])]
+    )
+    names = ("l_forearm", "chest", "l_upper_arm", "head", "l_forearm")
+    labels = torch.tensor([PART_NAMES.index(n) for n in names])
+    share, count = arm_label_conflict(points, labels, kin, body, "l", 0.03)
+    assert count.tolist() == [3] and float(share[0]) == pytest.approx(1 / 3)
+    assert share.dtype == dtype
+    # The right arm explains none of them; the left arm raised forward leaves them too.
+    share, count = arm_label_conflict(points, labels, kin, body, "r", 0.03)
+    assert count.tolist() == [0] and math.isnan(float(share[0]))
+    raised = q.repeat(2, 1)
+    raised[1, sk.DOF_NAMES.index("l_humerus_flex")] = math.radians(90)
+    share, count = arm_label_conflict(
+        points, labels, forward_kinematics(raised, body.to(dtype=dtype)), body, "l", 0.03
+    )
+    assert count.tolist() == [3, 0] and float(share[0]) == pytest.approx(1 / 3)
+    # Every point labelled as the arm: no conflict.
+    arm = torch.full_like(labels, PART_NAMES.index("l_upper_arm"))
+    assert float(arm_label_conflict(points, arm, kin, body, "l", 0.03)[0][0]) == 0.0

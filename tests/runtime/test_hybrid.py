@@ -423,6 +423,9 @@ def test_hidden_arm_search_needs_all_its_conditions(scene, labels_scale, cfg):
         {"arm_agreement_slack": -0.1},
         {"partial_arm_visibility": -0.1},
         {"partial_arm_agreement": 1.5},
+        {"misplaced_arm_conflict": math.nan},
+        {"misplaced_arm_points": 0},
+        {"misplaced_arm_relief": 1.5},
     ],
 )
 def test_bad_arm_search_settings_are_rejected(cfg):
@@ -576,3 +579,37 @@ def test_labels_from_a_recording_errors(scene, tmp_path):
         est.estimate(frame_of(depth, 2), mask)
     with pytest.raises(HybridError, match="labeler"):
         HybridEstimator(None, est.detector, est.tracker, HybridConfig())
+
+
+def _left_arm_labelled_chest(labels):
+    """The forest calling the left arm's pixels chest: the model's arm lies on something
+    else."""
+    out = labels.clone()
+    for part in ("upper_arm", "forearm"):
+        out[labels == PART_NAMES.index(f"l_{part}")] = PART_NAMES.index("chest")
+    return out
+
+
+@pytest.mark.parametrize(
+    "conflict, relabel, relief, searched",
+    [
+        (math.inf, True, 0.5, False),  # off by default
+        (0.5, False, 0.5, False),  # the forest labels the shown arm as that arm
+        (0.5, True, 0.5, True),
+        (0.5, True, 0.0, False),  # the refit must leave no point the forest calls otherwise
+    ],
+)
+def test_an_arm_shown_on_pixels_the_forest_calls_something_else_is_searched(
+    scene, conflict, relabel, relief, searched
+):
+    labels = scene[2]
+    seen = _left_arm_labelled_chest(labels) if relabel else labels
+    cfg = HybridConfig(
+        arm_search_badness=1.0, misplaced_arm_conflict=conflict, misplaced_arm_relief=relief
+    )
+    tracker = ArmHidingTracker(shown=1.0)
+    out = _second_frame_with_labels(scene, tracker, cfg, seen)
+    assert ("arm_searched" in out.errors) == searched
+    assert len(tracker.starts) == (8 if relabel and math.isfinite(conflict) else 0)
+    flex = out.q[sk.DOF_NAMES.index("l_humerus_flex")]
+    assert (flex == pytest.approx(ArmHidingTracker.GOOD[0], abs=1e-6)) == searched
