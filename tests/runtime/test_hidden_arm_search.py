@@ -19,13 +19,13 @@ from runtime.hidden_arm_search import (
 )
 from shared import skeleton as sk
 from shared.body import BodyShape
-from shared.labels import PART_NAMES
 from shared.kinematics import (
     clamp_to_limits,
     forward_kinematics,
     named_joint_positions,
     rest_pose,
 )
+from shared.labels import PART_NAMES
 
 ARM_DOFS = {
     side: [
