@@ -334,6 +334,7 @@ class HybridEstimator:
         self.q_prev2: torch.Tensor | None = None
         self.turned_round = 0  # consecutive failed frames whose detection turned round
         self.passed = 0  # frames tracked since the last detector run
+        self.arms_searched = 0  # arms the last arm search refitted
 
     def _joints(self, q: torch.Tensor) -> np.ndarray:
         kin = forward_kinematics(q[None].to(self.detector.body.lengths), self.detector.body)
@@ -468,6 +469,7 @@ class HybridEstimator:
                 return theirs <= cfg.misplaced_arm_relief * conflicts
 
             starts = arm_candidates(res.q, side)
+            self.arms_searched += 1
             found = self._best_refit(depth, mask, starts, badness, accept)
             if found is not None:
                 best, badness = found, found[1]
@@ -493,10 +495,13 @@ class HybridEstimator:
             self.passed += 1
             mine = fit_badness(res.depth_error_cm, res.overlap, res.surface_error_q97_mm, self.cfg)
             if mine > self.cfg.arm_search_badness:
+                self.arms_searched = 0
                 found = self._search_hidden_arms(depth, m, res, mine)
                 if found is not None:
                     res, mine, _ = found
                     errors = {**_signals(res), "arm_searched": 1.0}
+                if self.arms_searched:  # refits tried, taken or not: what the search costs
+                    errors["arms_searched"] = float(self.arms_searched)
             fail = tracking_failed(
                 res.depth_error_cm, res.overlap, self.cfg, res.surface_error_q97_mm
             )
