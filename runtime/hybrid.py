@@ -194,6 +194,12 @@ class HybridConfig:
     misplaced_arm_points: int = field_doc(
         20, help="... and it explains at least this many of the person's points"
     )
+    misplaced_arm_cooldown: int = field_doc(
+        0,
+        help="after a misplaced arm's search finds no refit to take, that arm is not searched "
+        "as misplaced again for this many frames: a wrong arm stays wrong for a while, and "
+        "each search costs 8 tracker steps (0: search on every suspect frame)",
+    )
     misplaced_arm_relief: float = field_doc(
         0.5,
         help="a misplaced arm's refit is taken only if the number of its points the forest "
@@ -237,19 +243,21 @@ class HybridConfig:
             and 0 <= self.partial_arm_agreement <= 1
             and not math.isnan(self.misplaced_arm_conflict)
             and self.misplaced_arm_points >= 1
+            and self.misplaced_arm_cooldown >= 0
             and 0 <= self.misplaced_arm_relief <= 1
         ):
             raise HybridError(
                 "arm_search_badness must be a number (inf: off), hidden_arm_visibility >= 0, "
                 "0 <= seen_arm_fraction <= 1, other_arm_margin_m >= 0, arm_agreement_slack "
                 ">= 0, partial_arm_visibility >= 0, 0 <= partial_arm_agreement <= 1, "
-                "misplaced_arm_conflict a number (inf: off), misplaced_arm_points >= 1 and "
-                f"0 <= misplaced_arm_relief <= 1, got {self.arm_search_badness}, "
+                "misplaced_arm_conflict a number (inf: off), misplaced_arm_points >= 1, "
+                "misplaced_arm_cooldown >= 0 and 0 <= misplaced_arm_relief <= 1, got "
+                f"{self.arm_search_badness}, "
                 f"{self.hidden_arm_visibility}, {self.seen_arm_fraction}, "
                 f"{self.other_arm_margin_m}, {self.arm_agreement_slack}, "
                 f"{self.partial_arm_visibility}, {self.partial_arm_agreement}, "
                 f"{self.misplaced_arm_conflict}, {self.misplaced_arm_points}, "
-                f"{self.misplaced_arm_relief}"
+                f"{self.misplaced_arm_cooldown}, {self.misplaced_arm_relief}"
             )
 
     def tracker_config(self):
@@ -335,6 +343,8 @@ class HybridEstimator:
         self.turned_round = 0  # consecutive failed frames whose detection turned round
         self.passed = 0  # frames tracked since the last detector run
         self.arms_searched = 0  # arms the last arm search refitted
+        # Frame index of each arm's last misplaced-arm search that found nothing to take.
+        self.misplaced_failed_at: dict[str, int] = {}
 
     def _joints(self, q: torch.Tensor) -> np.ndarray:
         kin = forward_kinematics(q[None].to(self.detector.body.lengths), self.detector.body)
@@ -428,7 +438,8 @@ class HybridEstimator:
                 labels = self._labels(depth, mask)
                 point_labels = labels[mask]
             conflicts = None
-            if check_placement:
+            waited = self._frame_index - self.misplaced_failed_at.get(side, -(1 << 30))
+            if check_placement and waited > cfg.misplaced_arm_cooldown:
                 share, count = arm_label_conflict(
                     points, point_labels, kin, body, side, CONFLICT_MARGIN_M
                 )
@@ -473,6 +484,8 @@ class HybridEstimator:
             found = self._best_refit(depth, mask, starts, badness, accept)
             if found is not None:
                 best, badness = found, found[1]
+            elif conflicts is not None:
+                self.misplaced_failed_at[side] = self._frame_index
         return best
 
     def estimate(self, frame, mask) -> PoseEstimate:

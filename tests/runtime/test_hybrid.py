@@ -425,6 +425,7 @@ def test_hidden_arm_search_needs_all_its_conditions(scene, labels_scale, cfg):
         {"partial_arm_agreement": 1.5},
         {"misplaced_arm_conflict": math.nan},
         {"misplaced_arm_points": 0},
+        {"misplaced_arm_cooldown": -1},
         {"misplaced_arm_relief": 1.5},
     ],
 )
@@ -615,3 +616,49 @@ def test_an_arm_shown_on_pixels_the_forest_calls_something_else_is_searched(
     assert out.errors.get("arms_searched") == (1.0 if tried else None)  # taken or not
     flex = out.q[sk.DOF_NAMES.index("l_humerus_flex")]
     assert (flex == pytest.approx(ArmHidingTracker.GOOD[0], abs=1e-6)) == searched
+
+
+class ArmShowingTracker(ArmHidingTracker):
+    """Shows both arms fully on every frame; its refits (the arm search's starts, whose left
+    abduction is zero, unlike the scene's) are counted per frame in ``refits``."""
+
+    def __init__(self):
+        super().__init__(shown=1.0)
+        self.refits: list[int] = []
+
+    def step(self, depth, mask, q_prev, q_prev2=None, labels=None):
+        vis = torch.ones(4)
+        if abs(float(q_prev[sk.DOF_NAMES.index("l_humerus_abd")])) > 1e-6:
+            self.refits.append(0)  # the frame's track
+            return FakeResult(q_prev.clone(), 2.0, 0.95, 12.0, limb_visibility=vis)
+        self.refits[-1] += 1
+        return FakeResult(q_prev.clone(), 1.0, 0.95, 12.0, limb_visibility=vis)
+
+
+@pytest.mark.parametrize("cooldown, refits", [(0, [8, 8, 8, 8]), (2, [8, 0, 0, 8])])
+def test_a_misplaced_arm_search_that_finds_nothing_waits_cooldown_frames(scene, cooldown, refits):
+    q, depth, labels, mask = scene
+    seen = _left_arm_labelled_chest(labels)
+    # Relief 0: every refit leaves some of its points labelled otherwise, none is taken.
+    cfg = HybridConfig(
+        arm_search_badness=1.0,
+        misplaced_arm_conflict=0.5,
+        misplaced_arm_relief=0.0,
+        misplaced_arm_cooldown=cooldown,
+    )
+    tracker = ArmShowingTracker()
+    det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
+    est = HybridEstimator(lambda d, m: labels * m, det, tracker, cfg)
+    assert est.estimate(frame_of(depth, 0), mask).status == "detected"
+    est.labeler = lambda d, m: seen * m
+    for i in range(1, 5):
+        out = est.estimate(frame_of(depth, i), mask)
+        assert out.status == "tracked" and "arm_searched" not in out.errors
+    assert tracker.refits == refits
+    # A lost frame forgets the wait: the next track searches again.
+    est.estimate(frame_of(depth * 0, 5), torch.zeros_like(mask))
+    est.labeler = lambda d, m: labels * m
+    est.estimate(frame_of(depth, 6), mask)
+    est.labeler = lambda d, m: seen * m
+    est.estimate(frame_of(depth, 7), mask)
+    assert tracker.refits[-1] == 8
