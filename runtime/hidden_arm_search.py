@@ -106,6 +106,7 @@ def arm_label_conflict(
     body: BodyShape,
     side: str,
     margin_m: float,
+    other_arm_counts: bool = True,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """How much of what the ``side`` arm explains the forest calls something else.
 
@@ -113,6 +114,9 @@ def arm_label_conflict(
     model part in the pose ``kin`` (batch B) is that arm and that lie within ``margin_m`` of
     its surface are the arm's points; the share of them the forest does not label as that
     arm, and their number, are returned: ((B,), (B,)), the share NaN where the arm has none.
+    With ``other_arm_counts`` false, points labelled as the other arm count as the arm's
+    own: the forest swaps left and right arms often (profile views), so such labels are weak
+    evidence that the arm is misplaced.
 
     A track can lay a hidden or lost arm on a leg or the torso (kick: the forearm along the
     kicking thigh, 40-60 cm from the real one): the depth data fit, the failure signals
@@ -126,8 +130,8 @@ def arm_label_conflict(
     signed = segment_distances(flat, kin, body.to(dtype=ref.dtype, device=ref.device))
     best = signed.min(-1)
     own = torch.isin(best.indices, segs) & (best.values < margin_m)  # (B, N)
-    upper, fore = _ARM_CLASSES[side]
-    other = ((labels != upper) & (labels != fore)).to(points.device)
+    mine = _ARM_CLASSES[side] if other_arm_counts else (*_ARM_CLASSES["l"], *_ARM_CLASSES["r"])
+    other = ~torch.isin(labels, torch.as_tensor(mine, device=labels.device)).to(points.device)
     count = own.sum(-1)
     share = (own & other).sum(-1).to(ref.dtype) / count.to(ref.dtype)
     return share, count

@@ -194,6 +194,12 @@ class HybridConfig:
     misplaced_arm_points: int = field_doc(
         20, help="... and it explains at least this many of the person's points"
     )
+    misplaced_arm_other_arm: bool = field_doc(
+        True,
+        help="points the forest labels as the other arm count as something else for "
+        "misplaced_arm_conflict; false: only torso, head and leg labels do (the forest swaps "
+        "left and right arms in profile, so such labels say little about where the arm is)",
+    )
     misplaced_arm_cooldown: int = field_doc(
         0,
         help="after a misplaced arm's search finds no refit to take, that arm is not searched "
@@ -441,7 +447,13 @@ class HybridEstimator:
             waited = self._frame_index - self.misplaced_failed_at.get(side, -(1 << 30))
             if check_placement and waited > cfg.misplaced_arm_cooldown:
                 share, count = arm_label_conflict(
-                    points, point_labels, kin, body, side, CONFLICT_MARGIN_M
+                    points,
+                    point_labels,
+                    kin,
+                    body,
+                    side,
+                    CONFLICT_MARGIN_M,
+                    cfg.misplaced_arm_other_arm,
                 )
                 share, count = float(share[0]), int(count[0])
                 if count >= cfg.misplaced_arm_points and share > cfg.misplaced_arm_conflict:
@@ -474,7 +486,13 @@ class HybridEstimator:
                 if conflicts is None:
                     return True
                 share, count = arm_label_conflict(
-                    points, point_labels, pose, body, side, CONFLICT_MARGIN_M
+                    points,
+                    point_labels,
+                    pose,
+                    body,
+                    side,
+                    CONFLICT_MARGIN_M,
+                    cfg.misplaced_arm_other_arm,
                 )
                 theirs = float(share[0]) * int(count[0]) if int(count[0]) else 0.0
                 return theirs <= cfg.misplaced_arm_relief * conflicts

@@ -168,3 +168,11 @@ def test_arm_label_conflict_is_the_share_of_the_arm_s_points_labelled_otherwise(
     # Every point labelled as the arm: no conflict.
     arm = torch.full_like(labels, PART_NAMES.index("l_upper_arm"))
     assert float(arm_label_conflict(points, arm, kin, body, "l", 0.03)[0][0]) == 0.0
+    # The other arm's labels count as something else unless left/right swaps are forgiven.
+    swapped = labels.clone()
+    swapped[1] = PART_NAMES.index("r_forearm")
+    assert float(arm_label_conflict(points, swapped, kin, body, "l", 0.03)[0][0]) == (
+        pytest.approx(1 / 3)
+    )
+    forgiven = arm_label_conflict(points, swapped, kin, body, "l", 0.03, other_arm_counts=False)
+    assert float(forgiven[0][0]) == 0.0 and forgiven[1].tolist() == [3]

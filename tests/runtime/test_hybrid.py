@@ -662,3 +662,23 @@ def test_a_misplaced_arm_search_that_finds_nothing_waits_cooldown_frames(scene, 
     est.labeler = lambda d, m: seen * m
     est.estimate(frame_of(depth, 7), mask)
     assert tracker.refits[-1] == 8
+
+
+@pytest.mark.parametrize("other_arm, searched", [(True, True), (False, False)])
+def test_other_arm_labels_count_against_an_arm_unless_swaps_are_forgiven(
+    scene, other_arm, searched
+):
+    labels = scene[2]
+    seen = labels.clone()
+    for part in ("upper_arm", "forearm"):  # the left arm's pixels labelled right arm
+        seen[labels == PART_NAMES.index(f"l_{part}")] = PART_NAMES.index(f"r_{part}")
+    cfg = HybridConfig(
+        arm_search_badness=1.0,
+        misplaced_arm_conflict=0.5,
+        misplaced_arm_other_arm=other_arm,
+        other_arm_margin_m=0.0,
+    )
+    tracker = ArmHidingTracker(shown=1.0)
+    out = _second_frame_with_labels(scene, tracker, cfg, seen)
+    assert (out.errors.get("arms_searched") == 1.0) == searched
+    assert len(tracker.starts) == (8 if searched else 0)
