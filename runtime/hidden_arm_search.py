@@ -7,6 +7,10 @@ from the truth. The model's own rendering says which arm it hides
 (:func:`runtime.tracker.signals.limb_visibility`) and the forest says whether the camera
 sees that arm anyway; when both hold and the fit is suspect, the hybrid refines the frame
 from each of a few arm poses (:func:`arm_candidates`) and keeps the best-fitting one.
+
+The same search puts back an arm the track shows in the wrong place: laid on a leg or the
+torso, it explains their pixels and passes every test, but the forest labels most of the
+points it explains as something else (:func:`arm_label_conflict`).
 """
 
 from __future__ import annotations

@@ -27,7 +27,8 @@ pass (a hidden limb on the wrong side after a bad first detection) is questioned
 ``recheck_badness`` is set (the detector also runs on passed frames whose badness exceeds it)
 or ``recheck_every`` (on every n-th passed frame). With ``arm_search_badness`` set, a suspect
 fit whose model hides an arm the forest sees is refined from a few arm poses first, and the
-best-fitting result is kept (:mod:`runtime.hidden_arm_search`).
+best-fitting result is kept (:mod:`runtime.hidden_arm_search`); with ``misplaced_arm_conflict``
+set, so is an arm the model shows on pixels the forest labels as something else.
 
 ``labels_from_recording`` replaces the forest's part labels by a synthetic recording's own
 (ground truth) everywhere the hybrid uses labels: a diagnostic of what the forest's label
