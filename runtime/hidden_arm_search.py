@@ -128,14 +128,14 @@ def arm_label_conflict(
     there (dev takes: the forest labels 80-95% of a well placed visible arm's points as
     that arm).
     """
-    segs = torch.as_tensor(list(LIMB_SEGMENTS[0 if side == "l" else 1]), device=points.device)
     ref = kin.origins
+    segs = torch.as_tensor(list(LIMB_SEGMENTS[0 if side == "l" else 1]), device=ref.device)
     flat = points.to(ref).expand(ref.shape[0], -1, -1)
     signed = segment_distances(flat, kin, body.to(dtype=ref.dtype, device=ref.device))
     best = signed.min(-1)
     own = torch.isin(best.indices, segs) & (best.values < margin_m)  # (B, N)
     mine = _ARM_CLASSES[side] if other_arm_counts else (*_ARM_CLASSES["l"], *_ARM_CLASSES["r"])
-    other = ~torch.isin(labels, torch.as_tensor(mine, device=labels.device)).to(points.device)
+    other = ~torch.isin(labels, torch.as_tensor(mine, device=labels.device)).to(ref.device)
     count = own.sum(-1)
     share = (own & other).sum(-1).to(ref.dtype) / count.to(ref.dtype)
     return share, count
