@@ -36,6 +36,7 @@ __all__ = [
     "arm_label_conflict",
     "arm_pixel_fraction",
     "arm_pixels",
+    "label_conflict_from_distances",
     "near_other_arm",
 ]
 
@@ -129,15 +130,28 @@ def arm_label_conflict(
     that arm).
     """
     ref = kin.origins
-    segs = torch.as_tensor(list(LIMB_SEGMENTS[0 if side == "l" else 1]), device=ref.device)
     flat = points.to(ref).expand(ref.shape[0], -1, -1)
     signed = segment_distances(flat, kin, body.to(dtype=ref.dtype, device=ref.device))
+    return label_conflict_from_distances(signed, labels, side, margin_m, other_arm_counts)
+
+
+def label_conflict_from_distances(
+    signed: torch.Tensor,
+    labels: torch.Tensor,
+    side: str,
+    margin_m: float,
+    other_arm_counts: bool = True,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`arm_label_conflict` from the points' signed distances to every model part,
+    ``signed`` (B, N, P) from :func:`runtime.raycast.segment_distances`: one evaluation
+    serves both arms."""
+    segs = torch.as_tensor(list(LIMB_SEGMENTS[0 if side == "l" else 1]), device=signed.device)
     best = signed.min(-1)
     own = torch.isin(best.indices, segs) & (best.values < margin_m)  # (B, N)
     mine = _ARM_CLASSES[side] if other_arm_counts else (*_ARM_CLASSES["l"], *_ARM_CLASSES["r"])
-    other = ~torch.isin(labels, torch.as_tensor(mine, device=labels.device)).to(ref.device)
+    other = ~torch.isin(labels, torch.as_tensor(mine, device=labels.device)).to(signed.device)
     count = own.sum(-1)
-    share = (own & other).sum(-1).to(ref.dtype) / count.to(ref.dtype)
+    share = (own & other).sum(-1).to(signed.dtype) / count.to(signed.dtype)
     return share, count
 
 

@@ -64,8 +64,10 @@ from runtime.hidden_arm_search import (
     arm_label_conflict,
     arm_pixel_fraction,
     arm_pixels,
+    label_conflict_from_distances,
     near_other_arm,
 )
+from runtime.raycast import segment_distances
 from shared.body import BodyShape
 from shared.camera import Intrinsics, depth_to_points
 from shared.config import ConfigError, config_from_dict, field_doc
@@ -349,7 +351,6 @@ class HybridEstimator:
         self.q_prev2: torch.Tensor | None = None
         self.turned_round = 0  # consecutive failed frames whose detection turned round
         self.passed = 0  # frames tracked since the last detector run
-        self.arms_searched = 0  # arms the last arm search refitted
         # Frame index of each arm's last misplaced-arm search that found nothing to take.
         self.misplaced_failed_at: dict[str, int] = {}
 
@@ -421,12 +422,13 @@ class HybridEstimator:
         """The best refit from the arm starts of every arm the model hides (or shows partly
         and away from its forest pixels, or shows on pixels the forest calls something else)
         while the forest sees it, as (result, its badness, index of its start), if one fits
-        better than ``res`` and keeps the forest's pixels of that arm near it; else None."""
+        better than ``res`` and keeps the forest's pixels of that arm near it, else None; and
+        the number of arms whose refits were tried."""
         vis = res.limb_visibility
         if vis is None:
-            return None
+            return None, 0
         cfg = self.cfg
-        best = None
+        best, searched = None, 0
         points = kin = None  # only needed once an arm is suspect: most suspect frames have none
         body = self.detector.body
         check_placement = math.isfinite(cfg.misplaced_arm_conflict)
@@ -444,17 +446,13 @@ class HybridEstimator:
                 kin = pose_kinematics(res.q)
                 labels = self._labels(depth, mask)
                 point_labels = labels[mask]
+                if check_placement:  # both arms' conflicts from one distance evaluation
+                    signed = segment_distances(points[None].to(kin.origins), kin, body)
             conflicts = None
             waited = self._frame_index - self.misplaced_failed_at.get(side, -(1 << 30))
             if check_placement and waited > cfg.misplaced_arm_cooldown:
-                share, count = arm_label_conflict(
-                    points,
-                    point_labels,
-                    kin,
-                    body,
-                    side,
-                    CONFLICT_MARGIN_M,
-                    cfg.misplaced_arm_other_arm,
+                share, count = label_conflict_from_distances(
+                    signed, point_labels, side, CONFLICT_MARGIN_M, cfg.misplaced_arm_other_arm
                 )
                 share, count = float(share[0]), int(count[0])
                 if count >= cfg.misplaced_arm_points and share > cfg.misplaced_arm_conflict:
@@ -499,13 +497,13 @@ class HybridEstimator:
                 return theirs <= cfg.misplaced_arm_relief * conflicts
 
             starts = arm_candidates(res.q, side)
-            self.arms_searched += 1
+            searched += 1
             found = self._best_refit(depth, mask, starts, badness, accept)
             if found is not None:
                 best, badness = found, found[1]
             elif conflicts is not None:
                 self.misplaced_failed_at[side] = self._frame_index
-        return best
+        return best, searched
 
     def estimate(self, frame, mask) -> PoseEstimate:
         """Pose of the person in ``frame`` (``frame.depth_mm``: (H, W) millimetres)."""
@@ -527,13 +525,12 @@ class HybridEstimator:
             self.passed += 1
             mine = fit_badness(res.depth_error_cm, res.overlap, res.surface_error_q97_mm, self.cfg)
             if mine > self.cfg.arm_search_badness:
-                self.arms_searched = 0
-                found = self._search_hidden_arms(depth, m, res, mine)
+                found, searched = self._search_hidden_arms(depth, m, res, mine)
                 if found is not None:
                     res, mine, _ = found
                     errors = {**_signals(res), "arm_searched": 1.0}
-                if self.arms_searched:  # refits tried, taken or not: what the search costs
-                    errors["arms_searched"] = float(self.arms_searched)
+                if searched:  # refits tried, taken or not: what the search costs
+                    errors["arms_searched"] = float(searched)
             fail = tracking_failed(
                 res.depth_error_cm, res.overlap, self.cfg, res.surface_error_q97_mm
             )
