@@ -89,11 +89,6 @@ class TrackerConfig:
         "labels as a limb pull that limb's surface; needs the frame's part labels (the hybrid "
         "passes them), otherwise it is skipped",
     )
-    use_hang: bool = field_doc(
-        False,
-        "hidden-arm pull (not in Wei; runtime.tracker.hang_term): an arm the model's rendering "
-        "hides is pulled towards hanging along gravity instead of drifting at its last velocity",
-    )
     use_limits: bool = field_doc(True, "keep joint angles within shared.skeleton.DOF_LIMITS")
     occlusion_handling: bool = field_doc(
         True,
@@ -155,20 +150,6 @@ class TrackerConfig:
     )
     sigma_prior_rad: float = field_doc(
         0.05, "prior noise scale of joint angles and root rotation (rad per frame^2)"
-    )
-    sigma_hang: float = field_doc(
-        0.3,
-        "hidden-arm pull noise scale: a hidden bone's unit direction against gravity's (about "
-        "radians)",
-    )
-    hang_visibility: float = field_doc(
-        0.1,
-        "an arm counts as hidden for the pull below this visible fraction of its rendering "
-        "(runtime.tracker.signals.limb_visibility)",
-    )
-    gravity: tuple[float, float, float] = field_doc(
-        (0.0, 1.0, 0.0),
-        "gravity's direction in camera frame (x right, y down, z forward): +y for a level camera",
     )
     sigma_prior_m: float = field_doc(0.02, "prior noise scale of the root position (m per frame^2)")
     prior_velocity_gain: float = field_doc(

@@ -41,7 +41,6 @@ from .gauss_newton import (
     predicted_decrease,
     solve_step,
 )
-from .hang_term import hang_system, hidden_arms
 from .label_term import label_rows
 from .observation import Observation, automatic_factor, observe, person_window
 from .prior_term import predict_pose, prior_system
@@ -125,7 +124,6 @@ def fit_frames(
     observed = observed_candidates(obs, cfg.max_candidates) if cfg.use_extra_depth else None
     converged = torch.zeros(B, dtype=torch.bool, device=q.device)
     geom = segment_geometry(body, q)
-    down = q.new_tensor(cfg.gravity)
     iterations = 0
     last = None
     for _ in range(cfg.iterations):
@@ -150,10 +148,6 @@ def fit_frames(
             diag, rhs, _ = prior_system(q, q_pred, cfg.sigma_prior_rad, cfg.sigma_prior_m)
             hess = hess + torch.diag_embed(diag.double())
             grad = grad + rhs.double()
-        if cfg.use_hang:
-            hidden = hidden_arms(render, obs.intr, body, cfg.hang_visibility)
-            h, g, _ = hang_system(render.kin, down, hidden, cfg.sigma_hang)
-            hess, grad = hess + h, grad + g
         dq = limit_step(solve_step(hess, grad, q, cfg.damping, cfg.use_limits), cfg.max_step_rad)
         q = apply_step(q, dq, cfg.use_limits)
         iterations += 1
