@@ -148,12 +148,6 @@ class TrackerConfig:
         "labelled pixels farther than this from their limb's surface are ignored (m): a "
         "left/right swap of the forest must not drag a limb across the body",
     )
-    label_min_share: float = field_doc(
-        0.0,
-        "a limb segment's labelled pixels pull it only when those within label_gate_m of it "
-        "make up at least this share of the person's pixels: a hidden arm's few scattered "
-        "labels on the torso or hip are noise (0: every labelled pixel counts)",
-    )
     sigma_prior_rad: float = field_doc(
         0.05, "prior noise scale of joint angles and root rotation (rad per frame^2)"
     )

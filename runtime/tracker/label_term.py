@@ -26,7 +26,7 @@ from .gauss_newton import Rows
 from .observation import Observation
 from .regions import sample_pixels
 
-__all__ = ["capsule_offsets", "label_rows", "limb_support"]
+__all__ = ["capsule_offsets", "label_rows"]
 
 
 def capsule_offsets(
@@ -58,24 +58,6 @@ def capsule_offsets(
     return signed, direction
 
 
-def limb_support(
-    batch: torch.Tensor, segment: torch.Tensor, count: torch.Tensor, obs: Observation
-) -> torch.Tensor:
-    """Each pixel's share of support: the pixels (``count`` each, e.g. in-gate times the
-    subsampling ratio) labelled as its segment in its frame, over that frame's person pixels.
-
-    Args:
-        batch, segment: (N,) int64 frame and labelled segment of each pixel.
-        count: (N,) how many pixels each one stands for.
-    Returns:
-        (N,) share in [0, 1].
-    """
-    B, S = obs.silhouette.shape[0], sk.NUM_SEGMENTS
-    support = count.new_zeros(B * S).index_add_(0, batch * S + segment, count)
-    person = obs.silhouette.reshape(B, -1).sum(-1).clamp_min(1).to(count.dtype)
-    return support[batch * S + segment] / person[batch]
-
-
 def label_rows(
     kin: Kinematics, geom: SegmentGeometry, obs: Observation, cfg: TrackerConfig
 ) -> Rows:
@@ -94,7 +76,5 @@ def label_rows(
     )
     surface = points - signed[:, None] * direction
     keep = (signed.abs() < cfg.label_gate_m).to(points.dtype)
-    if cfg.label_min_share > 0:
-        keep = keep * (limb_support(b, segment, keep * ratio, obs) >= cfg.label_min_share)
     weight = keep * (ratio**0.5 / cfg.sigma_label_m)
     return Rows(b, surface, segment, direction, signed, weight)

@@ -206,8 +206,6 @@ class Tracker:
         bad = {k: v for k, v in scales.items() if not (v > 0 and math.isfinite(v))}
         if bad:
             raise TrackerError(f"noise scales and gates must be positive and finite, got {bad}")
-        if not 0 <= self.cfg.label_min_share <= 1:
-            raise TrackerError(f"label_min_share must be in [0, 1], got {self.cfg.label_min_share}")
         self.intr = intr
         self.device = torch.device("cpu") if device is None else torch.device(device)
         self.dtype = dtype

@@ -4,7 +4,6 @@ gate, label pooling, and that labels pull a misplaced arm back."""
 from __future__ import annotations
 
 import math
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -13,7 +12,7 @@ import torch
 from runtime.raycast import render_body, segment_geometry
 from runtime.tracker import Tracker, TrackerConfig, TrackerError
 from runtime.tracker.gauss_newton import rows_jacobian
-from runtime.tracker.label_term import capsule_offsets, label_rows, limb_support
+from runtime.tracker.label_term import capsule_offsets, label_rows
 from runtime.tracker.observation import observe
 from shared import skeleton as sk
 from shared.body import BodyShape
@@ -119,43 +118,6 @@ def test_label_rows_gate_and_missing_labels():
     assert len(label_rows(kin, geom, obs, TrackerConfig())) == 0
 
 
-def test_limb_support_golden_values():
-    silhouette = torch.zeros(2, 4, 5, dtype=torch.bool)
-    silhouette[0, :, :] = True  # 20 person pixels
-    silhouette[1, :2, :] = True  # 10
-    obs = SimpleNamespace(silhouette=silhouette)
-    batch = torch.tensor([0, 0, 0, 1, 1])
-    segment = torch.tensor([7, 7, 9, 7, 9])
-    count = torch.tensor([2.0, 3.0, 1.0, 0.0, 4.0])  # e.g. in-gate times the subsampling
-    share = limb_support(batch, segment, count, obs)
-    torch.testing.assert_close(share, torch.tensor([0.25, 0.25, 0.05, 0.0, 0.4]))
-
-
-def test_label_min_share_drops_sparsely_labelled_limbs():
-    body = BodyShape.default(torch.float64)
-    q = _pose()
-    geom, kin = segment_geometry(body, q), forward_kinematics(q, body)
-    obs = _labelled_observation(q, body)
-    # Keep only a few scattered pixels of the left forearm's labels.
-    forearm = sk.SEGMENT_NAMES.index("l_forearm")
-    sparse = obs.labels.clone()
-    v, u = (sparse[0] == forearm).nonzero().unbind(1)
-    drop = torch.ones_like(v, dtype=torch.bool)
-    drop[::25] = False
-    sparse[0, v[drop], u[drop]] = -1
-    obs.labels = sparse
-    person = int(obs.silhouette.sum())
-    share = int((sparse == forearm).sum()) / person
-    cfg = dict(max_label_pixels=10_000)
-    every = label_rows(kin, geom, obs, TrackerConfig(**cfg))
-    gated = label_rows(kin, geom, obs, TrackerConfig(label_min_share=2 * share, **cfg))
-    on_forearm = every.segment == forearm
-    assert bool(on_forearm.any()) and bool((every.weight[on_forearm] > 0).all())
-    assert bool((gated.weight[on_forearm] == 0).all())
-    # The other limbs are labelled densely and keep their rows and weights.
-    torch.testing.assert_close(gated.weight[~on_forearm], every.weight[~on_forearm])
-
-
 def test_labels_are_pooled_like_the_silhouette():
     depth = torch.zeros(1, 40, 60)
     depth[:, 5:35, 10:50] = 2.0
@@ -199,9 +161,3 @@ def test_label_term_pulls_a_misplaced_arm_back():
 def test_bad_noise_scales_are_rejected(bad):
     with pytest.raises(TrackerError, match="positive and finite"):
         Tracker(BodyShape.default(), INTR, TrackerConfig(**bad))
-
-
-@pytest.mark.parametrize("share", [-0.1, 1.5, float("nan")])
-def test_bad_label_min_share_is_rejected(share):
-    with pytest.raises(TrackerError, match="label_min_share"):
-        Tracker(BodyShape.default(), INTR, TrackerConfig(label_min_share=share))
