@@ -33,6 +33,7 @@ import numpy as np
 
 from shared.config import load_settings
 
+from .evaluation.body_lengths import bone_length_errors, format_bone_length_errors
 from .evaluation.evaluate import evaluate, format_failed_frames
 
 # name -> (mode, body, settings overriding the mode's config). Bodies: "gt" (the rendered
@@ -276,6 +277,16 @@ def main(argv: list[str] | None = None) -> int:
     for row, res in results.items():
         if "per_recording" in res:
             print("\n" + format_failures(row, res["per_recording"], res["mean"]))
+    bodies = Path(args.out) / "bodies"
+    for kind in sorted({CONFIGS[n][1] for n in args.configs} & {"calibrated", "personalized"}):
+        made = [r for r in recs if (bodies / kind / r.name / "body.json").is_file()]
+        if made:
+            errors = bone_length_errors(
+                [bodies / kind / r.name / "body.json" for r in made],
+                [r / "body.json" for r in made],
+            )
+            results[f"{kind} bodies"] = {"bone_length_errors": errors}
+            print("\n" + format_bone_length_errors(kind, errors))
     Path(args.out).mkdir(parents=True, exist_ok=True)
     (Path(args.out) / "report.json").write_text(json.dumps(results, indent=1))
     print(f"\nfull report: {Path(args.out) / 'report.json'}")
