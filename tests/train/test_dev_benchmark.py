@@ -6,7 +6,15 @@ from pathlib import Path
 
 import pytest
 
-from train.dev_benchmark import HEADER, body_file, format_failures, format_row, main, mean_of_runs
+from train.dev_benchmark import (
+    HEADER,
+    body_file,
+    body_length_reports,
+    format_failures,
+    format_row,
+    main,
+    mean_of_runs,
+)
 
 
 def test_rows_match_the_header_and_detector_modes_have_no_tracking_failure():
@@ -89,3 +97,29 @@ def test_calibration_recordings_are_looked_up_beside_the_recordings_folder(tmp_p
     (tmp_path / "dev_calib" / rec.name).mkdir(parents=True)  # the other set's: not used
     with pytest.raises(RuntimeError, match=r"dev_all_calib/HDM_mm_squat1Reps_037_120"):
         body_file("calibrated", rec, tmp_path / "bodies", "forest.npz")
+
+
+def test_body_length_reports_compare_made_bodies_and_name_unreadable_ones(tmp_path):
+    import torch
+
+    from shared.body import BodyShape
+
+    body = BodyShape.default(torch.float64)
+    recs = [tmp_path / "recs" / n for n in ("HDM_a", "HDM_b", "HDM_c")]
+    for r in recs:
+        r.mkdir(parents=True)
+        body.save(r / "body.json")
+    bodies = tmp_path / "bodies"
+    for r, scale in ((recs[0], 1.0), (recs[1], 1.1)):  # HDM_c has no calibrated body
+        (bodies / "calibrated" / r.name).mkdir(parents=True)
+        body.scaled(scale).save(bodies / "calibrated" / r.name / "body.json")
+    reports = body_length_reports(bodies, recs, {"calibrated", "gt", "personalized"})
+    assert list(reports) == ["calibrated"]  # no personalized bodies were made; gt is no estimate
+    errors, text = reports["calibrated"]
+    assert errors["bodies"] == 2 and errors["per_body_cm"][0] == 0.0
+    assert errors["per_body_cm"][1] == pytest.approx(10 * float(body.lengths.mean()), abs=1e-3)
+    assert text.startswith("calibrated bodies (2): bone lengths")
+    # A corrupt reference body: named, and no exception (the runs' report is still written).
+    (recs[1] / "body.json").write_text("{broken")
+    errors, text = body_length_reports(bodies, recs, {"calibrated"})["calibrated"]
+    assert errors is None and "not compared" in text and "HDM_b" in text
