@@ -89,6 +89,11 @@ class TrackerConfig:
         "labels as a limb pull that limb's surface; needs the frame's part labels (the hybrid "
         "passes them), otherwise it is skipped",
     )
+    use_collision: bool = field_doc(
+        False,
+        "collision term (not in Wei; runtime.tracker.collision_term): points on the arms' "
+        "axes deeper than collision_tolerance_m inside the torso capsules are pushed out",
+    )
     use_limits: bool = field_doc(True, "keep joint angles within shared.skeleton.DOF_LIMITS")
     occlusion_handling: bool = field_doc(
         True,
@@ -147,6 +152,20 @@ class TrackerConfig:
         0.15,
         "labelled pixels farther than this from their limb's surface are ignored (m): a "
         "left/right swap of the forest must not drag a limb across the body",
+    )
+    sigma_collision_m: float = field_doc(
+        0.005, "collision term noise scale per arm sample point, depth inside the torso (m)"
+    )
+    collision_tolerance_m: float = field_doc(
+        0.02,
+        "arm axis points may lie this deep inside the torso capsules before the collision "
+        "term acts (m): the capsules only approximate the body (ground-truth poses: upper arm "
+        "axis at most 1.1 cm inside on the 39 dev takes)",
+    )
+    collision_hand_tolerance_m: float = field_doc(
+        0.04,
+        "the same for the hand half of each forearm (m): hands rest on the hips and the belly "
+        "(ground truth: the wrist up to 3.4 cm inside in 1% of the 39 dev takes' frames)",
     )
     sigma_prior_rad: float = field_doc(
         0.05, "prior noise scale of joint angles and root rotation (rad per frame^2)"

@@ -81,10 +81,16 @@ def rows_jacobian(kin: Kinematics, rows: Rows) -> torch.Tensor:
 
 
 def normal_equations(
-    kin: Kinematics, rows: Rows, batch_size: int
+    kin: Kinematics, rows: Rows, batch_size: int, columns: torch.Tensor | None = None
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Sum of w^2 J^T J and w^2 J^T r per pose: (B, 34, 34), (B, 34), float64."""
+    """Sum of w^2 J^T J and w^2 J^T r per pose: (B, 34, 34), (B, 34), float64.
+
+    ``columns`` (N, 34), if given, multiplies the Jacobian rows: a term measured between two
+    segments drops the DoFs that move both alike (:mod:`runtime.tracker.collision_term`).
+    """
     jac = rows_jacobian(kin, rows) * rows.weight[:, None]
+    if columns is not None:
+        jac = jac * columns
     res = rows.residual * rows.weight
     if batch_size == 1:
         jt = jac.T[None]

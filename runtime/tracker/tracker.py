@@ -30,6 +30,7 @@ from shared.body import BodyShape
 from shared.camera import Intrinsics
 from shared.labels import PART_SEGMENT
 
+from .collision_term import collision_rows
 from .config import TrackerConfig
 from .depth_term import depth_rows
 from .extra_depth_term import extra_rows, observed_candidates
@@ -144,6 +145,10 @@ def fit_frames(
         else:
             hess = q.new_zeros(B, sk.NUM_DOFS, sk.NUM_DOFS, dtype=torch.float64)
             grad = q.new_zeros(B, sk.NUM_DOFS, dtype=torch.float64)
+        if cfg.use_collision:
+            contact, columns = collision_rows(render.kin, geom, cfg)
+            h, g = normal_equations(render.kin, contact, B, columns)
+            hess, grad = hess + h, grad + g
         if cfg.use_prior:
             diag, rhs, _ = prior_system(q, q_pred, cfg.sigma_prior_rad, cfg.sigma_prior_m)
             hess = hess + torch.diag_embed(diag.double())
@@ -204,8 +209,15 @@ class Tracker:
         scales = {k: v for k, v in vars(self.cfg).items() if k.startswith("sigma_")}
         scales["label_gate_m"] = self.cfg.label_gate_m
         bad = {k: v for k, v in scales.items() if not (v > 0 and math.isfinite(v))}
+        for key in ("collision_tolerance_m", "collision_hand_tolerance_m"):
+            tolerance = getattr(self.cfg, key)
+            if not (tolerance >= 0 and math.isfinite(tolerance)):
+                bad[key] = tolerance
         if bad:
-            raise TrackerError(f"noise scales and gates must be positive and finite, got {bad}")
+            raise TrackerError(
+                f"noise scales and gates must be positive and finite (the collision "
+                f"tolerances may be 0), got {bad}"
+            )
         self.intr = intr
         self.device = torch.device("cpu") if device is None else torch.device(device)
         self.dtype = dtype
