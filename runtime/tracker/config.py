@@ -154,7 +154,10 @@ class TrackerConfig:
         "left/right swap of the forest must not drag a limb across the body",
     )
     sigma_collision_m: float = field_doc(
-        0.005, "collision term noise scale per arm sample point, depth inside the torso (m)"
+        0.001,
+        "collision term noise scale per arm sample point, depth beyond the tolerance (m); "
+        "strong: a hidden arm has no data to hold it, and the forest's arm labels on the "
+        "torso pull it in (at 5 mm arm axes still lay 3-5 cm inside)",
     )
     collision_tolerance_m: float = field_doc(
         0.02,
