@@ -119,7 +119,27 @@ def bench_tracker(device: str) -> list[tuple[str, float, str]]:
             ),
             (f"ray-cast of the body, {at}", r["raycast_ms"], "one render per iteration"),
         ]
+    rows.append(collision_cost(device))
     return rows
+
+
+def collision_cost(device: str, rounds: int = 2, frames: int = 60) -> tuple[str, float, str]:
+    """The tracker step with the collision term (the hybrid preset's) against without it, on
+    the walk at 2.5 m, alternated ``rounds`` times (this host's speed drifts): (what, ms,
+    note with the ratio)."""
+    from runtime.tracker import TrackerConfig, benchmark_tracker
+
+    with_term, without = [], []
+    for _ in range(rounds):
+        without.append(benchmark_tracker(device=device, frames=frames)["ms_per_frame"])
+        cfg = TrackerConfig(use_collision=True)
+        with_term.append(benchmark_tracker(device=device, frames=frames, cfg=cfg)["ms_per_frame"])
+    ms, base = min(with_term), min(without)
+    return (
+        "tracker step with the collision term, person at 2.5 m",
+        ms,
+        f"{ms / base:.3f} of the step without it ({base:.1f} ms; best of {rounds}, alternated)",
+    )
 
 
 def bench_recordings(folder: Path, device: str) -> list[tuple[str, float, str]]:

@@ -57,3 +57,12 @@ def test_bench_refuses_a_missing_recordings_folder(tmp_path, capsys):
         main(["--recordings", str(tmp_path / "nowhere")])
     assert exit_info.value.code == 2
     assert "no such folder" in capsys.readouterr().err
+
+
+def test_collision_cost_is_a_ratio_against_the_step_without_it():
+    from runtime.bench import collision_cost
+
+    what, ms, note = collision_cost("cpu", rounds=1, frames=3)
+    assert "collision" in what and ms > 0
+    ratio = float(note.split(" of the step")[0])
+    assert 0.2 < ratio < 5.0 and "alternated" in note
