@@ -179,3 +179,28 @@ def test_tracker_with_the_collision_term_runs_and_rejects_bad_settings():
                 {"collision_hand_tolerance_m": float("nan")}):  # fmt: skip
         with pytest.raises(TrackerError, match="collision"):
             Tracker(body, intr, TrackerConfig(use_collision=True, **bad))
+
+
+def test_a_batch_gives_the_rows_of_each_pose():
+    body = BodyShape.default(torch.float64)
+    q = torch.cat([_folded_arm_pose(), rest_pose(1, root_position=(0.2, 0.0, 3.0),
+                                                 dtype=torch.float64)])  # fmt: skip
+    q[1, D["r_humerus_abd"]] = math.radians(-30)  # the second pose's right arm swings in
+    cfg = TrackerConfig()
+    kin, geom = forward_kinematics(q, body), segment_geometry(body, q)
+    both, both_columns = collision_rows(kin, geom, cfg)
+    hess, grad = normal_equations(kin, both, 2, both_columns)
+    M = len(ARM_SAMPLES)
+    assert both.batch.tolist() == [0] * M + [1] * M
+    for b in range(2):
+        one = q[b : b + 1]
+        k1, g1 = forward_kinematics(one, body), segment_geometry(body, one)
+        rows, columns = collision_rows(k1, g1, cfg)
+        sl = slice(b * M, (b + 1) * M)
+        torch.testing.assert_close(both.residual[sl], rows.residual)
+        torch.testing.assert_close(both.weight[sl], rows.weight)
+        torch.testing.assert_close(both_columns[sl], columns)
+        h1, g1_ = normal_equations(k1, rows, 1, columns)
+        torch.testing.assert_close(hess[b], h1[0])
+        torch.testing.assert_close(grad[b], g1_[0])
+        assert bool((rows.weight > 0).any())
