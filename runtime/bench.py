@@ -129,10 +129,10 @@ def collision_cost(device: str, rounds: int = 2, frames: int = 60) -> tuple[str,
     note with the ratio)."""
     from runtime.tracker import TrackerConfig, benchmark_tracker
 
+    cfg = TrackerConfig(use_collision=True)
     with_term, without = [], []
     for _ in range(rounds):
         without.append(benchmark_tracker(device=device, frames=frames)["ms_per_frame"])
-        cfg = TrackerConfig(use_collision=True)
         with_term.append(benchmark_tracker(device=device, frames=frames, cfg=cfg)["ms_per_frame"])
     ms, base = min(with_term), min(without)
     return (

@@ -26,6 +26,7 @@ __all__ = [
     "Kinematics",
     "forward_kinematics",
     "segment_points_to_world",
+    "segment_axis_points",
     "named_joint_positions",
     "point_jacobian",
     "pose_update",
@@ -240,13 +241,20 @@ def segment_points_to_world(
     return (rot @ local_points[..., None])[..., 0] + kin.origins[b, seg]
 
 
+def segment_axis_points(
+    kin: Kinematics, segment: torch.Tensor, fraction: torch.Tensor
+) -> torch.Tensor:
+    """Camera-frame points on segments' axes, ``fraction`` (N,) of each ``segment``'s (N,)
+    length from its joint: (B, N, 3)."""
+    local = (fraction * kin.lengths[:, segment])[..., None]
+    local = local * _const(sk.SEGMENT_AXIS, kin.origins)[segment]
+    return segment_points_to_world(kin, local, segment)
+
+
 def named_joint_positions(kin: Kinematics) -> torch.Tensor:
     """Named output joints (``skeleton.JOINT_NAMES``) in camera frame: (B, J, 3)."""
     like = kin.origins
-    seg = _index(sk.JOINT_SEGMENT, like)
-    frac = _const(sk.JOINT_FRACTION, like)
-    local = (frac * kin.lengths[:, seg])[..., None] * _const(sk.SEGMENT_AXIS, like)[seg]
-    return segment_points_to_world(kin, local, seg)
+    return segment_axis_points(kin, _index(sk.JOINT_SEGMENT, like), _const(sk.JOINT_FRACTION, like))
 
 
 def point_jacobian(kin: Kinematics, points: torch.Tensor, segment: torch.Tensor) -> torch.Tensor:

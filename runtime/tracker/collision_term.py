@@ -5,8 +5,8 @@ track folds it into the torso, where every data term is blind to it: on the 39 d
 model's left arm axis lay inside the torso in 61% of the frames whose left wrist was more
 than 20 cm off (42% deeper than 3 cm), against 4% deeper than 3 cm in the other frames, while
 the ground-truth poses, posed on the same capsules, never put the upper arm's axis deeper than
-1.1 cm inside. This term pushes sample points on each upper arm and the upper half of each
-forearm out of the pelvis, abdomen and chest capsules: a point deeper than
+1.1 cm inside. This term pushes sample points on each upper arm and forearm out of the
+pelvis, abdomen and chest capsules: a point deeper than
 ``cfg.collision_tolerance_m`` gives the row ``n^T dp/dq dq = depth - tolerance`` along the
 torso capsule's outward direction n at the point (the capsule's signed-distance gradient).
 The hand half of the forearm has its own, larger tolerance
@@ -14,8 +14,8 @@ The hand half of the forearm has its own, larger tolerance
 to 3-6 cm inside at the wrist).
 
 The penetration depth is a relative quantity, so only the degrees of freedom between the
-torso capsule and the arm point move it; the ones they share (the root and, for the pelvis
-and abdomen, the lower back) turn both together, and their Jacobian columns are dropped
+torso capsule and the arm point move it; the ones they share (the root and, for the
+abdomen and chest, the lower back) turn both together, and their Jacobian columns are dropped
 (exact when the point lies on the torso's surface, where the row acts).
 """
 
@@ -25,7 +25,7 @@ import torch
 
 from runtime.raycast import SegmentGeometry
 from shared import skeleton as sk
-from shared.kinematics import Kinematics
+from shared.kinematics import Kinematics, segment_axis_points
 
 from .config import TrackerConfig
 from .gauss_newton import Rows
@@ -55,10 +55,7 @@ def arm_sample_points(kin: Kinematics) -> tuple[torch.Tensor, torch.Tensor]:
     dev = kin.origins.device
     seg = torch.as_tensor([s for s, _ in ARM_SAMPLES], device=dev)
     frac = torch.as_tensor([f for _, f in ARM_SAMPLES], dtype=kin.origins.dtype, device=dev)
-    axis = torch.as_tensor(sk.SEGMENT_AXIS, dtype=kin.origins.dtype, device=dev)[seg]  # (M, 3)
-    direction = (kin.rotations[:, seg] @ axis[None, :, :, None])[..., 0]  # (B, M, 3)
-    along = (frac * kin.lengths[:, seg])[..., None]  # (B, M, 1)
-    return kin.origins[:, seg] + along * direction, seg
+    return segment_axis_points(kin, seg, frac), seg
 
 
 def collision_rows(
@@ -75,15 +72,19 @@ def collision_rows(
     points, seg = arm_sample_points(kin)  # (B, M, 3)
     B, M = points.shape[:2]
     torso = torch.as_tensor(TORSO_SEGMENTS, device=points.device)
-    rot, origin = geom.frames(kin)  # (B, P, 3, 3), (B, P, 3)
     T = torso.shape[0]
-    flat = points[:, :, None].expand(B, M, T, 3).reshape(-1, 3)
-    r = rot[:, torso][:, None].expand(B, M, T, 3, 3).reshape(-1, 3, 3)
-    o = origin[:, torso][:, None].expand(B, M, T, 3).reshape(-1, 3)
-    basis = geom.basis[torso][None, None].expand(B, M, T, 3, 3).reshape(-1, 3, 3)
-    span = geom.span.expand(B, -1, -1)[:, torso][:, None].expand(B, M, T, 2).reshape(-1, 2)
-    scale = geom.scale.expand(B, -1, -1)[:, torso][:, None].expand(B, M, T, 3).reshape(-1, 3)
-    signed, direction = capsule_offsets(flat, r, o, basis, span, scale)
+    # Every (pose, point, torso capsule) triple, flattened: b and p index pose and capsule.
+    b = torch.arange(B, device=points.device)[:, None, None].expand(B, M, T).reshape(-1)
+    p = torso.expand(B, M, T).reshape(-1)
+    rot, origin = geom.frames(kin)  # (B, P, 3, 3), (B, P, 3)
+    signed, direction = capsule_offsets(
+        points[:, :, None].expand(B, M, T, 3).reshape(-1, 3),
+        rot[b, p],
+        origin[b, p],
+        geom.basis[p],
+        geom.span.expand(B, -1, -1)[b, p],
+        geom.scale.expand(B, -1, -1)[b, p],
+    )
     signed, direction = signed.reshape(B, M, T), direction.reshape(B, M, T, 3)
     deepest = signed.argmin(-1)  # (B, M): the torso capsule the point is deepest in
     signed = signed.gather(-1, deepest[..., None])[..., 0]
