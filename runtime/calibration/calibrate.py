@@ -13,12 +13,13 @@ the same pose (:func:`runtime.raycast.render_body`, exact labels) and the body i
 bone by the ratio of the two: ``length = template_length * measured / measured_on_template``,
 likewise the radii. Left and right bones are averaged (Wei: symmetric skeletons). The torso's
 elliptic sections keep the template's aspect ratio (its depth is not seen from the front): the
-lateral semi-axis is measured, the other scaled with it. Extents (hands, feet, the pelvis
-below the hips) scale with their segment; the hip width with the distance between the thigh
-axes' upper ends; the clavicles, mostly hidden inside the chest, with the distance between
-the upper arm axes' inner ends (the shoulders). Bones too hidden to
-measure take the median scale of the others. With several frames, each measurement is the
-median over the frames.
+lateral semi-axis is measured, the other scaled with it, and so do the sections' offsets from
+the joint axis. Extents (hands, feet, the pelvis below the hips) scale with their segment;
+the pelvis's radius and the hip width with the abdomen's and chest's radii (the thighs cover
+the sides of the pelvis; the distance between the thigh axes' upper ends is the fallback);
+the clavicles, mostly hidden inside the chest, with the distance between the upper arm
+axes' inner ends (the shoulders). Bones too hidden to measure take the median scale of the
+others. With several frames, each measurement is the median over the frames.
 
 On real (mesh) bodies the per-bone ratios carry errors of their own: a labelled part's
 boundaries are not at the skeleton's joint centres (on anny bodies the abdomen came out 12 cm
@@ -241,13 +242,28 @@ def calibrate_body(
     len_scale = torch.where(torch.isfinite(len_scale), len_scale, overall)
     if cfg.length_scale == "consensus":
         len_scale = overall.expand_as(len_scale)
+    # The hips follow the abdomen's and chest's width: the pelvis's own pixels (a short, wide
+    # section whose sides the thighs' tops cover) and the gap between the thigh axes measure
+    # them badly on mesh bodies (ten dev bodies: pelvis radius 6.9 cm, hip half-width 1.9 cm
+    # too small on average; from the torso's width 1.1 and 0.6 cm off).
+    torso = rad_scale[1:3].nanmean()
+    hip_gap = gap[0] / t_gap[0]
+    if bool(torch.isfinite(torso)):
+        rad_scale[0] = hip_scale = torso
+    else:
+        hip_scale = hip_gap if bool(torch.isfinite(hip_gap)) else rad_scale[0]
     rad_scale = torch.where(torch.isfinite(rad_scale), rad_scale, overall)
-    hip_scale = gap[0] / t_gap[0] if bool(torch.isfinite(gap[0] / t_gap[0])) else rad_scale[0]
+    hip_scale = torch.where(torch.isfinite(hip_scale), hip_scale, overall)
+    shank = FOOT_SEGMENTS[0]
     return BodyShape(
         template.lengths * len_scale,
         template.radii * rad_scale[:, None],
         template.extents * len_scale[:, None],
         template.hip_half_width * hip_scale,
+        # Section centres sit off the joint axis (the belly in front of the spine) by amounts
+        # a front view cannot measure: the template's, scaled with the section.
+        template.offsets * rad_scale[:, None],
+        template.feet * torch.stack([len_scale[shank], rad_scale[shank]]),
         chest_tilt=template.chest_tilt,
         clavicle_rest=template.clavicle_rest,  # the T-pose lifts the shoulders: cannot show it
     ).to(dtype=torch.float32)

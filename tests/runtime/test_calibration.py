@@ -172,3 +172,31 @@ def test_shipped_template_is_the_cli_default():
     template = BodyShape.load(DEFAULT_TEMPLATE)
     assert 0.27 < float(template.lengths[2]) < 0.36
     assert float(template.clavicle_rest[0]) < 0
+
+
+def test_hips_offsets_and_feet_follow_the_torso_and_template():
+    """What a front view cannot measure comes from the template, scaled: the sections' offsets
+    from the joint axis (radius scale), the feet (the shank's scales); the pelvis's radius and
+    the hip width follow the abdomen's and chest's width, not the pelvis's own pixels."""
+    from runtime.calibrate_cli import DEFAULT_TEMPLATE
+
+    template = BodyShape.load(DEFAULT_TEMPLATE)
+    t = template
+    body = BodyShape(
+        t.lengths * 1.05, t.radii * 1.1, t.extents * 1.05, t.hip_half_width * 1.1,
+        t.offsets * 1.1, t.feet * torch.tensor([1.05, 1.1]), t.chest_tilt, t.clavicle_rest,
+    )  # fmt: skip
+    depth, labels = render_labels(reference_pose(root_position=(0.0, 0.05, 2.6)), body)
+    cal = calibrate_body([depth], [labels], INTR, template, FAST)
+    assert bool((template.offsets.abs() > 0.01).any())
+    torso_scale = cal.radii[1:3, 0] / template.radii[1:3, 0]
+    scale = cal.radii[:, 0] / template.radii[:, 0]
+    assert torch.allclose(cal.offsets, template.offsets * scale[:, None], atol=1e-6)
+    assert float((cal.offsets - body.offsets).abs().max()) < 0.01
+    assert float(scale[0]) == pytest.approx(float(torso_scale.mean()), rel=1e-5)
+    assert float(cal.hip_half_width / template.hip_half_width) == pytest.approx(
+        float(torso_scale.mean()), rel=1e-5
+    )
+    assert abs(float(cal.hip_half_width - body.hip_half_width)) < 0.01
+    assert float((cal.feet - body.feet).abs().max()) < 0.02
+    cal.validate()
