@@ -35,7 +35,14 @@ def test_golden_values_on_scaled_bodies(tmp_path):
     assert err["max_cm"] == pytest.approx(10.0 * lengths.max(), abs=1e-4)
     thigh = sk.SEGMENT_NAMES.index("l_thigh")
     assert err["per_segment_cm"]["l_thigh"] == pytest.approx(5.0 * lengths[thigh], abs=1e-3)
+    # The shape fields: body 1's are 10% larger too.
+    for field in ("radii", "offsets", "feet"):
+        size = getattr(ref, field).abs().numpy().mean()
+        assert err["shape_mean_cm"][field] == pytest.approx(5.0 * size, rel=1e-4, abs=1e-5)
+    hip = float(ref.hip_half_width)
+    assert err["shape_mean_cm"]["hip_half_width"] == pytest.approx(5.0 * hip, abs=1e-4)
     text = format_bone_length_errors("calibrated", err)
+    assert f"radii {err['shape_mean_cm']['radii']:.2f}" in text
     assert text.startswith("calibrated bodies (2): bone lengths ")
     assert f"{err['mean_cm']:.2f} cm off on average" in text
 
