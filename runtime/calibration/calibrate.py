@@ -194,6 +194,14 @@ def _template_measurement(template, intr, cfg, root_z, gen):
     return measure_bones(r.depth[0], labels, intr, template, cfg, gen)
 
 
+def _first_finite(*candidates: torch.Tensor) -> torch.Tensor:
+    """The first finite one of scalar ``candidates`` (the last if none is)."""
+    out = candidates[-1]
+    for c in reversed(candidates[:-1]):
+        out = torch.where(torch.isfinite(c), c, out)
+    return out
+
+
 def calibrate_body(
     frames: list[torch.Tensor],
     labels: list[torch.Tensor],
@@ -247,13 +255,9 @@ def calibrate_body(
     # them badly on mesh bodies (ten dev bodies: pelvis radius 6.9 cm, hip half-width 1.9 cm
     # too small on average; from the torso's width 1.1 and 0.6 cm off).
     torso = rad_scale[1:3].nanmean()
-    hip_gap = gap[0] / t_gap[0]
-    if bool(torch.isfinite(torso)):
-        rad_scale[0] = hip_scale = torso
-    else:
-        hip_scale = hip_gap if bool(torch.isfinite(hip_gap)) else rad_scale[0]
+    hip_scale = _first_finite(torso, gap[0] / t_gap[0], rad_scale[0], overall)
+    rad_scale[0] = _first_finite(torso, rad_scale[0], overall)
     rad_scale = torch.where(torch.isfinite(rad_scale), rad_scale, overall)
-    hip_scale = torch.where(torch.isfinite(hip_scale), hip_scale, overall)
     shank = FOOT_SEGMENTS[0]
     return BodyShape(
         template.lengths * len_scale,

@@ -200,3 +200,19 @@ def test_hips_offsets_and_feet_follow_the_torso_and_template():
     assert abs(float(cal.hip_half_width - body.hip_half_width)) < 0.01
     assert float((cal.feet - body.feet).abs().max()) < 0.02
     cal.validate()
+
+
+def test_hips_fall_back_to_the_thigh_gap_without_a_torso():
+    """No abdomen or chest pixels (covered, or mislabelled): the hip width comes from the gap
+    between the thigh axes, the pelvis's radius from the overall scale; the body is valid."""
+    from shared.labels import PART_SEGMENT
+
+    body = subject()
+    depth, labels = render_labels(reference_pose(root_position=(0.0, 0.05, 2.6)), body)
+    seg = torch.as_tensor(PART_SEGMENT)[labels]
+    labels = torch.where((seg == 1) | (seg == 2), torch.zeros_like(labels), labels)
+    cal = calibrate_body([depth], [labels], INTR, TEMPLATE, FAST)
+    cal.validate()
+    assert abs(float(cal.hip_half_width - body.hip_half_width)) < 0.02
+    overall = (cal.lengths / TEMPLATE.lengths).median()
+    assert torch.allclose(cal.radii[0], TEMPLATE.radii[0] * overall, rtol=1e-5)
