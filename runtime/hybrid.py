@@ -595,7 +595,10 @@ def create_estimator(
     if cfg.labels_from_recording:
         frame_labels = recording_labels(Path(cfg.labels_from_recording))
     else:
-        labeler = load_forest_labeler(model_path, device, intrinsics)
+        labeler = load_forest_labeler(
+            model_path, device, intrinsics, False, cfg.detector.label_smoothing_window,
+            cfg.detector.label_smoothing_gate_m,
+        )  # fmt: skip
     detector = Detector(body, intrinsics, cfg.detector, tcfg, device=device)
     tracker = Tracker(body, intrinsics, tcfg, device=device)
     return HybridEstimator(labeler, detector, tracker, cfg, frame_labels)

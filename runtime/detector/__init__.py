@@ -54,10 +54,14 @@ def load_forest_labeler(
     device: str | torch.device = "cpu",
     intrinsics: Intrinsics | None = None,
     posteriors: bool = False,
+    smooth_window: int = 1,
+    smooth_depth_gate_m: float = 0.05,
 ) -> Labeler:
     """Per-pixel part labels (or (C, H, W) posteriors) from the forest at ``model_path``.
 
     ``intrinsics``: the stream's camera (feature offsets are rescaled to its focal length).
+    ``smooth_window``, ``smooth_depth_gate_m``: depth-gated smoothing of the posteriors
+    (:func:`shared.posterior_smoothing.smooth_posteriors`; a window of 1 is off).
 
     Raises:
         DetectorError: no model given or the forest runtime is missing; the forest loader's
@@ -73,7 +77,16 @@ def load_forest_labeler(
         from runtime.forest.inference import ForestClassifier
     except ImportError as err:
         raise DetectorError(f"forest inference is not available in this build ({err})") from None
-    clf = ForestClassifier(forest, device, intrinsics=intrinsics)
+    try:
+        clf = ForestClassifier(
+            forest,
+            device,
+            intrinsics=intrinsics,
+            smooth_window=smooth_window,
+            smooth_depth_gate_m=smooth_depth_gate_m,
+        )
+    except ValueError as err:
+        raise DetectorError(str(err)) from None
     return clf.posteriors if posteriors else clf.labels
 
 
@@ -148,5 +161,8 @@ def create_estimator(
 ) -> DetectorEstimator:
     """Mode "detector" for ``make_estimator`` (``config``: DetectorConfig keys)."""
     cfg = _config(DetectorConfig, config, "detector config")
-    labeler = load_forest_labeler(model_path, device, intrinsics)
+    labeler = load_forest_labeler(
+        model_path, device, intrinsics, False, cfg.label_smoothing_window,
+        cfg.label_smoothing_gate_m,
+    )  # fmt: skip
     return DetectorEstimator(labeler, Detector(body, intrinsics, cfg, device=device))

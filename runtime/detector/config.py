@@ -13,6 +13,16 @@ __all__ = ["DetectorConfig", "MeanShiftConfig"]
 class DetectorConfig:
     """Forest labels -> RANSAC bone fitting -> class centroids -> IK -> tracker refinement."""
 
+    label_smoothing_window: int = field_doc(
+        5,
+        help="the forest's posteriors are averaged over this box of pixels (odd; 1: off) among "
+        "neighbours within label_smoothing_gate_m in depth before the arg-max "
+        "(shared.posterior_smoothing): mean per-class accuracy 81.7% against 75.7% on the dev "
+        "recordings; the hybrid's label term and arm checks use the same labels",
+    )
+    label_smoothing_gate_m: float = field_doc(
+        0.05, help="depth difference beyond which a neighbour is not averaged in (m)"
+    )
     ransac_samples: int = field_doc(
         2500, help="random point pairs drawn per bone (Wei 4.2: 2,500 are 'more than enough')"
     )

@@ -34,6 +34,7 @@ import torch
 from shared.camera import Intrinsics
 from shared.forest_format import Forest, load_forest, traversal_table
 from shared.forest_walk import traverse, walk_posteriors
+from shared.posterior_smoothing import smooth_posteriors
 
 __all__ = [
     "DEFAULT_MODEL",
@@ -59,6 +60,9 @@ class ForestClassifier:
         intrinsics: runtime camera; offsets are rescaled when its focal lengths differ from the
             trained camera's.
         threads: CPU threads of the onnxruntime session (torch uses its global setting).
+        smooth_window: posteriors are averaged over this box of classified pixels
+            (:func:`shared.posterior_smoothing.smooth_posteriors`; 1: off).
+        smooth_depth_gate_m: neighbours farther in depth than this are not averaged in (m).
     """
 
     def __init__(
@@ -68,9 +72,17 @@ class ForestClassifier:
         backend: str = "torch",
         intrinsics: Intrinsics | None = None,
         threads: int = 2,
+        smooth_window: int = 1,
+        smooth_depth_gate_m: float = 0.05,
     ) -> None:
         if backend not in ("torch", "onnxruntime"):
             raise ValueError(f"backend must be 'torch' or 'onnxruntime', not {backend!r}")
+        if smooth_window < 1 or smooth_window % 2 == 0 or not smooth_depth_gate_m > 0:
+            raise ValueError(
+                f"smooth_window must be odd and >= 1 and smooth_depth_gate_m > 0, got "
+                f"{smooth_window}, {smooth_depth_gate_m}"
+            )
+        self.smooth_window, self.smooth_depth_gate_m = smooth_window, smooth_depth_gate_m
         self.forest = forest
         self.backend = backend
         self.device = torch.device(device)
@@ -158,7 +170,8 @@ class ForestClassifier:
             mask: bool person mask of the same shape.
             stride: classify only pixels whose row and column are multiples of ``stride``.
         Returns:
-            pixels (N, 3) int64 (frame, row, col) in row-major order, posteriors (N, C) float32.
+            pixels (N, 3) int64 (frame, row, col) in row-major order, posteriors (N, C) float32
+            (smoothed when the classifier's ``smooth_window`` > 1).
         """
         depth, valid, _ = self._prepare(depth_m, mask, stride)
         b, h, w = depth.shape
@@ -166,14 +179,20 @@ class ForestClassifier:
         if pix.shape[0] == 0:
             return pix, torch.zeros(0, self.num_classes, device=self.device)
         if self.backend == "onnxruntime":
-            probs = [
-                torch.from_numpy(
-                    self._onnx_posteriors(depth[i].cpu().numpy(), valid[i].cpu().numpy())
-                )
-                for i in range(b)  # one image per ONNX call: the graph takes (H, W)
-            ]
-            return pix, torch.cat(probs).to(self.device)
-        return pix, self._torch_posteriors(depth, valid, pix)
+            probs = torch.cat(
+                [
+                    torch.from_numpy(
+                        self._onnx_posteriors(depth[i].cpu().numpy(), valid[i].cpu().numpy())
+                    )
+                    for i in range(b)  # one image per ONNX call: the graph takes (H, W)
+                ]
+            ).to(self.device)
+        else:
+            probs = self._torch_posteriors(depth, valid, pix)
+        probs = smooth_posteriors(
+            pix, probs, depth, self.smooth_window, self.smooth_depth_gate_m, max(stride, 1)
+        )
+        return pix, probs
 
     def _torch_posteriors(self, depth, valid, pix) -> torch.Tensor:
         # Dropping finished pairs pays off on the CPU, where work is proportional to pairs.

@@ -171,3 +171,22 @@ def test_default_model_path_points_into_models():
         DEFAULT_MODEL.parent.name == "models"
         and DEFAULT_MODEL.parent.parent == Path(__file__).resolve().parents[2]
     )
+
+
+def test_smoothing_option_matches_the_shared_function_on_both_backends(forest, test_frames):
+    from shared.posterior_smoothing import smooth_posteriors
+
+    d, m = test_frames
+    pix, raw = ForestClassifier(forest).pixel_posteriors(d, m)
+    smooth = ForestClassifier(forest, smooth_window=5, smooth_depth_gate_m=0.05)
+    pix_s, post_s = smooth.pixel_posteriors(d, m)
+    assert torch.equal(pix_s, pix)
+    torch.testing.assert_close(post_s, smooth_posteriors(pix, raw, d, 5, 0.05))
+    assert not torch.equal(post_s, raw)
+    lab = smooth.labels(d, m)
+    assert torch.equal(lab[pix[:, 0], pix[:, 1], pix[:, 2]], post_s.argmax(1))
+    onnx = ForestClassifier(forest, backend="onnxruntime", threads=1, smooth_window=5)
+    torch.testing.assert_close(onnx.pixel_posteriors(d, m)[1], post_s, atol=1e-6, rtol=0)
+    for bad in ({"smooth_window": 4}, {"smooth_window": 0}, {"smooth_depth_gate_m": 0.0}):
+        with pytest.raises(ValueError, match="smooth"):
+            ForestClassifier(forest, **bad)

@@ -4,6 +4,7 @@ Examples::
 
     train-forest-eval --model models/forest.npz --data data/dev --out out/forest_eval
     train-forest-eval --model /tmp/forest.npz --data data/synth_tiny --max-frames 200
+    train-forest-eval --model models/forest.npz --data data/dev --smooth-window 5
 
 Writes ``forest_metrics.json`` and ``confusion.png`` to ``--out`` (when given) and prints the
 pixel accuracy, the mean per-class accuracy and the per-class accuracies.
@@ -31,6 +32,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-frames", type=int, help="evaluate at most this many frames")
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    p.add_argument(
+        "--smooth-window",
+        type=int,
+        default=1,
+        help="score posteriors smoothed over this odd box of pixels, as the detector and the "
+        "hybrid use them (runtime default 5; 1: the raw forest)",
+    )
+    p.add_argument(
+        "--smooth-gate", type=float, default=0.05, help="depth gate of the smoothing (m)"
+    )
     return p
 
 
@@ -41,7 +52,10 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
     try:
         forest = load_forest(args.model)
-        result = evaluate_forest(forest, args.data, args.max_frames, args.device)
+        result = evaluate_forest(
+            forest, args.data, args.max_frames, args.device,
+            smooth_window=args.smooth_window, smooth_depth_gate_m=args.smooth_gate,
+        )  # fmt: skip
         if args.out:
             out = Path(args.out)
             out.mkdir(parents=True, exist_ok=True)

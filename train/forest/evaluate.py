@@ -24,6 +24,7 @@ import torch
 
 from shared.camera import Intrinsics
 from shared.forest_format import Forest
+from shared.posterior_smoothing import smooth_posteriors
 from shared.recording import Recording
 
 from .predict import predict_posteriors
@@ -91,8 +92,12 @@ def evaluate_forest(
     max_frames: int | None = None,
     device: str = "cpu",
     batch: int = 16,
+    smooth_window: int = 1,
+    smooth_depth_gate_m: float = 0.05,
 ) -> dict:
-    """Confusion matrix and accuracies of ``forest`` on the labelled frames at ``path``."""
+    """Confusion matrix and accuracies of ``forest`` on the labelled frames at ``path``;
+    ``smooth_window`` > 1 scores the depth-gated smoothed posteriors the runtime uses
+    (:func:`shared.posterior_smoothing.smooth_posteriors`)."""
     c = forest.num_classes
     conf = torch.zeros(c * c, dtype=torch.int64)
     frames = 0
@@ -101,6 +106,7 @@ def evaluate_forest(
         lab = torch.from_numpy(labels).to(device)
         scale = forest.offset_scale(intr.fx, intr.fy)
         pix, probs = predict_posteriors(forest, depth, lab > 0, scale)
+        probs = smooth_posteriors(pix, probs, depth, smooth_window, smooth_depth_gate_m)
         truth = lab[pix[:, 0], pix[:, 1], pix[:, 2]].to(torch.int64)
         conf += torch.bincount(truth * c + probs.argmax(1), minlength=c * c).cpu()
         frames += depth.shape[0]

@@ -1,0 +1,70 @@
+"""Depth-gated box smoothing of per-pixel forest posteriors (not in Wei or Shotton).
+
+A forest decides every pixel on its own, so a limb's labels come out speckled: scattered
+pixels of the other side's arm on a forearm, of the forearm on the chest. Neighbouring pixels
+on one surface almost always belong to one part, so each classified pixel's posteriors are
+replaced by the mean of those of its classified neighbours in a ``window`` x ``window`` box
+whose depth is within ``depth_gate_m`` of its own. The gate keeps a hand in front of the chest
+from being averaged with the chest behind it. On the ten dev recordings (``data/dev``) a
+5-pixel window with a 5 cm gate raises the shipped forest's mean per-class accuracy from
+75.7% to 81.7% and the forearms' from 61.7% / 67.1% to 71.3% / 76.8% (``train-forest-eval
+--smooth-window 5``).
+
+Shared by the runtime's ``ForestClassifier`` and the training side's evaluation, so both
+report the labels the runtime uses.
+"""
+
+from __future__ import annotations
+
+import torch
+
+__all__ = ["smooth_posteriors"]
+
+
+def smooth_posteriors(
+    pix: torch.Tensor,
+    probs: torch.Tensor,
+    depth_m: torch.Tensor,
+    window: int,
+    depth_gate_m: float,
+    stride: int = 1,
+) -> torch.Tensor:
+    """Mean posteriors over each classified pixel's depth-gated neighbourhood.
+
+    Args:
+        pix: (N, 3) int64 (frame, row, col) of the classified pixels.
+        probs: (N, C) their posteriors.
+        depth_m: (B, H, W) depth in metres the pixels index.
+        window: box side in classified pixels (odd; 1 or less: no smoothing).
+        depth_gate_m: neighbours whose depth differs by more than this are left out (m).
+        stride: the classified pixels' spacing (``ForestClassifier``'s ``stride``); the box
+            steps over the unclassified pixels between them.
+    Returns:
+        (N, C) posteriors, each row still summing to what it did (the mean of distributions).
+    """
+    if window <= 1 or pix.shape[0] == 0:
+        return probs
+    if window % 2 == 0:
+        raise ValueError(f"the smoothing window must be odd, got {window}")
+    b, h, w = depth_m.shape
+    n = pix.shape[0]
+    index = torch.full((b, h, w), -1, dtype=torch.int64, device=pix.device)
+    frame, row, col = pix.unbind(1)
+    index[frame, row, col] = torch.arange(n, device=pix.device)
+    centre = depth_m[frame, row, col]
+    total = torch.zeros_like(probs)
+    count = torch.zeros(n, 1, dtype=probs.dtype, device=probs.device)
+    r = window // 2
+    # A loop over the window's offsets (25 for 5 x 5), not the pixels: each step is one
+    # gather for all pixels, and memory stays (N, C).
+    for dv in range(-r, r + 1):
+        for du in range(-r, r + 1):
+            v, u = row + dv * stride, col + du * stride
+            inside = (v >= 0) & (v < h) & (u >= 0) & (u < w)
+            v, u = v.clamp(0, h - 1), u.clamp(0, w - 1)
+            j = index[frame, v, u]
+            use = inside & (j >= 0) & ((depth_m[frame, v, u] - centre).abs() <= depth_gate_m)
+            weight = use.to(probs.dtype)[:, None]
+            total += probs[j.clamp_min(0)] * weight
+            count += weight
+    return total / count.clamp_min(1.0)
