@@ -48,23 +48,20 @@ def smooth_posteriors(
         raise ValueError(f"the smoothing window must be odd, got {window}")
     b, h, w = depth_m.shape
     n = pix.shape[0]
-    index = torch.full((b, h, w), -1, dtype=torch.int64, device=pix.device)
     frame, row, col = pix.unbind(1)
-    index[frame, row, col] = torch.arange(n, device=pix.device)
-    centre = depth_m[frame, row, col]
-    total = torch.zeros_like(probs)
-    count = torch.zeros(n, 1, dtype=probs.dtype, device=probs.device)
+    # Flat indices and torch.take: indexing with three index tensors costs several times more.
+    flat = (frame * h + row) * w + col
+    index = torch.full((b * h * w,), -1, dtype=torch.int64, device=pix.device)
+    index[flat] = torch.arange(n, device=pix.device)
     r = window // 2
-    # A loop over the window's offsets (25 for 5 x 5), not the pixels: each step is one
-    # gather for all pixels, and memory stays (N, C).
-    for dv in range(-r, r + 1):
-        for du in range(-r, r + 1):
-            v, u = row + dv * stride, col + du * stride
-            inside = (v >= 0) & (v < h) & (u >= 0) & (u < w)
-            v, u = v.clamp(0, h - 1), u.clamp(0, w - 1)
-            j = index[frame, v, u]
-            use = inside & (j >= 0) & ((depth_m[frame, v, u] - centre).abs() <= depth_gate_m)
-            weight = use.to(probs.dtype)[:, None]
-            total += probs[j.clamp_min(0)] * weight
-            count += weight
-    return total / count.clamp_min(1.0)
+    step = torch.arange(-r, r + 1, device=pix.device) * stride
+    dv, du = (x.reshape(-1) for x in torch.meshgrid(step, step, indexing="ij"))  # (K,)
+    v, u = row[:, None] + dv, col[:, None] + du  # (N, K)
+    inside = (v >= 0) & (v < h) & (u >= 0) & (u < w)
+    near = torch.where(inside, flat[:, None] + dv * w + du, flat[:, None])
+    j = index.take(near)
+    gap = (depth_m.reshape(-1).take(near) - depth_m.reshape(-1).take(flat)[:, None]).abs()
+    weight = (inside & (j >= 0) & (gap <= depth_gate_m)).to(probs.dtype)  # (N, K)
+    gathered = probs.index_select(0, j.clamp_min(0).reshape(-1)).view(n, -1, probs.shape[1])
+    total = torch.einsum("nk,nkc->nc", weight, gathered)
+    return total / weight.sum(1, keepdim=True).clamp_min(1.0)
