@@ -204,6 +204,12 @@ def main(argv: list[str] | None = None) -> None:
                 ):
                     if key in fr:
                         print(f"  {what:<45s} {fr[key]:9.3f} ms  target <= 10 ms")
+                if "torch_cpu_smoothed_ms" in fr:
+                    ratio = fr["torch_cpu_smoothed_ms"] / fr["torch_cpu_ms"]
+                    print(
+                        f"  {'torch CPU, 5x5 smoothed (detector, hybrid)':<45s} "
+                        f"{fr['torch_cpu_smoothed_ms']:9.3f} ms  {ratio:.2f} of the raw forest's"
+                    )
         print(f"\n== tracker on {name} (cylinder-model walk, 320x240 in; working resolution ==")
         print("   and window from the person's size)")
         for what, ms, note in bench_tracker(dev):

@@ -82,6 +82,9 @@ def benchmark_forest(
             "torch_cpu_ms": _median_ms(lambda: clf.labels(d, m), repeats),
             "torch_cpu_stride2_ms": _median_ms(lambda: clf.labels(d, m, stride=2), repeats),
         }
+        # The detector's and the hybrid's labels (DetectorConfig.label_smoothing_window).
+        smoothed = ForestClassifier(forest, "cpu", smooth_window=5)
+        out["torch_cpu_smoothed_ms"] = _median_ms(lambda: smoothed.labels(d, m), repeats)
         if forest.onnx_graph is not None:
             try:
                 ort_clf = ForestClassifier(forest, backend="onnxruntime", threads=threads)

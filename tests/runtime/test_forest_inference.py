@@ -158,6 +158,7 @@ def test_benchmark_reports_milliseconds(forest, tmp_path):
     save_forest(tmp_path / "f.npz", forest)
     res = benchmark_forest(tmp_path / "f.npz", threads=1, repeats=2)
     assert res["torch_cpu_ms"] > 0 and res["torch_cpu_stride2_ms"] > 0 and res["pixels"] > 1000
+    assert res["torch_cpu_smoothed_ms"] > 0
     assert "onnxruntime_ms" in res
     assert benchmark_forest(tmp_path / "missing.npz") == {}
     depth, mask = person_frame()
