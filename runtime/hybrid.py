@@ -596,9 +596,12 @@ def create_estimator(
         frame_labels = recording_labels(Path(cfg.labels_from_recording))
     else:
         labeler = load_forest_labeler(
-            model_path, device, intrinsics, False, cfg.detector.label_smoothing_window,
-            cfg.detector.label_smoothing_gate_m,
-        )  # fmt: skip
+            model_path,
+            device,
+            intrinsics,
+            smooth_window=cfg.detector.label_smoothing_window,
+            smooth_depth_gate_m=cfg.detector.label_smoothing_gate_m,
+        )
     detector = Detector(body, intrinsics, cfg.detector, tcfg, device=device)
     tracker = Tracker(body, intrinsics, tcfg, device=device)
     return HybridEstimator(labeler, detector, tracker, cfg, frame_labels)

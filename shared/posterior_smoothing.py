@@ -18,7 +18,17 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["smooth_posteriors"]
+__all__ = ["check_smoothing", "smooth_posteriors"]
+
+
+def check_smoothing(window: int, depth_gate_m: float) -> None:
+    """Raise ValueError unless ``window`` is odd and >= 1 (1: off) and ``depth_gate_m`` > 0:
+    an even box has no centre, and a gate of zero or less would leave every pixel out."""
+    if window < 1 or window % 2 == 0 or not depth_gate_m > 0:
+        raise ValueError(
+            f"the posterior smoothing window must be odd and >= 1 (1: off) and its depth gate "
+            f"> 0, got window {window}, gate {depth_gate_m}"
+        )
 
 
 def smooth_posteriors(
@@ -35,17 +45,18 @@ def smooth_posteriors(
         pix: (N, 3) int64 (frame, row, col) of the classified pixels.
         probs: (N, C) their posteriors.
         depth_m: (B, H, W) depth in metres the pixels index.
-        window: box side in classified pixels (odd; 1 or less: no smoothing).
+        window: box side in classified pixels (odd; 1: no smoothing).
         depth_gate_m: neighbours whose depth differs by more than this are left out (m).
         stride: the classified pixels' spacing (``ForestClassifier``'s ``stride``); the box
             steps over the unclassified pixels between them.
     Returns:
         (N, C) posteriors, each row still summing to what it did (the mean of distributions).
+    Raises:
+        ValueError: see :func:`check_smoothing`.
     """
-    if window <= 1 or pix.shape[0] == 0:
+    check_smoothing(window, depth_gate_m)
+    if window == 1 or pix.shape[0] == 0:
         return probs
-    if window % 2 == 0:
-        raise ValueError(f"the smoothing window must be odd, got {window}")
     b, h, w = depth_m.shape
     n = pix.shape[0]
     frame, row, col = pix.unbind(1)

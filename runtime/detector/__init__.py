@@ -64,8 +64,9 @@ def load_forest_labeler(
     (:func:`shared.posterior_smoothing.smooth_posteriors`; a window of 1 is off).
 
     Raises:
-        DetectorError: no model given or the forest runtime is missing; the forest loader's
-            ``ForestFormatError`` (a ValueError) for a missing or corrupt file.
+        DetectorError: no model given, the forest runtime missing, or bad smoothing settings;
+            the forest loader's ``ForestFormatError`` (a ValueError) for a missing or corrupt
+            file.
     """
     if model_path is None:
         raise DetectorError("this mode needs a forest model (--model forest.npz)")
@@ -162,7 +163,10 @@ def create_estimator(
     """Mode "detector" for ``make_estimator`` (``config``: DetectorConfig keys)."""
     cfg = _config(DetectorConfig, config, "detector config")
     labeler = load_forest_labeler(
-        model_path, device, intrinsics, False, cfg.label_smoothing_window,
-        cfg.label_smoothing_gate_m,
-    )  # fmt: skip
+        model_path,
+        device,
+        intrinsics,
+        smooth_window=cfg.label_smoothing_window,
+        smooth_depth_gate_m=cfg.label_smoothing_gate_m,
+    )
     return DetectorEstimator(labeler, Detector(body, intrinsics, cfg, device=device))

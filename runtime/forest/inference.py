@@ -34,7 +34,7 @@ import torch
 from shared.camera import Intrinsics
 from shared.forest_format import Forest, load_forest, traversal_table
 from shared.forest_walk import traverse, walk_posteriors
-from shared.posterior_smoothing import smooth_posteriors
+from shared.posterior_smoothing import check_smoothing, smooth_posteriors
 
 __all__ = [
     "DEFAULT_MODEL",
@@ -77,11 +77,7 @@ class ForestClassifier:
     ) -> None:
         if backend not in ("torch", "onnxruntime"):
             raise ValueError(f"backend must be 'torch' or 'onnxruntime', not {backend!r}")
-        if smooth_window < 1 or smooth_window % 2 == 0 or not smooth_depth_gate_m > 0:
-            raise ValueError(
-                f"smooth_window must be odd and >= 1 and smooth_depth_gate_m > 0, got "
-                f"{smooth_window}, {smooth_depth_gate_m}"
-            )
+        check_smoothing(smooth_window, smooth_depth_gate_m)
         self.smooth_window, self.smooth_depth_gate_m = smooth_window, smooth_depth_gate_m
         self.forest = forest
         self.backend = backend

@@ -191,3 +191,14 @@ def test_smoothing_option_matches_the_shared_function_on_both_backends(forest, t
     for bad in ({"smooth_window": 4}, {"smooth_window": 0}, {"smooth_depth_gate_m": 0.0}):
         with pytest.raises(ValueError, match="smooth"):
             ForestClassifier(forest, **bad)
+
+
+def test_labeler_reports_bad_smoothing_as_a_detector_error(forest, tmp_path):
+    from runtime.detector import DetectorError, load_forest_labeler
+
+    save_forest(tmp_path / "f.npz", forest)
+    with pytest.raises(DetectorError, match="smoothing window must be odd"):
+        load_forest_labeler(tmp_path / "f.npz", "cpu", INTR, smooth_window=4)
+    labels = load_forest_labeler(tmp_path / "f.npz", "cpu", INTR, smooth_window=3)
+    depth, mask = person_frame(80, 60)
+    assert labels(torch.from_numpy(depth), torch.from_numpy(mask)).shape == (60, 80)
