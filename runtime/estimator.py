@@ -37,6 +37,7 @@ __all__ = [
     "STATUSES",
     "make_estimator",
     "lost",
+    "observed_of",
 ]
 
 Status = Literal["tracked", "detected", "lost"]
@@ -68,6 +69,8 @@ class PoseEstimate:
         errors: fit errors by name (e.g. mean depth error in metres, silhouette overlap).
         labels: optional (H, W) uint8 body-part labels (shared.labels) the estimator computed;
             only used for overlay images.
+        observed: optional (16,) bool, the named joints the depth image confirms; the
+            others are inferred (:mod:`runtime.tracker.joint_support`). None: unknown.
     """
 
     q: np.ndarray | None
@@ -75,6 +78,7 @@ class PoseEstimate:
     status: Status
     errors: dict[str, float] = field(default_factory=dict)
     labels: np.ndarray | None = None
+    observed: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -87,6 +91,17 @@ class PoseEstimate:
             self.joints = np.asarray(self.joints, dtype=np.float64)
             if self.joints.shape != (16, 3):
                 raise ValueError(f"joints must be (16, 3), got {self.joints.shape}")
+        if self.observed is not None:
+            self.observed = np.asarray(self.observed, dtype=bool)
+            if self.observed.shape != (16,):
+                raise ValueError(f"observed must be (16,), got {self.observed.shape}")
+
+
+def observed_of(fit) -> np.ndarray | None:
+    """The (16,) bool observed-joint flags of a tracker fit (``TrackResult.observed``, a
+    tensor), or None when there is no fit or it has none."""
+    flags = getattr(fit, "observed", None)
+    return None if flags is None else flags.detach().cpu().numpy().astype(bool)
 
 
 def lost(**errors: float) -> PoseEstimate:

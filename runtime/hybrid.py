@@ -55,7 +55,7 @@ from runtime.detector import (
     labels_from,
     load_forest_labeler,
 )
-from runtime.estimator import PoseEstimate, lost
+from runtime.estimator import PoseEstimate, lost, observed_of
 from runtime.hidden_arm_search import (
     AGREEMENT_MARGIN_M,
     CONFLICT_MARGIN_M,
@@ -358,10 +358,13 @@ class HybridEstimator:
         kin = forward_kinematics(q[None].to(self.detector.body.lengths), self.detector.body)
         return named_joint_positions(kin)[0].detach().cpu().double().numpy()
 
-    def _tracked(self, q: torch.Tensor, errors: dict) -> PoseEstimate:
-        q = q.detach()
+    def _tracked(self, res, errors: dict) -> PoseEstimate:
+        """The estimate of a frame the tracker's fit ``res`` (a ``TrackResult``) keeps."""
+        q = res.q.detach()
         self.q_prev, self.q_prev2 = q, self.q_prev
-        return PoseEstimate(q.cpu().double().numpy(), self._joints(q), "tracked", errors)
+        return PoseEstimate(
+            q.cpu().double().numpy(), self._joints(q), "tracked", errors, observed=observed_of(res)
+        )
 
     def _labels(self, depth: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """This frame's part labels (H, W): the forest's, or with ``frame_labels`` the
@@ -403,6 +406,7 @@ class HybridEstimator:
             "detected",
             errors,
             det.labels.cpu().numpy().astype(np.uint8),
+            observed=observed_of(det.refined),
         )
 
     def _best_refit(self, depth, mask, starts, badness, accept=None):
@@ -539,7 +543,7 @@ class HybridEstimator:
             )
             if not fail and not recheck:
                 self.turned_round = 0
-                return self._tracked(res.q, errors)
+                return self._tracked(res, errors)
             self.passed = 0
             failed = {f"tracker_{k}": v for k, v in errors.items()}
             if self.cfg.keep_better:
@@ -564,7 +568,7 @@ class HybridEstimator:
                 if detected.status == "lost" or worse:
                     self.q_prev, self.q_prev2 = before
                     kept = {"kept_over_detector": 1.0} if fail else {"rechecked": 1.0}
-                    return self._tracked(res.q, {**errors, **kept})
+                    return self._tracked(res, {**errors, **kept})
                 return detected
             errors = failed
         return self._detect(depth, m, errors)

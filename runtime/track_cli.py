@@ -382,8 +382,13 @@ def _overlay(frame, mask: torch.Tensor, est: PoseEstimate) -> np.ndarray:
         pix = {n: tuple(int(round(c)) for c in uv[i]) for i, n in enumerate(JOINT_NAMES)}
         for a, b in _BONES:
             cv2.line(img, pix[a], pix[b], (0, 255, 0), 1, cv2.LINE_AA)
-        for p in pix.values():
-            cv2.circle(img, p, 2, (0, 255, 255), -1, cv2.LINE_AA)
+        seen = est.observed if est.observed is not None else np.ones(len(pix), dtype=bool)
+        for p, ok in zip(pix.values(), seen):
+            # Inferred joints (the camera does not confirm them) as open red rings.
+            if ok:
+                cv2.circle(img, p, 2, (0, 255, 255), -1, cv2.LINE_AA)
+            else:
+                cv2.circle(img, p, 3, (0, 0, 255), 1, cv2.LINE_AA)
     return img
 
 
@@ -438,7 +443,9 @@ def track(
                 estimator.reset()
             else:
                 est = estimator.estimate(frame, mask)
-            writer.write_frame(frame.index, frame.time, est.status, est.joints, est.q, est.errors)
+            writer.write_frame(
+                frame.index, frame.time, est.status, est.joints, est.q, est.errors, est.observed
+            )
             stats.frames += 1
             stats.status_counts[est.status] = stats.status_counts.get(est.status, 0) + 1
             stats.last_index = frame.index

@@ -52,6 +52,11 @@ def _check_record(rec: object, where: str) -> dict:
         raise PosesFileError(f"{where}: 'q' must be a list of {NUM_DOFS} numbers or null")
     if not isinstance(rec.get("errors", {}), dict):
         raise PosesFileError(f"{where}: 'errors' must be an object")
+    observed = rec.get("observed")
+    if observed is not None and (
+        not isinstance(observed, dict) or not all(isinstance(v, bool) for v in observed.values())
+    ):
+        raise PosesFileError(f"{where}: 'observed' must be an object of true/false or null")
     return rec
 
 
@@ -117,12 +122,19 @@ def poses_to_arrays(
 
     Returns:
         ``frame`` (N,) int64, ``time`` (N,), ``status`` (N,) str, ``joints`` (N, J, 3) metres
-        for ``joint_names`` (NaN where absent), ``q`` (N, 34).
+        for ``joint_names`` (NaN where absent), ``q`` (N, 34), ``observed`` (N, J) 1.0 for a
+        joint the depth image confirms, 0.0 for an inferred one, NaN where not said.
     """
     n, nj = len(records), len(joint_names)
     joints = np.full((n, nj, 3), np.nan)
     q = np.full((n, NUM_DOFS), np.nan)
+    observed = np.full((n, nj), np.nan)
     for i, rec in enumerate(records):
+        if rec.get("observed"):
+            for k, name in enumerate(joint_names):
+                flag = rec["observed"].get(name)
+                if flag is not None:
+                    observed[i, k] = float(flag)
         if rec.get("joints"):
             for k, name in enumerate(joint_names):
                 p = rec["joints"].get(name)
@@ -136,4 +148,5 @@ def poses_to_arrays(
         "status": np.array([r["status"] for r in records], dtype=str),
         "joints": joints,
         "q": q,
+        "observed": observed,
     }

@@ -66,6 +66,10 @@ METRICS = (
     "detector_frames_pct",
     "system_failure_pct",
     "system_failure_visible_pct",
+    "system_failure_observed_pct",
+    "observed_joints_pct",
+    "observed_flag_recall_pct",
+    "observed_flag_precision_pct",
     "fps",
 )
 
@@ -201,6 +205,20 @@ def format_failures(name: str, per_recording: dict[str, dict], agg: dict | None 
     seen = (agg or {}).get("system_failure_visible_pct")
     if seen is not None:
         lines.append(f"  counting only the joints the camera sees: {seen:.1f}%")
+    claimed = (agg or {}).get("system_failure_observed_pct")
+    if claimed is not None:
+        flags = [
+            (agg or {}).get(k) for k in ("observed_flag_recall_pct", "observed_flag_precision_pct")
+        ]
+        agreement = (
+            f" (the flags cover {flags[0]:.1f}% of the joints the camera sees; "
+            f"{flags[1]:.1f}% of the joints flagged are seen)"
+            if None not in flags
+            else ""
+        )
+        lines.append(
+            f"  counting only the joints the result reports as observed: {claimed:.1f}%{agreement}"
+        )
     return "\n".join(lines)
 
 

@@ -67,6 +67,14 @@ def format_table(ev: Evaluation) -> str:
         + (f" (frames {format_failed_frames(failed, 12)})" if failed else ""),
         f"  seen joints only    {_fmt(r.get('system_failure_visible_pct'), ' %', 2)}"
         + ("" if r.get("system_failure_visible_pct") is not None else " (no part labels)"),
+        f"  observed joints only {_fmt(r.get('system_failure_observed_pct'), ' %', 2)}"
+        + (
+            f" (the result calls {_fmt(r.get('observed_joints_pct'), ' %', 1)} of its joints "
+            f"observed; they cover {_fmt(r.get('observed_flag_recall_pct'), ' %', 1)} of the "
+            f"seen joints)"
+            if r.get("system_failure_observed_pct") is not None
+            else " (the result has no observed flags)"
+        ),
         f"processing rate       {_fmt(r['fps'], ' frames/s')}",
         f"offset-norm frames    {r['offset_frame']}",
     ]

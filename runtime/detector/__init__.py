@@ -115,7 +115,7 @@ class DetectorEstimator:
         """Nothing to forget: every frame is detected from scratch."""
 
     def estimate(self, frame, mask):
-        from runtime.estimator import PoseEstimate, lost
+        from runtime.estimator import PoseEstimate, lost, observed_of
 
         depth = depth_frame_to_metres(frame.depth_mm, self.detector.device)
         m = _as_mask(mask, depth.device)
@@ -138,6 +138,7 @@ class DetectorEstimator:
             "detected",
             errors,
             det.labels.cpu().numpy().astype(np.uint8),
+            observed=observed_of(det.refined),
         )
 
 

@@ -7,10 +7,15 @@ Ctrl-C, a dropped camera or a crash leaves every finished frame readable. A reco
      "joints": {"head": [x, y, z], ...} | null,     # metres, camera frame (x right, y down,
                                                     #   z forward), names = skeleton.JOINT_NAMES
      "q": [34 floats] | null,                       # pose, layout of shared.skeleton
-     "errors": {"depth_mm": 11.2, ...}}             # fit errors; non-finite values -> null
+     "errors": {"depth_mm": 11.2, ...},             # fit errors; non-finite values -> null
+     "observed": {"head": true, ...} | null}        # joints the depth image confirms
 
 ``status`` is ``tracked`` (the tracker's fit was accepted), ``detected`` (the detector
-re-initialized the pose, Wei section 5) or ``lost`` (no usable pose). Positions are rounded
+re-initialized the pose, Wei section 5) or ``lost`` (no usable pose). ``observed`` says, per
+joint, whether the camera confirms it (true) or the model infers it from the motion and the
+free space behind the visible surface (false, e.g. a far arm hidden behind the torso;
+:mod:`runtime.tracker.joint_support`); null where the estimator cannot tell. Older files
+have no ``observed`` key. Positions are rounded
 to micrometres and angles to 1e-7 rad: far below any sensor accuracy, and it keeps the file
 small.
 
@@ -60,6 +65,7 @@ def pose_record(
     q: np.ndarray | None,
     errors: Mapping[str, float] | None = None,
     joint_names: Sequence[str] = JOINT_NAMES,
+    observed: np.ndarray | None = None,
 ) -> dict:
     """The JSON-ready record of one frame.
 
@@ -72,6 +78,7 @@ def pose_record(
         q: (34,) pose or None.
         errors: fit errors by name (floats; non-finite -> null).
         joint_names: the J names of ``joints``.
+        observed: (J,) bool per joint (confirmed by the depth image), or None.
     """
     if status not in STATUSES:
         raise ValueError(f"status must be one of {STATUSES}, got {status!r}")
@@ -94,6 +101,12 @@ def pose_record(
             raise ValueError(f"q must have shape ({NUM_DOFS},), got {qa.shape}")
         q_out = [_finite_or_none(v, 7) for v in qa]
     errs = {str(k): _finite_or_none(v, 4) for k, v in (errors or {}).items()}
+    observed_out = None
+    if observed is not None:
+        flags = np.asarray(observed)
+        if flags.shape != (len(joint_names),) or flags.dtype != bool:
+            raise ValueError(f"observed must be ({len(joint_names)},) bool, got {flags.shape}")
+        observed_out = {name: bool(f) for name, f in zip(joint_names, flags)}
     return {
         "frame": int(index),
         "time": _finite_or_none(time, 6),
@@ -101,6 +114,7 @@ def pose_record(
         "joints": joints_out,
         "q": q_out,
         "errors": errs,
+        "observed": observed_out,
     }
 
 

@@ -153,6 +153,7 @@ class ResultWriter:
         joints: np.ndarray | None,
         q: np.ndarray | None,
         errors: dict[str, float],
+        observed: np.ndarray | None = None,
     ) -> None:
         """Append one frame to ``poses.jsonl`` and ``motion.bvh``.
 
@@ -163,6 +164,8 @@ class ResultWriter:
             joints: (16, 3) named joints (``skeleton.JOINT_NAMES``) in camera metres, or None.
             q: (34,) pose in the camera frame, or None (BVH repeats the last pose).
             errors: per-frame fit errors by name (e.g. ``surface_error_q97_mm``).
+            observed: (16,) bool, the joints the depth image confirms (the others are
+                inferred), or None if unknown.
         """
         if self._closed_summary is not None:
             raise ValueError(f"{self.out_dir}: result writer is closed")
@@ -178,7 +181,7 @@ class ResultWriter:
             q = np.asarray(q, dtype=np.float64)
             if q.shape != (NUM_DOFS,):
                 raise ValueError(f"q must have shape ({NUM_DOFS},), got {q.shape}")
-        record = pose_record(index, time, status, joints, q, errors, JOINT_NAMES)
+        record = pose_record(index, time, status, joints, q, errors, JOINT_NAMES, observed)
         bvh_q = q if q is not None and np.isfinite(q).all() else None
 
         self._poses.write(record)

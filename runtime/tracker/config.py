@@ -224,3 +224,9 @@ class TrackerConfig:
     max_surface_points: int = field_doc(
         600, "observed points used for the surface-error quantile at most"
     )
+    observed_joint_area_cm2: float = field_doc(
+        5.0,
+        "a named joint is reported observed (not inferred) when at least this much of the "
+        "model's surface within its radius is seen and confirmed by the depth image "
+        "(runtime.tracker.joint_support; about 5 pixels at 3 m in a 320x240 stream)",
+    )

@@ -38,7 +38,7 @@ class TrackerEstimator:
         """Nothing to forget: with no detector the tracker resumes from its last pose."""
 
     def estimate(self, frame, mask):
-        from runtime.estimator import PoseEstimate
+        from runtime.estimator import PoseEstimate, observed_of
 
         depth = torch.as_tensor(frame.depth_mm.astype(np.float32) / 1000.0)
         mask = torch.as_tensor(np.asarray(mask, dtype=bool))
@@ -53,7 +53,7 @@ class TrackerEstimator:
             "surface_error_q97_mm": float(res.surface_error_q97_mm),
             "iterations": float(res.iterations),
         }
-        return PoseEstimate(q.numpy(), joints, "tracked", errors)
+        return PoseEstimate(q.numpy(), joints, "tracked", errors, observed=observed_of(res))
 
 
 def create_estimator(

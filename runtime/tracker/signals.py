@@ -12,6 +12,8 @@
   :func:`runtime.raycast.surface_distance`); 0 without observed points.
 - ``limb_visibility``: how much of each limb the model shows at its pose (not a failure
   test: it tells the hybrid which limbs the data cannot be checking).
+- ``joint_support_cm2``: the surface area near each named joint that the depth image
+  confirms (:mod:`runtime.tracker.joint_support`): observed against inferred joints.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from shared.camera import Intrinsics
 from .config import TrackerConfig
 from .depth_term import depth_error_sum
 from .extra_depth_term import ExtraResult
+from .joint_support import joint_support_cm2
 from .observation import Observation
 from .regions import Regions, sample_pixels
 
@@ -51,12 +54,13 @@ LIMB_SEGMENTS: tuple[tuple[int, int], ...] = tuple(
 
 @dataclass
 class FrameSignals:
-    """Per-pose signals, each (B,); ``limb_visibility`` (B, 4)."""
+    """Per-pose signals, each (B,); ``limb_visibility`` (B, 4); ``joint_support_cm2`` (B, J)."""
 
     depth_error_cm: torch.Tensor
     overlap: torch.Tensor
     surface_error_q97_mm: torch.Tensor
     limb_visibility: torch.Tensor
+    joint_support_cm2: torch.Tensor
 
 
 def overlap(rendered: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
@@ -106,7 +110,13 @@ def frame_signals(
         surf = surface_error_quantile(obs, render, body, cfg.max_surface_points)
     else:
         surf = torch.zeros_like(iou)
-    return FrameSignals(depth_cm, iou, surf, limb_visibility(render, obs.intr, body))
+    return FrameSignals(
+        depth_cm,
+        iou,
+        surf,
+        limb_visibility(render, obs.intr, body),
+        joint_support_cm2(render, regions, obs.intr),
+    )
 
 
 def limb_visibility(render: BodyRender, intr: Intrinsics, body: BodyShape) -> torch.Tensor:

@@ -42,6 +42,7 @@ from .gauss_newton import (
     predicted_decrease,
     solve_step,
 )
+from .joint_support import observed_joints
 from .label_term import label_rows
 from .observation import Observation, automatic_factor, observe, person_window
 from .prior_term import predict_pose, prior_system
@@ -70,6 +71,8 @@ class TrackResult:
         converged: the last update was below the stop thresholds.
         limb_visibility: (4,) visible fraction of the left/right arm and leg in the model's
             rendering (:func:`runtime.tracker.signals.limb_visibility`); None if unknown.
+        observed: (J,) bool, the named joints the depth image confirms
+            (:mod:`runtime.tracker.joint_support`; the others are inferred); None if unknown.
     """
 
     q: torch.Tensor
@@ -79,6 +82,7 @@ class TrackResult:
     iterations: int
     converged: bool
     limb_visibility: torch.Tensor | None = None
+    observed: torch.Tensor | None = None
 
 
 @dataclass
@@ -209,14 +213,18 @@ class Tracker:
         scales = {k: v for k, v in vars(self.cfg).items() if k.startswith("sigma_")}
         scales["label_gate_m"] = self.cfg.label_gate_m
         bad = {k: v for k, v in scales.items() if not (v > 0 and math.isfinite(v))}
-        for key in ("collision_tolerance_m", "collision_hand_tolerance_m"):
+        for key in (
+            "collision_tolerance_m",
+            "collision_hand_tolerance_m",
+            "observed_joint_area_cm2",
+        ):
             tolerance = getattr(self.cfg, key)
             if not (tolerance >= 0 and math.isfinite(tolerance)):
                 bad[key] = tolerance
         if bad:
             raise TrackerError(
                 f"noise scales and gates must be positive and finite (the collision "
-                f"tolerances may be 0), got {bad}"
+                f"tolerances and the observed-joint area may be 0), got {bad}"
             )
         self.intr = intr
         self.device = torch.device("cpu") if device is None else torch.device(device)
@@ -297,6 +305,7 @@ class Tracker:
             iterations=fit.iterations,
             converged=bool(fit.converged[0]),
             limb_visibility=s.limb_visibility[0],
+            observed=observed_joints(s.joint_support_cm2[0], self.cfg.observed_joint_area_cm2),
         )
 
 

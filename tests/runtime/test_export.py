@@ -173,6 +173,30 @@ def test_poses_jsonl_round_trip(tmp_path):
         pose_record(0, 0.0, "fine", None, None)
 
 
+def test_poses_jsonl_observed_flags_round_trip_and_older_files_read_as_unknown(tmp_path):
+    path = tmp_path / "poses.jsonl"
+    flags = np.ones(16, dtype=bool)
+    flags[[sk.JOINT_NAMES.index("r_elbow"), sk.JOINT_NAMES.index("r_wrist")]] = False
+    with PosesJsonlWriter(path) as w:
+        w.write(pose_record(0, 0.0, "tracked", None, None, {}, observed=flags))
+        w.write(pose_record(1, 0.033, "tracked", None, None, {}))
+    data = read_poses_jsonl(path)
+    assert data.records[0]["observed"]["r_wrist"] is False
+    assert data.records[0]["observed"]["head"] is True and data.records[1]["observed"] is None
+    arrays = poses_to_arrays(data.records)
+    np.testing.assert_array_equal(arrays["observed"][0], flags.astype(float))
+    assert np.isnan(arrays["observed"][1]).all()
+    old = path.read_text().replace(',"observed":null', "")  # a file from before the flags
+    assert '"observed"' in old.splitlines()[0] and '"observed"' not in old.splitlines()[1]
+    path.write_text(old)
+    assert np.isnan(poses_to_arrays(read_poses_jsonl(path).records)["observed"][1]).all()
+    with pytest.raises(ValueError, match="observed"):
+        pose_record(0, 0.0, "tracked", None, None, {}, observed=np.ones(15, dtype=bool))
+    path.write_text(old.splitlines()[0].replace("true", "1", 1) + "\n")
+    with pytest.raises(PosesFileError, match="'observed' must be"):
+        read_poses_jsonl(path)
+
+
 def test_poses_jsonl_truncated_last_line_is_dropped_other_damage_is_an_error(tmp_path):
     path = tmp_path / "poses.jsonl"
     with PosesJsonlWriter(path) as w:

@@ -122,6 +122,20 @@ def test_errors_and_joints_are_reported(scene):
     assert redetected.errors["tracker_depth_error_cm"] == 5.0
 
 
+def test_observed_joints_come_from_the_tracker_fits(scene):
+    """Detected (refined) and tracked frames carry the fits' observed-joint flags; a fit
+    without flags (the fake tracker, or no refinement) reports none."""
+    q, depth, labels, mask = scene
+    est, _ = make_hybrid(scene, Tracker(BODY, INTR), refine_iterations=2)
+    first, second = (est.estimate(frame_of(depth, i), mask) for i in range(2))
+    assert (first.status, second.status) == ("detected", "tracked")
+    for e in (first, second):
+        assert e.observed.shape == (16,) and e.observed.dtype == bool
+        assert e.observed.sum() >= 14, e.observed
+    fake, _ = make_hybrid(scene, FakeTracker())
+    assert all(fake.estimate(frame_of(depth, i), mask).observed is None for i in range(2))
+
+
 def test_no_labelled_pixels_is_lost_and_resets(scene):
     q, depth, labels, mask = scene
     det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))

@@ -20,6 +20,8 @@ def test_tracker_mode_follows_the_demo(tmp_path, capsys):
     gt = open_demo_stream().groundtruth["joints"][:6]
     err = np.linalg.norm(arrays["joints"] - gt, axis=-1)
     assert np.nanmean(err) < 0.03, err.mean(1)
+    # The demo faces the camera: the tracker calls (almost) every joint observed.
+    assert np.isfinite(arrays["observed"]).all() and arrays["observed"].mean() > 0.9
 
 
 def test_tracker_mode_needs_ground_truth(tmp_path, capsys):

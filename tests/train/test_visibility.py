@@ -129,6 +129,54 @@ def test_evaluation_reports_failures_on_seen_joints(labelled_recording, tmp_path
     assert [f["worst_joint_visible"] for f in r["system_failure_frames"]] == [True, False]
 
 
+def test_observed_flag_agreement_golden():
+    observed = np.array([[1.0, 0.0, np.nan], [1.0, 1.0, 0.0]])
+    visible = np.array([[True, True, True], [False, True, False]])
+    flagged, recall, precision = m.observed_flag_agreement(observed, visible)
+    assert flagged == pytest.approx(60.0)  # 3 of the 5 flags say observed
+    assert recall == pytest.approx(200 / 3)  # 2 of the 3 visible joints with a flag
+    assert precision == pytest.approx(200 / 3)  # 2 of the 3 observed flags are visible
+    assert all(np.isnan(m.observed_flag_agreement(np.full((1, 3), np.nan), visible[:1])))
+
+
+@pytest.mark.parametrize("wrist_flags", [(True, True, False, False), (True, True, True, True)])
+def test_evaluation_counts_failures_on_joints_the_result_calls_observed(
+    labelled_recording, tmp_path, capsys, wrist_flags
+):
+    """The wrist is 30 cm off in frames 1 (seen) and 2 (hidden): flagged as the camera sees
+    it, only frame 1 fails on observed joints; flagged observed throughout, both fail."""
+    rec, q, joints, body = labelled_recording
+    wrist = sk.JOINT_NAMES.index("l_wrist")
+    pred = joints.copy()
+    pred[1:3, wrist, 0] += 0.3
+    with ResultWriter(tmp_path / "res", body, 30.0, CAM, "hybrid", "test") as w:
+        for f in range(FRAMES):
+            flags = np.ones(16, dtype=bool)
+            flags[wrist] = wrist_flags[f]
+            w.write_frame(f, f / 30, "tracked", pred[f], q[f], {}, flags)
+    out = tmp_path / "eval.json"
+    main(["--recording", str(rec), "--result", str(tmp_path / "res"), "--json", str(out)])
+    r = json.loads(out.read_text())
+    honest = not wrist_flags[2]
+    assert r["system_failure_observed_pct"] == pytest.approx(25.0 if honest else 50.0)
+    assert r["observed_joints_pct"] == pytest.approx(100.0 * (60 + sum(wrist_flags)) / 64)
+    assert r["observed_flag_recall_pct"] == pytest.approx(100.0)
+    seen = int(recording_joint_visibility(Recording(rec), joints, sk.JOINT_NAMES).sum())
+    assert r["observed_flag_precision_pct"] == pytest.approx(100.0 * seen / (60 + sum(wrist_flags)))
+    assert "observed joints only" in capsys.readouterr().out
+
+
+def test_results_without_observed_flags_have_no_observed_rate(labelled_recording, tmp_path):
+    rec, q, joints, body = labelled_recording
+    with ResultWriter(tmp_path / "res", body, 30.0, CAM, "hybrid", "test") as w:
+        for f in range(FRAMES):
+            w.write_frame(f, f / 30, "tracked", joints[f], q[f], {})
+    out = tmp_path / "eval.json"
+    main(["--recording", str(rec), "--result", str(tmp_path / "res"), "--json", str(out)])
+    r = json.loads(out.read_text())
+    assert r["system_failure_observed_pct"] is None and r["observed_flag_recall_pct"] is None
+
+
 def test_recordings_without_labels_have_no_seen_joints_rate(tmp_path):
     q = rest_pose(1, dtype=torch.float64).numpy()
     with RecordingWriter(tmp_path / "rec", CAM, fps=30.0, source="test") as w:

@@ -201,6 +201,17 @@ def evaluate(
     failures_seen = (
         m.system_failures(errors, cfg.failure_threshold_m, visible) if visible is not None else None
     )
+    observed = np.full(errors.shape, np.nan)
+    observed[result.frame] = result.observed[:, res_idx]
+    said = bool(np.isfinite(observed).any())
+    failures_observed = (
+        m.system_failures(errors, cfg.failure_threshold_m, observed > 0.5) if said else None
+    )
+    flagged_pct = flag_recall = flag_precision = math.nan
+    if said:
+        flagged_pct = m.percent(observed[np.isfinite(observed)] > 0.5)
+        if visible is not None:
+            flagged_pct, flag_recall, flag_precision = m.observed_flag_agreement(observed, visible)
     per_joint = m.per_joint_error_mm(errors)
     per_joint_norm = m.per_joint_error_mm(norm_errors)
     frame_mm = m.per_frame_error_mm(errors)
@@ -228,6 +239,12 @@ def evaluate(
         "system_failure_visible_pct": (
             _finite(m.percent(failures_seen)) if failures_seen is not None else None
         ),
+        "system_failure_observed_pct": (
+            _finite(m.percent(failures_observed)) if failures_observed is not None else None
+        ),
+        "observed_joints_pct": _finite(flagged_pct),
+        "observed_flag_recall_pct": _finite(flag_recall),
+        "observed_flag_precision_pct": _finite(flag_precision),
         "status_counts": {s: int((result.status == s).sum()) for s in STATUSES},
         "fps": _finite(result.summary.get("fps") or math.nan),
         "stream_fps": _finite(result.summary.get("stream_fps") or rec.fps),

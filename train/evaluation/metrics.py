@@ -36,6 +36,11 @@ Definitions (F frames, J joints; a missing prediction is NaN and is never "corre
   part labels, ``system_failure_visible_pct`` counts only the joints the camera sees
   (:mod:`train.evaluation.visibility`; Wei 7.4: a segment out of view "is often ambiguous and
   cannot be reliably estimated"), as a diagnostic beside the rate over all joints.
+  ``system_failure_observed_pct`` counts only the joints the *result* reports as observed
+  (``poses.jsonl``'s per-joint ``observed`` flags, :mod:`runtime.tracker.joint_support`):
+  the system's own claim, made without ground truth, like the Kinect SDK's tracked and
+  inferred joints. :func:`observed_flag_agreement` says how well those flags match the
+  joints the camera sees, so that a system cannot pass by calling every joint inferred.
 * **Surface error, 97% quantile** (Helten IV-C "Surface Tracking Error"): per frame, the 97%
   quantile over all foreground depth points of the distance to the tracked body surface
   (the tracker reports it per frame as ``errors["surface_error_q97_mm"]``); the sequence value
@@ -56,6 +61,7 @@ __all__ = [
     "precision_at",
     "per_joint_precision_at",
     "system_failures",
+    "observed_flag_agreement",
     "initializations",
     "tracking_failure_pct",
     "detector_frames_pct",
@@ -179,6 +185,30 @@ def system_failures(
     if counted is not None:
         far &= np.asarray(counted, dtype=bool)
     return no_pose | far.any(1)
+
+
+def observed_flag_agreement(
+    observed: np.ndarray, visible: np.ndarray
+) -> tuple[float, float, float]:
+    """How a result's per-joint observed flags match the joints the camera sees.
+
+    Args:
+        observed: (F, J) 1.0 observed, 0.0 inferred, NaN not said (frames without a pose).
+        visible: (F, J) bool, the joints the camera sees (ground truth).
+    Returns:
+        Over the flagged entries, in percent: the share flagged observed; recall, the share
+        of the visible joints flagged observed; precision, the share of the joints flagged
+        observed that are visible. NaN where a share has nothing to count.
+    """
+    observed = np.asarray(observed, dtype=np.float64)
+    said = np.isfinite(observed)
+    flag = said & (observed > 0.5)
+    visible = np.asarray(visible, dtype=bool) & said
+    return (
+        percent(flag[said]) if said.any() else float("nan"),
+        percent(flag[visible]) if visible.any() else float("nan"),
+        percent(visible[flag]) if flag.any() else float("nan"),
+    )
 
 
 def initializations(status: np.ndarray) -> np.ndarray:

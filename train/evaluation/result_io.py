@@ -37,6 +37,8 @@ class TrackingResult:
         body: the body of ``body.json``, or None if the file is absent.
         summary: ``summary.json`` contents ({} if absent).
         truncated: an unfinished last line was dropped.
+        observed: (N, J) 1.0 where the result says the depth image confirms the joint, 0.0
+            where it says the joint is inferred, NaN where it says nothing (older files).
     """
 
     frame: np.ndarray
@@ -48,6 +50,7 @@ class TrackingResult:
     body: BodyShape | None
     summary: dict
     truncated: bool
+    observed: np.ndarray
 
 
 def _to_arrays(records: list[dict], path: Path) -> tuple:
@@ -63,7 +66,10 @@ def _to_arrays(records: list[dict], path: Path) -> tuple:
         for k, v in (rec.get("errors") or {}).items():
             errors[k][i] = np.nan if v is None else v
     status = arrays["status"].astype("<U8")
-    return arrays["frame"], status, tuple(names), arrays["joints"], arrays["q"], errors
+    return (
+        arrays["frame"], status, tuple(names), arrays["joints"], arrays["q"], errors,
+        arrays["observed"],
+    )  # fmt: skip
 
 
 def load_result(result_dir: str | Path) -> TrackingResult:
@@ -77,7 +83,7 @@ def load_result(result_dir: str | Path) -> TrackingResult:
     except PosesFileError as err:
         raise ResultFileError(str(err)) from None
     records, truncated = data.records, data.truncated
-    frame, status, names, joints, q, errors = _to_arrays(records, poses_path)
+    frame, status, names, joints, q, errors, observed = _to_arrays(records, poses_path)
 
     body = None
     if (result_dir / "body.json").is_file():
@@ -94,4 +100,6 @@ def load_result(result_dir: str | Path) -> TrackingResult:
             raise ResultFileError(f"{summary_path}: not valid JSON ({err})") from None
         if not isinstance(summary, dict):
             raise ResultFileError(f"{summary_path}: expected a JSON object")
-    return TrackingResult(frame, status, names, joints, q, errors, body, summary, truncated)
+    return TrackingResult(
+        frame, status, names, joints, q, errors, body, summary, truncated, observed
+    )

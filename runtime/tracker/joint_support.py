@@ -1,0 +1,92 @@
+"""Which named joints the camera confirms: observed (tracked) against inferred joints.
+
+One depth camera cannot place a limb it does not see (Wei 2012, 7.4: a hidden segment's
+joint angles "cannot be reliably estimated"); the tracker still reports a pose for it, from
+the motion prior and the free space behind the visible surface. A user needs to know which
+joints are measured and which are the model's guess, as the Kinect SDK's per-joint "tracked"
+and "inferred" states tell. A joint counts as *observed* when the model's surface near it is
+seen and confirmed by the depth image: the pixels where one of the segments meeting at the
+joint is the front-most rendered surface, the observed depth agrees with it (Wei's region G,
+within the depth gate), and the rendered point lies within the joint's radius of it in 3D.
+Their area on the body, each pixel's footprint ``z^2 / (fx fy)`` summed, must reach a
+threshold; an area, unlike a pixel count, does not depend on the working resolution or the
+person's distance.
+
+The segments and radii mirror the evaluation's ground-truth visibility
+(:mod:`train.evaluation.visibility`): 10 cm at the limbs' joints, 15 cm at the hips, 20 cm at
+the trunk's joints, whose centres lie well inside the body.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from runtime.raycast import BodyRender
+from shared import skeleton as sk
+from shared.camera import Intrinsics
+from shared.kinematics import named_joint_positions
+
+from .regions import Regions, rendered_points
+
+__all__ = ["JOINT_SUPPORT", "joint_support_cm2", "observed_joints"]
+
+_LIMB_M, _HIP_M, _TRUNK_M = 0.10, 0.15, 0.20
+
+
+def _joint_support() -> dict[str, tuple[tuple[str, ...], float]]:
+    table = {
+        "head": (("head", "neck"), _TRUNK_M),
+        "neck": (("neck", "chest", "l_clavicle", "r_clavicle"), _TRUNK_M),
+        "spine": (("abdomen", "chest"), _TRUNK_M),
+        "pelvis": (("pelvis", "abdomen"), _TRUNK_M),
+    }
+    limbs = {
+        "shoulder": (("clavicle", "upper_arm"), _LIMB_M),
+        "elbow": (("upper_arm", "forearm"), _LIMB_M),
+        "wrist": (("forearm",), _LIMB_M),  # the hand is the forearm capsule's end
+        "hip": (("thigh",), _HIP_M),
+        "knee": (("thigh", "shank"), _LIMB_M),
+        "ankle": (("shank",), _LIMB_M),  # the foot hangs on the shank
+    }
+    for joint, (segments, radius) in limbs.items():
+        for side in "lr":
+            table[f"{side}_{joint}"] = (tuple(f"{side}_{s}" for s in segments), radius)
+    return {name: table[name] for name in sk.JOINT_NAMES}
+
+
+# Named joint -> (the model segments that meet at it, radius in metres).
+JOINT_SUPPORT: dict[str, tuple[tuple[str, ...], float]] = _joint_support()
+
+# (S, J) bool: segment s meets at joint j; (J,) radii.
+_MEMBER = torch.tensor(
+    [[seg in JOINT_SUPPORT[joint][0] for joint in sk.JOINT_NAMES] for seg in sk.SEGMENT_NAMES]
+)
+_RADIUS = torch.tensor([JOINT_SUPPORT[joint][1] for joint in sk.JOINT_NAMES])
+
+
+def joint_support_cm2(render: BodyRender, regions: Regions, intr: Intrinsics) -> torch.Tensor:
+    """Area of each named joint's surface the depth image confirms (module docstring).
+
+    Args:
+        render: B poses rendered with ``intr`` (the working resolution).
+        regions: their pixel classes against the observation; ``regions.good`` is G.
+        intr: intrinsics of the rendering.
+    Returns:
+        (B, J) float64 square centimetres, J = ``len(skeleton.JOINT_NAMES)``.
+    """
+    B, J = render.depth.shape[0], len(sk.JOINT_NAMES)
+    idx = regions.good.nonzero()
+    points, segment = rendered_points(render, idx, intr)
+    joints = named_joint_positions(render.kin)  # (B, J, 3)
+    b = idx[:, 0]
+    member = _MEMBER.to(segment.device)[segment.clamp_min(0)] & (segment >= 0)[:, None]
+    near = (points[:, None, :] - joints[b]).norm(dim=-1) < _RADIUS.to(points)  # (N, J)
+    footprint = points[:, 2].double() ** 2 / (intr.fx * intr.fy) * 1e4  # cm^2 per pixel
+    area = torch.zeros(B, J, dtype=torch.float64, device=points.device)
+    return area.index_add_(0, b, (member & near).double() * footprint[:, None])
+
+
+def observed_joints(support_cm2: torch.Tensor, min_area_cm2: float) -> torch.Tensor:
+    """(..., J) bool: joints whose confirmed area (:func:`joint_support_cm2`) reaches
+    ``min_area_cm2``."""
+    return support_cm2 >= min_area_cm2
