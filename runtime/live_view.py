@@ -30,6 +30,7 @@ _BONE_NAMES = (
 )  # fmt: skip
 BONES = np.array([[sk.JOINT_NAMES.index(a), sk.JOINT_NAMES.index(b)] for a, b in _BONE_NAMES])
 _STATUS_COLOURS = {"tracked": (60, 220, 60), "detected": (250, 200, 40), "lost": (230, 60, 60)}
+_INFERRED_COLOUR = (128, 128, 128)
 
 
 class LiveViewError(ValueError):
@@ -75,7 +76,12 @@ class LiveView:
                 "world/skeleton",
                 rr.LineStrips3D(joints[BONES], colors=colour, radii=0.01),
             )
-            rr.log("world/joints", rr.Points3D(joints, colors=colour, radii=0.02))
+            # Inferred joints (not confirmed by the depth image) in grey.
+            seen = (
+                estimate.observed if estimate.observed is not None else np.ones(len(joints), bool)
+            )
+            colours = np.where(seen[:, None], np.array(colour), np.array(_INFERRED_COLOUR))
+            rr.log("world/joints", rr.Points3D(joints, colors=colours, radii=0.02))
         else:
             rr.log("world/skeleton", rr.Clear(recursive=True))
         rr.log("status", rr.TextLog(estimate.status))

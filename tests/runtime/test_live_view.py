@@ -23,3 +23,38 @@ def test_view_saves_a_recording(tmp_path):
     code = main(["--input", "demo", "--mode", "tracker", "--output", str(tmp_path / "o"),
                  "--stop", "3", "--view", str(rrd), "-q"])  # fmt: skip
     assert code == 0 and rrd.is_file() and rrd.stat().st_size > 1000
+
+
+def test_inferred_joints_are_logged_grey(monkeypatch):
+    """With a stand-in for rerun: observed joints take the status colour, inferred ones grey."""
+    import types
+
+    import numpy as np
+
+    from runtime.estimator import PoseEstimate
+    from runtime.live_view import LiveView
+    from runtime.streams.base import DepthFrame
+    from shared.camera import Intrinsics
+
+    logged = {}
+    fake = types.SimpleNamespace(
+        init=lambda *a, **k: None,
+        save=lambda *a, **k: None,
+        log=lambda path, item, **k: logged.__setitem__(path, item),
+        set_time=lambda *a, **k: None,
+        ViewCoordinates=types.SimpleNamespace(RIGHT_HAND_Y_DOWN=None),
+        Points3D=lambda points, colors=None, radii=None: (np.asarray(points), colors),
+        LineStrips3D=lambda strips, colors=None, radii=None: strips,
+        TextLog=lambda text: text,
+        Clear=lambda recursive: None,
+    )
+    monkeypatch.setitem(sys.modules, "rerun", fake)
+    view = LiveView("unused.rrd")
+    depth = np.full((120, 160), 2000, np.uint16)
+    observed = np.ones(16, bool)
+    observed[9] = False  # r_wrist
+    est = PoseEstimate(None, np.zeros((16, 3)), "tracked", observed=observed)
+    view.log_frame(DepthFrame(0, 0.0, depth, Intrinsics.kinect_v1(160)), depth > 0, est)
+    _, colours = logged["world/joints"]
+    assert tuple(colours[9]) == (128, 128, 128) and tuple(colours[0]) == (60, 220, 60)
+    assert logged["status"] == "tracked"
