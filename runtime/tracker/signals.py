@@ -115,7 +115,7 @@ def frame_signals(
         iou,
         surf,
         limb_visibility(render, obs.intr, body),
-        joint_support_cm2(render, regions, obs.intr),
+        joint_support_cm2(render, regions, obs.intr, obs.labels),
     )
 
 

@@ -132,3 +132,33 @@ def test_tracker_step_reports_observed_joints_and_checks_the_threshold():
     for bad in (-1.0, math.nan):
         with pytest.raises(TrackerError, match="observed_joint_area_cm2"):
             Tracker(body, intr, TrackerConfig(observed_joint_area_cm2=bad))
+
+
+def test_forest_labels_on_another_body_group_do_not_confirm_a_joint():
+    """A hidden arm laid on the torso renders at the torso's depth: only the labels tell. The
+    left arm labelled as chest loses its wrist and elbow; the same arm labelled as its
+    forearm or upper arm (the forest's usual confusion near the elbow) keeps them."""
+    intr = Intrinsics.kinect_v1(160)
+    q = _front()
+    q[0, sk.DOF_NAMES.index("l_humerus_abd")] = 1.2
+    body = BodyShape.default(torch.float64)
+    render = render_body(q, body, intr)
+    obs = observe(render.depth, render.mask, intr, 1, 10.0)
+    regions = classify(render, obs, 0.08, True)
+    limit = TrackerConfig().observed_joint_area_cm2
+    left_arm = [sk.SEGMENT_NAMES.index(n) for n in ("l_upper_arm", "l_forearm")]
+    on_arm = torch.isin(render.segment, torch.tensor(left_arm))
+
+    as_rendered = render.segment.clone()
+    assert bool(observed_joints(joint_support_cm2(render, regions, intr, as_rendered), limit).all())
+    swapped = torch.where(on_arm, left_arm[0] + left_arm[1] - render.segment, render.segment)
+    area = joint_support_cm2(render, regions, intr, swapped)
+    assert bool(observed_joints(area, limit).all())
+    chest = torch.where(on_arm, sk.SEGMENT_NAMES.index("chest"), render.segment)
+    flags = observed_joints(joint_support_cm2(render, regions, intr, chest), limit)[0]
+    assert not bool(flags[J["l_wrist"]]) and not bool(flags[J["l_elbow"]])
+    assert bool(flags[J["r_wrist"]]) and bool(flags[J["head"]])
+    unlabelled = torch.full_like(render.segment, -1)
+    assert not bool(
+        observed_joints(joint_support_cm2(render, regions, intr, unlabelled), limit).any()
+    )
