@@ -78,11 +78,19 @@ _GROUP = torch.tensor(
     ]
 )  # fmt: skip
 
-# (S, J) bool: segment s meets at joint j; (J,) radii.
-_MEMBER = torch.tensor(
-    [[seg in JOINT_SUPPORT[joint][0] for joint in sk.JOINT_NAMES] for seg in sk.SEGMENT_NAMES]
+# (S, 2) the joints each segment meets (no segment meets more than two), padded with J; the
+# padded (J + 1,) radii are 0 there, so a pad never counts.
+_SEGMENT_JOINTS = torch.tensor(
+    [
+        ([j for j, joint in enumerate(sk.JOINT_NAMES) if seg in JOINT_SUPPORT[joint][0]]
+         + [len(sk.JOINT_NAMES)] * 2)[:2]
+        for seg in sk.SEGMENT_NAMES
+    ]
+)  # fmt: skip
+assert all(
+    sum(seg in JOINT_SUPPORT[joint][0] for joint in sk.JOINT_NAMES) <= 2 for seg in sk.SEGMENT_NAMES
 )
-_RADIUS = torch.tensor([JOINT_SUPPORT[joint][1] for joint in sk.JOINT_NAMES])
+_RADIUS = torch.tensor([JOINT_SUPPORT[joint][1] for joint in sk.JOINT_NAMES] + [0.0])
 
 
 def joint_support_cm2(
@@ -103,18 +111,22 @@ def joint_support_cm2(
     B, J = render.depth.shape[0], len(sk.JOINT_NAMES)
     idx = regions.good.nonzero()
     points, segment = rendered_points(render, idx, intr)
-    joints = named_joint_positions(render.kin)  # (B, J, 3)
+    seg = segment.clamp_min(0)
     b = idx[:, 0]
-    member = _MEMBER.to(segment.device)[segment.clamp_min(0)] & (segment >= 0)[:, None]
+    counts = segment >= 0
     if labels is not None:
         said = labels[idx.unbind(1)]
         group = _GROUP.to(segment.device)
-        agree = (said >= 0) & (group[said.clamp_min(0)] == group[segment.clamp_min(0)])
-        member = member & agree[:, None]
-    near = (points[:, None, :] - joints[b]).norm(dim=-1) < _RADIUS.to(points)  # (N, J)
+        counts = counts & (said >= 0) & (group[said.clamp_min(0)] == group[seg])
+    # Each pixel is compared with the (at most two) joints its segment meets only.
+    joints = torch.cat([named_joint_positions(render.kin), points.new_zeros(B, 1, 3)], 1)
+    slots = _SEGMENT_JOINTS.to(seg.device)[seg]  # (N, 2) in [0, J]
+    near = (points[:, None, :] - joints[b[:, None], slots]).norm(dim=-1) < _RADIUS.to(points)[slots]
     footprint = points[:, 2].double() ** 2 / (intr.fx * intr.fy) * 1e4  # cm^2 per pixel
-    area = torch.zeros(B, J, dtype=torch.float64, device=points.device)
-    return area.index_add_(0, b, (member & near).double() * footprint[:, None])
+    weight = (near & counts[:, None]).double() * footprint[:, None]
+    area = torch.zeros(B * (J + 1), dtype=torch.float64, device=points.device)
+    area.index_add_(0, (b[:, None] * (J + 1) + slots).reshape(-1), weight.reshape(-1))
+    return area.reshape(B, J + 1)[:, :J]
 
 
 def observed_joints(support_cm2: torch.Tensor, min_area_cm2: float) -> torch.Tensor:
