@@ -409,7 +409,8 @@ def track(
     """Run the pipeline over ``stream``, writing every frame to ``writer``.
 
     Args:
-        writer: a ResultWriter (``write_frame(index, time, status, joints, q, errors)``).
+        writer: a ResultWriter (``write_frame(index, time, status, joints, q, errors,
+            observed=...)``).
         realtime: pace a file source to its frame rate and drop frames when behind.
         stop: set it to end the loop after the frame in flight (Ctrl-C handler).
         stats: filled in place (so a caller sees the counts even if the loop raises).
@@ -444,8 +445,9 @@ def track(
             else:
                 est = estimator.estimate(frame, mask)
             writer.write_frame(
-                frame.index, frame.time, est.status, est.joints, est.q, est.errors, est.observed
-            )
+                frame.index, frame.time, est.status, est.joints, est.q, est.errors,
+                observed=est.observed,
+            )  # fmt: skip
             stats.frames += 1
             stats.status_counts[est.status] = stats.status_counts.get(est.status, 0) + 1
             stats.last_index = frame.index

@@ -212,7 +212,7 @@ def test_track_function_directly():
         def __init__(self):
             self.rows = []
 
-        def write_frame(self, index, time, status, joints, q, errors):
+        def write_frame(self, index, time, status, joints, q, errors, observed=None):
             self.rows.append((index, status))
 
     w, est = Writer(), FakeEstimator()
