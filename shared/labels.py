@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .skeleton import NUM_SEGMENTS, SEGMENT_NAMES
+from .skeleton import JOINT_NAMES, NUM_SEGMENTS, SEGMENT_NAMES
 
 __all__ = [
     "PART_NAMES",
@@ -19,6 +19,7 @@ __all__ = [
     "SPLIT_SEGMENTS",
     "segment_to_part",
     "PART_COLORS",
+    "JOINT_PARTS",
 ]
 
 BACKGROUND = 0
@@ -86,3 +87,36 @@ def _palette() -> np.ndarray:
 
 
 PART_COLORS = _palette()  # (20, 3) uint8 RGB; background black
+
+
+def _joint_parts() -> dict[str, tuple[tuple[str, ...], float]]:
+    # The radius spans the flesh between a joint centre and the surface a camera sees: 10 cm
+    # at the limbs' joints (upper arm 5-6 cm, forearm 3.6 cm, thigh about 9 cm on the dev
+    # bodies), 15 cm at the hips (inside the thigh's top), 20 cm at the trunk's joints (the
+    # spine lies some 5 cm behind the middle of a trunk 25 cm deep).
+    limb_m, hip_m, trunk_m = 0.10, 0.15, 0.20
+    table = {
+        "head": (("head", "neck"), trunk_m),
+        "neck": (("neck", "chest", "l_clavicle", "r_clavicle"), trunk_m),
+        "spine": (("abdomen", "chest"), trunk_m),
+        "pelvis": (("pelvis", "abdomen"), trunk_m),
+    }
+    limbs = {
+        "shoulder": (("clavicle", "upper_arm"), limb_m),
+        "elbow": (("upper_arm", "forearm"), limb_m),
+        "wrist": (("forearm",), limb_m),  # the hand is the forearm's end
+        "hip": (("thigh_upper",), hip_m),
+        "knee": (("thigh_lower", "shank_upper"), limb_m),
+        "ankle": (("shank_lower",), limb_m),  # the foot hangs on the shank
+    }
+    for joint, (parts, radius) in limbs.items():
+        for side in "lr":
+            table[f"{side}_{joint}"] = (tuple(f"{side}_{p}" for p in parts), radius)
+    return {name: table[name] for name in JOINT_NAMES}
+
+
+# Named joint -> (the parts that meet at it, radius in metres): a joint is seen where enough
+# of those parts' surface lies within the radius of it (the evaluation's ground-truth
+# visibility, train.evaluation.visibility, and the runtime's observed joints,
+# runtime.tracker.joint_support).
+JOINT_PARTS: dict[str, tuple[tuple[str, ...], float]] = _joint_parts()

@@ -22,8 +22,8 @@ failed frames counting only the joints called observed from 5.6% to 1.9%, while 
 still cover 95% of the joints the camera sees (98.5% without the labels); the group, not the
 segment, because the forest confuses the upper arm and forearm near the elbow.
 
-The segments and radii mirror the evaluation's ground-truth visibility
-(:mod:`train.evaluation.visibility`): 10 cm at the limbs' joints, 15 cm at the hips, 20 cm at
+The parts and radii are the evaluation's ground-truth visibility's
+(:data:`shared.labels.JOINT_PARTS`): 10 cm at the limbs' joints, 15 cm at the hips, 20 cm at
 the trunk's joints, whose centres lie well inside the body.
 """
 
@@ -35,37 +35,21 @@ from runtime.raycast import BodyRender
 from shared import skeleton as sk
 from shared.camera import Intrinsics
 from shared.kinematics import named_joint_positions
+from shared.labels import JOINT_PARTS, PART_NAMES, PART_SEGMENT
 
 from .regions import Regions, rendered_points
 
 __all__ = ["JOINT_SUPPORT", "joint_support_cm2", "observed_joints"]
 
-_LIMB_M, _HIP_M, _TRUNK_M = 0.10, 0.15, 0.20
-
-
-def _joint_support() -> dict[str, tuple[tuple[str, ...], float]]:
-    table = {
-        "head": (("head", "neck"), _TRUNK_M),
-        "neck": (("neck", "chest", "l_clavicle", "r_clavicle"), _TRUNK_M),
-        "spine": (("abdomen", "chest"), _TRUNK_M),
-        "pelvis": (("pelvis", "abdomen"), _TRUNK_M),
-    }
-    limbs = {
-        "shoulder": (("clavicle", "upper_arm"), _LIMB_M),
-        "elbow": (("upper_arm", "forearm"), _LIMB_M),
-        "wrist": (("forearm",), _LIMB_M),  # the hand is the forearm capsule's end
-        "hip": (("thigh",), _HIP_M),
-        "knee": (("thigh", "shank"), _LIMB_M),
-        "ankle": (("shank",), _LIMB_M),  # the foot hangs on the shank
-    }
-    for joint, (segments, radius) in limbs.items():
-        for side in "lr":
-            table[f"{side}_{joint}"] = (tuple(f"{side}_{s}" for s in segments), radius)
-    return {name: table[name] for name in sk.JOINT_NAMES}
-
-
-# Named joint -> (the model segments that meet at it, radius in metres).
-JOINT_SUPPORT: dict[str, tuple[tuple[str, ...], float]] = _joint_support()
+# Named joint -> (the model segments that meet at it, radius in metres): the segments of
+# shared.labels.JOINT_PARTS' parts.
+JOINT_SUPPORT: dict[str, tuple[tuple[str, ...], float]] = {
+    joint: (
+        tuple(dict.fromkeys(sk.SEGMENT_NAMES[PART_SEGMENT[PART_NAMES.index(p)]] for p in parts)),
+        radius,
+    )
+    for joint, (parts, radius) in JOINT_PARTS.items()
+}
 
 # (S,) body group of each segment: torso with head and neck, left arm, right arm, left leg,
 # right leg (the clavicles with their arms).

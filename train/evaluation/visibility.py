@@ -18,36 +18,9 @@ from __future__ import annotations
 import numpy as np
 
 from shared.camera import Intrinsics
-from shared.labels import PART_NAMES
+from shared.labels import JOINT_PARTS, PART_NAMES
 
 __all__ = ["JOINT_PARTS", "visible_joints", "recording_joint_visibility"]
-
-_LIMB_M, _HIP_M, _TRUNK_M = 0.10, 0.15, 0.20
-
-
-def _joint_parts() -> dict[str, tuple[tuple[str, ...], float]]:
-    table = {
-        "head": (("head", "neck"), _TRUNK_M),
-        "neck": (("neck", "chest", "l_clavicle", "r_clavicle"), _TRUNK_M),
-        "spine": (("abdomen", "chest"), _TRUNK_M),
-        "pelvis": (("pelvis", "abdomen"), _TRUNK_M),
-    }
-    limbs = {
-        "shoulder": (("clavicle", "upper_arm"), _LIMB_M),
-        "elbow": (("upper_arm", "forearm"), _LIMB_M),
-        "wrist": (("forearm",), _LIMB_M),
-        "hip": (("thigh_upper",), _HIP_M),
-        "knee": (("thigh_lower", "shank_upper"), _LIMB_M),
-        "ankle": (("shank_lower",), _LIMB_M),
-    }
-    for joint, (parts, radius) in limbs.items():
-        for side in "lr":
-            table[f"{side}_{joint}"] = (tuple(f"{side}_{p}" for p in parts), radius)
-    return table
-
-
-# Joint name -> (the part labels that meet at it, radius in metres).
-JOINT_PARTS: dict[str, tuple[tuple[str, ...], float]] = _joint_parts()
 
 
 def visible_joints(
