@@ -96,6 +96,10 @@ class PoseEstimate:
             if self.observed.shape != (16,):
                 raise ValueError(f"observed must be (16,), got {self.observed.shape}")
 
+    def observed_or_all(self) -> np.ndarray:
+        """(16,) bool observed flags, all True when the estimator gave none (for drawing)."""
+        return np.ones(16, dtype=bool) if self.observed is None else self.observed
+
 
 def observed_of(fit) -> np.ndarray | None:
     """The (16,) bool observed-joint flags of a tracker fit (``TrackResult.observed``, a

@@ -77,11 +77,9 @@ class LiveView:
                 rr.LineStrips3D(joints[BONES], colors=colour, radii=0.01),
             )
             # Inferred joints (not confirmed by the depth image) in grey.
-            seen = (
-                estimate.observed if estimate.observed is not None else np.ones(len(joints), bool)
-            )
-            colours = np.where(seen[:, None], np.array(colour), np.array(_INFERRED_COLOUR))
-            rr.log("world/joints", rr.Points3D(joints, colors=colours, radii=0.02))
+            seen = estimate.observed_or_all()[:, None]
+            joint_colours = np.where(seen, np.array(colour), np.array(_INFERRED_COLOUR))
+            rr.log("world/joints", rr.Points3D(joints, colors=joint_colours, radii=0.02))
         else:
             rr.log("world/skeleton", rr.Clear(recursive=True))
         rr.log("status", rr.TextLog(estimate.status))

@@ -382,8 +382,7 @@ def _overlay(frame, mask: torch.Tensor, est: PoseEstimate) -> np.ndarray:
         pix = {n: tuple(int(round(c)) for c in uv[i]) for i, n in enumerate(JOINT_NAMES)}
         for a, b in _BONES:
             cv2.line(img, pix[a], pix[b], (0, 255, 0), 1, cv2.LINE_AA)
-        seen = est.observed if est.observed is not None else np.ones(len(pix), dtype=bool)
-        for p, ok in zip(pix.values(), seen):
+        for p, ok in zip(pix.values(), est.observed_or_all()):
             # Inferred joints (the camera does not confirm them) as open red rings.
             if ok:
                 cv2.circle(img, p, 2, (0, 255, 255), -1, cv2.LINE_AA)

@@ -207,9 +207,7 @@ def format_failures(name: str, per_recording: dict[str, dict], agg: dict | None 
         lines.append(f"  counting only the joints the camera sees: {seen:.1f}%")
     claimed = (agg or {}).get("system_failure_observed_pct")
     if claimed is not None:
-        flags = [
-            (agg or {}).get(k) for k in ("observed_flag_recall_pct", "observed_flag_precision_pct")
-        ]
+        flags = [agg.get(f"observed_flag_{k}_pct") for k in ("recall", "precision")]
         agreement = (
             f" (the flags cover {flags[0]:.1f}% of the joints the camera sees; "
             f"{flags[1]:.1f}% of the joints flagged are seen)"

@@ -64,16 +64,12 @@ _GROUP = torch.tensor(
 
 # (S, 2) the joints each segment meets (no segment meets more than two), padded with J; the
 # padded (J + 1,) radii are 0 there, so a pad never counts.
-_SEGMENT_JOINTS = torch.tensor(
-    [
-        ([j for j, joint in enumerate(sk.JOINT_NAMES) if seg in JOINT_SUPPORT[joint][0]]
-         + [len(sk.JOINT_NAMES)] * 2)[:2]
-        for seg in sk.SEGMENT_NAMES
-    ]
-)  # fmt: skip
-assert all(
-    sum(seg in JOINT_SUPPORT[joint][0] for joint in sk.JOINT_NAMES) <= 2 for seg in sk.SEGMENT_NAMES
-)
+_MET = [
+    [j for j, joint in enumerate(sk.JOINT_NAMES) if seg in JOINT_SUPPORT[joint][0]]
+    for seg in sk.SEGMENT_NAMES
+]
+assert max(map(len, _MET)) <= 2
+_SEGMENT_JOINTS = torch.tensor([(met + [len(sk.JOINT_NAMES)] * 2)[:2] for met in _MET])
 _RADIUS = torch.tensor([JOINT_SUPPORT[joint][1] for joint in sk.JOINT_NAMES] + [0.0])
 
 

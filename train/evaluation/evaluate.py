@@ -208,10 +208,10 @@ def evaluate(
         m.system_failures(errors, cfg.failure_threshold_m, observed > 0.5) if said else None
     )
     flagged_pct = flag_recall = flag_precision = math.nan
-    if said:
+    if said and visible is not None:
+        flagged_pct, flag_recall, flag_precision = m.observed_flag_agreement(observed, visible)
+    elif said:
         flagged_pct = m.percent(observed[np.isfinite(observed)] > 0.5)
-        if visible is not None:
-            flagged_pct, flag_recall, flag_precision = m.observed_flag_agreement(observed, visible)
     per_joint = m.per_joint_error_mm(errors)
     per_joint_norm = m.per_joint_error_mm(norm_errors)
     frame_mm = m.per_frame_error_mm(errors)
