@@ -24,7 +24,15 @@ from shared.kinematics import (
 )
 from shared.skeleton import DOF_LIMITS, JOINT_FRACTION, JOINT_SEGMENT
 
-__all__ = ["time_call", "bench_kinematics", "bench_tracker", "bench_recordings", "main"]
+__all__ = [
+    "time_call",
+    "bench_kinematics",
+    "bench_tracker",
+    "collision_cost",
+    "joint_support_cost",
+    "bench_recordings",
+    "main",
+]
 
 
 def time_call(fn: Callable[[], object], repeats: int = 20, warmup: int = 3) -> float:
@@ -120,7 +128,34 @@ def bench_tracker(device: str) -> list[tuple[str, float, str]]:
             (f"ray-cast of the body, {at}", r["raycast_ms"], "one render per iteration"),
         ]
     rows.append(collision_cost(device))
+    rows.append(joint_support_cost(device))
     return rows
+
+
+def joint_support_cost(device: str, repeats: int = 20) -> tuple[str, float, str]:
+    """The observed-joint flags (:func:`runtime.tracker.joint_support.joint_support_cm2`, with
+    labels) on a 320x240 frame of the default body at 3 m, against a tracker step on the same
+    frame, timed in the same run: (what, ms, note with the ratio)."""
+    from runtime.raycast import render_body
+    from runtime.tracker import Tracker
+    from runtime.tracker.joint_support import joint_support_cm2
+    from runtime.tracker.observation import observe
+    from runtime.tracker.regions import classify
+    from shared.camera import Intrinsics
+
+    intr, body = Intrinsics.kinect_v1(320), BodyShape.default().to(device=device)
+    q = rest_pose(1, root_position=(0.0, 0.1, 3.0)).to(device)
+    render = render_body(q, body, intr)
+    obs = observe(render.depth, render.mask, intr, 1, 10.0)
+    regions = classify(render, obs, 0.08, True)
+    tracker, depth = Tracker(body, intr, device=device), render.depth[0]
+    ms = time_call(lambda: joint_support_cm2(render, regions, intr, render.segment), repeats)
+    step = time_call(lambda: tracker.step(depth, depth > 0, q[0]), repeats)
+    return (
+        f"observed-joint flags, {int(regions.good.sum())} pixels at 3 m",
+        ms,
+        f"{ms / step:.3f} of a tracker step on the same frame ({step:.1f} ms, which includes it)",
+    )
 
 
 def collision_cost(device: str, rounds: int = 2, frames: int = 60) -> tuple[str, float, str]:

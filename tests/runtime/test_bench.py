@@ -66,3 +66,12 @@ def test_collision_cost_is_a_ratio_against_the_step_without_it():
     assert "collision" in what and ms > 0
     ratio = float(note.split(" of the step")[0])
     assert 0.2 < ratio < 5.0 and "alternated" in note
+
+
+def test_joint_support_cost_is_a_ratio_against_a_tracker_step():
+    from runtime.bench import joint_support_cost
+
+    what, ms, note = joint_support_cost("cpu", repeats=2)
+    assert "observed-joint" in what and ms > 0
+    ratio = float(note.split(" of a tracker step")[0])
+    assert 0.0 < ratio < 1.0  # the step computes the flags once, among much else
