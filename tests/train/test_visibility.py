@@ -166,6 +166,24 @@ def test_evaluation_counts_failures_on_joints_the_result_calls_observed(
     assert "observed joints only" in capsys.readouterr().out
 
 
+def test_frames_without_flags_count_every_joint(labelled_recording, tmp_path):
+    """Frame 2's wrist is 30 cm off and the result gives no flags for that frame: it fails
+    on the observed-joints rate too (saying nothing is not calling the wrist inferred)."""
+    rec, q, joints, body = labelled_recording
+    wrist = sk.JOINT_NAMES.index("l_wrist")
+    pred = joints.copy()
+    pred[2, wrist, 0] += 0.3
+    with ResultWriter(tmp_path / "res", body, 30.0, CAM, "hybrid", "test") as w:
+        for f in range(FRAMES):
+            flags = None if f == 2 else np.ones(16, dtype=bool)
+            w.write_frame(f, f / 30, "tracked", pred[f], q[f], {}, flags)
+    out = tmp_path / "eval.json"
+    main(["--recording", str(rec), "--result", str(tmp_path / "res"), "--json", str(out)])
+    r = json.loads(out.read_text())
+    assert r["system_failure_observed_pct"] == pytest.approx(25.0)
+    assert r["system_failure_pct"] == pytest.approx(25.0)
+
+
 def test_results_without_observed_flags_have_no_observed_rate(labelled_recording, tmp_path):
     rec, q, joints, body = labelled_recording
     with ResultWriter(tmp_path / "res", body, 30.0, CAM, "hybrid", "test") as w:

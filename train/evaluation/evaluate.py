@@ -204,8 +204,11 @@ def evaluate(
     observed = np.full(errors.shape, np.nan)
     observed[result.frame] = result.observed[:, res_idx]
     said = bool(np.isfinite(observed).any())
+    # A joint the result says nothing about (a frame written without flags) counts: only a
+    # joint it calls inferred may be left out.
+    counted = np.where(np.isfinite(observed), observed > 0.5, True)
     failures_observed = (
-        m.system_failures(errors, cfg.failure_threshold_m, observed > 0.5) if said else None
+        m.system_failures(errors, cfg.failure_threshold_m, counted) if said else None
     )
     flagged_pct = flag_recall = flag_precision = math.nan
     if said and visible is not None:

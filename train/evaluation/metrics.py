@@ -39,8 +39,9 @@ Definitions (F frames, J joints; a missing prediction is NaN and is never "corre
   ``system_failure_observed_pct`` counts only the joints the *result* reports as observed
   (``poses.jsonl``'s per-joint ``observed`` flags, :mod:`runtime.tracker.joint_support`):
   the system's own claim, made without ground truth, like the Kinect SDK's tracked and
-  inferred joints. :func:`observed_flag_agreement` says how well those flags match the
-  joints the camera sees, so that a system cannot pass by calling every joint inferred.
+  inferred joints; a joint of a frame written without flags counts.
+  :func:`observed_flag_agreement` says how well those flags match the joints the camera
+  sees, so that a system cannot pass by calling every joint inferred.
 * **Surface error, 97% quantile** (Helten IV-C "Surface Tracking Error"): per frame, the 97%
   quantile over all foreground depth points of the distance to the tracked body surface
   (the tracker reports it per frame as ``errors["surface_error_q97_mm"]``); the sequence value
