@@ -20,6 +20,7 @@ from pathlib import Path
 
 import torch
 
+from runtime.frame import depth_mm_to_metres
 from shared.body import BodyShape
 from shared.recording import Recording, RecordingError
 
@@ -27,7 +28,6 @@ from .calibration import CalibrationConfig, CalibrationError, ReferencePoseWatch
 from .detector import (
     DetectorConfig,
     DetectorError,
-    depth_frame_to_metres,
     labels_from,
     load_forest_labeler,
 )
@@ -135,7 +135,7 @@ def run(args: argparse.Namespace) -> BodyShape:
         check_with_forest = args.labels == "forest" and not args.no_pose_check
         detect_labeler = _forest_labeler(args.detect_model, intr) if check_with_forest else None
         for frame in stream:
-            depth = depth_frame_to_metres(frame.depth_mm)
+            depth = depth_mm_to_metres(frame.depth_mm)
             mask = segment_person(depth, intr)
             if not bool(mask.any()):
                 watcher.update(None, depth, depth)

@@ -23,9 +23,7 @@ from shared.body import BodyShape
 from shared.camera import Intrinsics
 
 if TYPE_CHECKING:
-    import torch
-
-    from runtime.streams.base import DepthFrame
+    from runtime.frame import Frame
 
 __all__ = [
     "PoseEstimate",
@@ -36,6 +34,7 @@ __all__ = [
     "MODES_NEEDING_MODEL",
     "STATUSES",
     "make_estimator",
+    "estimate_frame",
     "lost",
     "observed_of",
 ]
@@ -119,10 +118,21 @@ class PoseEstimator(Protocol):
 
     def reset(self) -> None:
         """Forget the past: the next frame is estimated from scratch. ``runtime-track`` calls
-        it after a frame without a person, whose estimate it writes as lost itself."""
+        it after a frame without a person (:func:`estimate_frame`)."""
 
-    def estimate(self, frame: DepthFrame, mask: np.ndarray | torch.Tensor) -> PoseEstimate:
-        """Pose of the person in ``frame``; ``mask`` (H, W) bool marks the person's pixels."""
+    def estimate(self, frame: Frame) -> PoseEstimate:
+        """Pose of the person in ``frame`` (a :class:`runtime.frame.Frame` whose mask is not
+        empty: :func:`estimate_frame` handles frames without a person)."""
+
+
+def estimate_frame(estimator: PoseEstimator, frame: Frame) -> PoseEstimate:
+    """The estimate of ``frame``: "lost" without asking the estimator when the segmentation
+    found no one (the estimator then forgets its track, so the person is picked up afresh),
+    the estimator's otherwise. The one place that rule lives."""
+    if not frame.has_person:
+        estimator.reset()
+        return lost()
+    return estimator.estimate(frame)
 
 
 def make_estimator(

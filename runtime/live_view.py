@@ -12,7 +12,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from shared import skeleton as sk
 from shared.camera import depth_to_points
@@ -58,12 +57,12 @@ class LiveView:
         # Camera frame is OpenCV's (y down); tell the viewer so "up" looks right.
         rr.log("world", rr.ViewCoordinates.RIGHT_HAND_Y_DOWN, static=True)
 
-    def log_frame(self, frame, mask, estimate) -> None:
-        """One frame: depth points of the person, skeleton, status."""
+    def log_frame(self, frame, estimate) -> None:
+        """One frame (a ``runtime.frame.Frame``): the person's depth points, skeleton, status."""
         rr = self.rr
         rr.set_time("frame", sequence=int(frame.index))
-        depth = torch.as_tensor(frame.depth_mm.astype(np.float32) / 1000.0)
-        m = torch.as_tensor(np.asarray(mask, dtype=bool)) & (depth > 0)
+        depth = frame.depth_m.detach().cpu()
+        m = frame.mask.detach().cpu() & (depth > 0)
         points = depth_to_points(depth, frame.intrinsics)[m].numpy()
         colours = None
         if estimate.labels is not None:

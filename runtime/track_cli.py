@@ -18,15 +18,11 @@ Ctrl-C finishes the frame in flight and stops; a second Ctrl-C stops at once.
 from __future__ import annotations
 
 import argparse
-import math
 import signal
 import sys
 import threading
-import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TextIO
 
 import numpy as np
 import torch
@@ -42,19 +38,18 @@ from shared.config import (
     load_settings,
 )
 from shared.recording import RecordingError
-from shared.skeleton import JOINT_NAMES
 
-from .estimator import MODES, MODES_NEEDING_MODEL, PoseEstimate, PoseEstimator, make_estimator
+from .estimator import MODES, MODES_NEEDING_MODEL, make_estimator
 from .forest.inference import DEFAULT_MODEL
-from .segmentation import SegmentationConfig, segment_person
+from .segmentation import SegmentationConfig
 from .streams import (
-    DepthStream,
     FrameRange,
     SensorDisconnected,
     StreamError,
     describe_sources,
     open_stream,
 )
+from .track_loop import Progress, TrackStats, track
 
 __all__ = [
     "main",
@@ -62,29 +57,8 @@ __all__ = [
     "track",
     "TrackStats",
     "TrackError",
-    "depth_to_metres",
     "DEFAULT_MODEL",
 ]
-
-
-# Skeleton lines of the overlay images, between named joints.
-_BONES = (
-    ("head", "neck"),
-    ("neck", "spine"),
-    ("spine", "pelvis"),
-    ("neck", "l_shoulder"),
-    ("l_shoulder", "l_elbow"),
-    ("l_elbow", "l_wrist"),
-    ("neck", "r_shoulder"),
-    ("r_shoulder", "r_elbow"),
-    ("r_elbow", "r_wrist"),
-    ("pelvis", "l_hip"),
-    ("l_hip", "l_knee"),
-    ("l_knee", "l_ankle"),
-    ("pelvis", "r_hip"),
-    ("r_hip", "r_knee"),
-    ("r_knee", "r_ankle"),
-)
 
 
 class TrackError(ValueError):
@@ -145,7 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--config",
         type=Path,
-        help="YAML of the mode's settings (e.g. configs/hybrid.yaml, configs/tracker.yaml)",
+        help="YAML of the mode's settings (e.g. configs/hybrid.yaml)",
     )
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto", help="torch device")
     g = p.add_argument_group("intrinsics (override the source's own)")
@@ -267,202 +241,6 @@ def check_model(path: Path, mode: str) -> None:
     except ImportError:  # the estimator's own loader will check it
         return
     load_forest(path, expected_classes=PART_NAMES)
-
-
-# --------------------------------------------------------------------------------------------
-# The tracking loop
-
-
-def depth_to_metres(depth_mm: np.ndarray, device: str | torch.device = "cpu") -> torch.Tensor:
-    """(H, W) depth in millimetres (uint16, or float with NaN) -> float32 metres, 0 = none."""
-    depth = np.asarray(depth_mm)
-    if depth.dtype.kind == "f":
-        depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0)
-    return torch.from_numpy(depth.astype(np.float32)).to(device) * 1e-3
-
-
-@dataclass
-class TrackStats:
-    """What :func:`track` did.
-
-    Attributes:
-        frames: frames written.
-        status_counts: written frames per status.
-        dropped: frames skipped by real-time pacing.
-        last_index: index of the last written frame (None if none).
-        wall_s: seconds spent.
-    """
-
-    frames: int = 0
-    status_counts: dict[str, int] = field(
-        default_factory=lambda: {"tracked": 0, "detected": 0, "lost": 0}
-    )
-    dropped: int = 0
-    last_index: int | None = None
-    wall_s: float = 0.0
-
-    @property
-    def fps(self) -> float:
-        return self.frames / self.wall_s if self.wall_s > 0 else 0.0
-
-
-class Progress:
-    """One updating progress line on a terminal (a plain line every few seconds otherwise)."""
-
-    def __init__(self, total: int | None, out: TextIO | None = None, quiet: bool = False):
-        self.total, self.out, self.quiet = total, out or sys.stderr, quiet
-        self.tty = bool(getattr(self.out, "isatty", lambda: False)())
-        self._interval = 0.2 if self.tty else 5.0
-        self._shown = -math.inf
-        self._fps = 0.0
-        self._t_last: float | None = None
-        self._width = 0
-        self._latest: tuple[TrackStats, int] | None = None
-
-    def update(self, stats: TrackStats, index: int) -> None:
-        now = time.perf_counter()
-        if self._t_last is not None:
-            inst = 1.0 / max(now - self._t_last, 1e-6)
-            self._fps = inst if self._fps == 0 else 0.9 * self._fps + 0.1 * inst
-        self._t_last = now
-        self._latest = (stats, index)
-        if self.quiet or now - self._shown < self._interval:
-            return
-        self._shown = now
-        self._show(stats, index)
-
-    def _show(self, stats: TrackStats, index: int) -> None:
-        c = stats.status_counts
-        of = f"/{self.total}" if self.total else ""
-        line = (
-            f"frame {index} ({stats.frames}{of})  {self._fps:5.1f} fps  "
-            f"tracked {c['tracked']}  detected {c['detected']}  lost {c['lost']}"
-        )
-        if stats.dropped:
-            line += f"  dropped {stats.dropped}"
-        if self.tty:
-            self.out.write("\r" + line.ljust(self._width))
-            self._width = len(line)
-        else:
-            self.out.write(line + "\n")
-        self.out.flush()
-
-    def close(self) -> None:
-        if self.tty and self._width and not self.quiet:
-            self._show(*self._latest)  # the final counts, not the last periodic ones
-            self.out.write("\n")
-            self.out.flush()
-
-
-def _overlay(frame, mask: torch.Tensor, est: PoseEstimate) -> np.ndarray:
-    """BGR image: depth in grey, the part labels (or the person mask) tinted, the skeleton."""
-    import cv2
-
-    from shared.labels import PART_COLORS
-
-    depth = frame.depth_mm.astype(np.float32)
-    valid = depth > 0
-    lo, hi = np.percentile(depth[valid], [2, 98]) if valid.any() else (0.0, 1.0)
-    grey = np.clip(255 * (1 - (depth - lo) / max(hi - lo, 1.0)), 40, 255).astype(np.uint8)
-    img = cv2.cvtColor(np.where(valid, grey, 0).astype(np.uint8), cv2.COLOR_GRAY2BGR)
-    m = mask.detach().cpu().numpy().astype(bool)
-    if est.labels is not None and est.labels.shape == m.shape:
-        tint = PART_COLORS[est.labels][..., ::-1]
-        show = est.labels > 0
-    else:
-        tint = np.broadcast_to(np.array([60, 60, 220], np.uint8), img.shape)
-        show = m
-    img[show] = (0.5 * img[show] + 0.5 * tint[show]).astype(np.uint8)
-    if est.joints is not None and np.isfinite(est.joints).all():
-        intr = frame.intrinsics
-        z = np.maximum(est.joints[:, 2], 1e-3)
-        uv = np.stack(
-            [intr.fx * est.joints[:, 0] / z + intr.cx, intr.fy * est.joints[:, 1] / z + intr.cy], 1
-        )
-        pix = {n: tuple(int(round(c)) for c in uv[i]) for i, n in enumerate(JOINT_NAMES)}
-        for a, b in _BONES:
-            cv2.line(img, pix[a], pix[b], (0, 255, 0), 1, cv2.LINE_AA)
-        for p, ok in zip(pix.values(), est.observed_or_all()):
-            # Inferred joints (the camera does not confirm them) as open red rings.
-            if ok:
-                cv2.circle(img, p, 2, (0, 255, 255), -1, cv2.LINE_AA)
-            else:
-                cv2.circle(img, p, 3, (0, 0, 255), 1, cv2.LINE_AA)
-    return img
-
-
-def track(
-    stream: DepthStream,
-    estimator: PoseEstimator,
-    writer,
-    seg_cfg: SegmentationConfig | None = None,
-    device: str = "cpu",
-    *,
-    realtime: bool = False,
-    overlay_dir: Path | None = None,
-    progress: Progress | None = None,
-    stop: threading.Event | None = None,
-    stats: TrackStats | None = None,
-    view=None,
-) -> TrackStats:
-    """Run the pipeline over ``stream``, writing every frame to ``writer``.
-
-    Args:
-        writer: a ResultWriter (``write_frame(index, time, status, joints, q, errors,
-            observed=...)``).
-        realtime: pace a file source to its frame rate and drop frames when behind.
-        stop: set it to end the loop after the frame in flight (Ctrl-C handler).
-        stats: filled in place (so a caller sees the counts even if the loop raises).
-    Raises:
-        whatever the stream raises (StreamError, SensorDisconnected, KeyboardInterrupt); the
-        frames written before are complete.
-    """
-    stats = stats if stats is not None else TrackStats()
-    seg_cfg = seg_cfg or SegmentationConfig()
-    t_begin = time.perf_counter()
-    t_stream0: float | None = None
-    t_wall0 = t_begin
-    frame_dt = 1.0 / stream.fps
-    if overlay_dir is not None:
-        overlay_dir.mkdir(parents=True, exist_ok=True)
-    try:
-        for frame in stream:
-            if realtime and not stream.is_live:
-                if t_stream0 is None:  # the clocks start at the first frame: never dropped
-                    t_stream0, t_wall0 = frame.time, time.perf_counter()
-                lag = time.perf_counter() - t_wall0 - (frame.time - t_stream0)
-                if lag < 0:
-                    time.sleep(-lag)
-                elif lag > 1.5 * frame_dt:  # a live camera would have dropped this frame
-                    stats.dropped += 1
-                    continue
-            depth_m = depth_to_metres(frame.depth_mm, device)
-            mask = segment_person(depth_m, frame.intrinsics, seg_cfg)
-            if not bool(mask.any()):
-                est = PoseEstimate(None, None, "lost", {})
-                estimator.reset()
-            else:
-                est = estimator.estimate(frame, mask)
-            writer.write_frame(
-                frame.index, frame.time, est.status, est.joints, est.q, est.errors,
-                observed=est.observed,
-            )  # fmt: skip
-            stats.frames += 1
-            stats.status_counts[est.status] = stats.status_counts.get(est.status, 0) + 1
-            stats.last_index = frame.index
-            if view is not None:
-                view.log_frame(frame, mask, est)
-            if overlay_dir is not None:
-                import cv2
-
-                cv2.imwrite(str(overlay_dir / f"{frame.index:06d}.png"), _overlay(frame, mask, est))
-            if progress is not None:
-                progress.update(stats, frame.index)
-            if stop is not None and stop.is_set():
-                break
-    finally:
-        stats.wall_s = time.perf_counter() - t_begin
-    return stats
 
 
 @contextmanager

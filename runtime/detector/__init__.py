@@ -22,7 +22,7 @@ from shared.config import ConfigError, config_from_dict
 from .bone_ransac import BoneFit, bone_reach, fit_bones
 from .centroids import ClassCentroids, class_centroids, part_markers
 from .config import DetectorConfig, MeanShiftConfig
-from .detect import DetectionResult, Detector, DetectorError, detect_pose, labels_from
+from .detect import DetectionResult, Detector, DetectorError, Refine, detect_pose, labels_from
 
 __all__ = [
     "DetectorConfig",
@@ -30,6 +30,7 @@ __all__ = [
     "DetectorError",
     "DetectionResult",
     "Detector",
+    "Refine",
     "detect_pose",
     "labels_from",
     "BoneFit",
@@ -40,7 +41,7 @@ __all__ = [
     "part_markers",
     "Labeler",
     "load_forest_labeler",
-    "depth_frame_to_metres",
+    "forest_label_source",
     "DetectorEstimator",
     "create_estimator",
 ]
@@ -91,47 +92,44 @@ def load_forest_labeler(
     return clf.posteriors if posteriors else clf.labels
 
 
-def depth_frame_to_metres(depth_mm: np.ndarray, device: str | torch.device = "cpu") -> torch.Tensor:
-    """(H, W) millimetres (uint16, or float with NaN) -> float32 metres on ``device``, 0 = none."""
-    depth = np.asarray(depth_mm)
-    if depth.dtype.kind == "f":
-        depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0)
-    return torch.from_numpy(depth.astype(np.float32)).to(device) * 1e-3
+def forest_label_source(labeler: Labeler):
+    """A frame's part labels from the forest ``labeler`` (arg-max of its posteriors), as a
+    ``runtime.frame.LabelSource``."""
 
+    def labels(frame) -> torch.Tensor:
+        return labels_from(labeler(frame.depth_m, frame.mask))
 
-def _as_mask(mask, device) -> torch.Tensor:
-    return torch.as_tensor(np.asarray(mask) if not torch.is_tensor(mask) else mask).to(
-        device=device, dtype=torch.bool
-    )
+    return labels
 
 
 class DetectorEstimator:
-    """Mode "detector": forest labels -> :class:`Detector` on every frame (no memory)."""
+    """Mode "detector": forest labels -> :class:`Detector` on every frame (no memory), refined
+    by a few iterations of ``tracker`` (None: no refinement)."""
 
-    def __init__(self, labeler: Labeler, detector: Detector) -> None:
-        self.labeler, self.detector = labeler, detector
+    def __init__(self, labeler: Labeler, detector: Detector, tracker=None) -> None:
+        self.labels, self.detector, self.tracker = forest_label_source(labeler), detector, tracker
 
     def reset(self) -> None:
         """Nothing to forget: every frame is detected from scratch."""
 
-    def estimate(self, frame, mask):
+    def estimate(self, frame):
         from runtime.estimator import PoseEstimate, lost, observed_of
 
-        depth = depth_frame_to_metres(frame.depth_mm, self.detector.device)
-        m = _as_mask(mask, depth.device)
-        if not bool(m.any()):
-            return lost()
-        labels = labels_from(self.labeler(depth, m))
-        det = self.detector.detect(depth, labels, m)
+        labels = frame.labels(self.labels)
+        refine = None
+        k = self.detector.cfg.refine_iterations
+        if self.tracker is not None and k > 0:
+            obs = frame.observation(self.tracker, labels)
+
+            def refine(q):
+                return self.tracker.fit(obs, q, None, k)
+
+        det = self.detector.detect(frame.depth_m, labels, frame.mask, refine=refine)
         if not det.found:
             return lost(labelled_pixels=float(det.labelled_pixels))
         errors = {"ik_rms_m": det.ik_rms, "labelled_pixels": float(det.labelled_pixels)}
         if det.refined is not None:
-            errors.update(
-                depth_error_cm=det.refined.depth_error_cm,
-                overlap=det.refined.overlap,
-                surface_error_q97_mm=det.refined.surface_error_q97_mm,
-            )
+            errors.update(det.refined.signals.as_errors())
         return PoseEstimate(
             det.q.detach().cpu().double().numpy(),
             det.joints.detach().cpu().double().numpy(),
@@ -170,4 +168,7 @@ def create_estimator(
         smooth_window=cfg.label_smoothing_window,
         smooth_depth_gate_m=cfg.label_smoothing_gate_m,
     )
-    return DetectorEstimator(labeler, Detector(body, intrinsics, cfg, device=device))
+    from runtime.tracker import Tracker
+
+    tracker = Tracker(body, intrinsics, device=device) if cfg.refine_iterations > 0 else None
+    return DetectorEstimator(labeler, Detector(body, intrinsics, cfg, device=device), tracker)

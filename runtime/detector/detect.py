@@ -15,8 +15,8 @@ tracked pose) is one more start.
 
 from __future__ import annotations
 
-import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -36,9 +36,12 @@ from .centroids import class_centroids, part_markers
 from .config import DetectorConfig
 
 if TYPE_CHECKING:
-    from runtime.tracker import Tracker, TrackerConfig, TrackResult
+    from runtime.tracker import TrackResult
 
-__all__ = ["DetectionResult", "DetectorError", "detect_pose", "labels_from", "Detector"]
+# A start pose (34,) -> the tracker's few-iteration refinement of the frame from it.
+Refine = Callable[[torch.Tensor], "TrackResult"]
+
+__all__ = ["DetectionResult", "DetectorError", "Refine", "detect_pose", "labels_from", "Detector"]
 
 
 class DetectorError(ValueError):
@@ -157,7 +160,7 @@ def detect_pose(
     cfg: DetectorConfig | None = None,
     q_hint: torch.Tensor | None = None,
     mask: torch.Tensor | None = None,
-    tracker: Tracker | None = None,
+    refine: Refine | None = None,
     generator: torch.Generator | None = None,
 ) -> DetectionResult:
     """Pose from one depth frame and its part labels (module docstring).
@@ -169,10 +172,10 @@ def detect_pose(
         body: body model (unbatched).
         cfg: settings (defaults when None).
         q_hint: (34,) an extra IK start (e.g. the last good pose), optional.
-        mask: (H, W) bool person mask; labels outside it are ignored. Needed for refinement
-            (default: labelled pixels).
-        tracker: refines the IK pose with ``tracker.step`` when given (its config sets the
-            iteration count and whether its label term uses ``labels``; see :class:`Detector`).
+        mask: (H, W) bool person mask; labels outside it are ignored.
+        refine: the tracker's refinement of this frame from a pose (Wei: three iterations),
+            applied to the IK pose and its limb swaps when given; the caller binds it to the
+            frame (its observation, labels and iteration count).
         generator: random source of the RANSAC (default: seeded from ``cfg.seed``).
     Returns:
         :class:`DetectionResult`.
@@ -241,13 +244,12 @@ def detect_pose(
     best = int(torch.argmin(ik.rms))
     q_ik = ik.q[best]
     q, refined = q_ik, None
-    if tracker is not None and getattr(tracker.cfg, "iterations", 1) > 0:
-        ref_mask = use if mask is None else mask.to(device=dev, dtype=torch.bool)
+    if refine is not None:
         # The forest confuses left and right limbs (about a fifth of forearm and shank pixels),
         # which IK turns into crossed legs or arms; refine the pose with each pair of limbs
         # swapped too and keep the one that explains the depth best.
         for cand in limb_swaps(q_ik):
-            res = tracker.step(depth, ref_mask, cand, None, labels=lab)
+            res = refine(cand)
             if refined is None or (res.depth_error_cm, -res.overlap) < (
                 refined.depth_error_cm,
                 -refined.overlap,
@@ -279,12 +281,11 @@ def limb_swaps(q: torch.Tensor) -> list[torch.Tensor]:
 
 
 class Detector:
-    """Stateless-per-frame detector of one stream: settings, body, and the refining tracker.
+    """The detector of one stream: settings, body and the RANSAC's random state (which runs on
+    from frame to frame). Its refinement is the caller's tracker, passed per frame.
 
     Args:
         body: body model; intr: stream intrinsics; cfg: detector settings.
-        tracker_cfg: settings of the refining tracker (its ``iterations`` is replaced by
-            ``cfg.refine_iterations``; no refinement when that is 0).
         device, dtype: where and in which float type to compute.
     """
 
@@ -293,7 +294,6 @@ class Detector:
         body: BodyShape,
         intr: Intrinsics,
         cfg: DetectorConfig | None = None,
-        tracker_cfg: TrackerConfig | None = None,
         device: torch.device | str | None = None,
         dtype: torch.dtype = torch.float32,
     ) -> None:
@@ -303,14 +303,6 @@ class Detector:
         self.dtype = dtype
         self.body = body.to(dtype=dtype, device=self.device)
         self.generator = torch.Generator().manual_seed(self.cfg.seed)
-        self.tracker = None
-        if self.cfg.refine_iterations > 0:
-            from runtime.tracker import Tracker, TrackerConfig
-
-            tcfg = dataclasses.replace(
-                tracker_cfg or TrackerConfig(), iterations=self.cfg.refine_iterations
-            )
-            self.tracker = Tracker(self.body, intr, tcfg, device=self.device, dtype=dtype)
 
     def detect(
         self,
@@ -318,12 +310,13 @@ class Detector:
         labels: torch.Tensor | np.ndarray,
         mask: torch.Tensor | None = None,
         q_hint: torch.Tensor | None = None,
+        refine: Refine | None = None,
     ) -> DetectionResult:
-        """:func:`detect_pose` on one frame with this detector's settings and tracker."""
+        """:func:`detect_pose` on one frame with this detector's settings."""
         return detect_pose(
             depth_m.to(device=self.device, dtype=self.dtype),
             torch.as_tensor(labels).to(self.device),
             self.intr, self.body, self.cfg, q_hint,
             None if mask is None else torch.as_tensor(mask).to(self.device),
-            self.tracker, self.generator,
+            refine, self.generator,
         )  # fmt: skip

@@ -245,16 +245,10 @@ class ShottonEstimator:
     def reset(self) -> None:
         """Nothing to forget."""
 
-    def estimate(self, frame, mask):
+    def estimate(self, frame):
         from runtime.estimator import PoseEstimate, lost
 
-        from . import depth_frame_to_metres
-
-        depth = depth_frame_to_metres(frame.depth_mm, self.device)
-        m = torch.as_tensor(np.asarray(mask) if not torch.is_tensor(mask) else mask)
-        m = m.to(device=self.device, dtype=torch.bool)
-        if not bool(m.any()):
-            return lost()
+        depth, m = frame.depth_m, frame.mask
         post = self.labeler(depth, m)
         prop = propose_joints(depth, post, self.intr, self.body, self.cfg, m)
         if not bool(prop.found.any()):

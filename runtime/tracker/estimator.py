@@ -37,22 +37,15 @@ class TrackerEstimator:
     def reset(self) -> None:
         """Nothing to forget: with no detector the tracker resumes from its last pose."""
 
-    def estimate(self, frame, mask):
+    def estimate(self, frame):
         from runtime.estimator import PoseEstimate, observed_of
 
-        depth = torch.as_tensor(frame.depth_mm.astype(np.float32) / 1000.0)
-        mask = torch.as_tensor(np.asarray(mask, dtype=bool))
         q_prev, q_prev2 = self._prev
-        res = self.tracker.step(depth, mask, q_prev, q_prev2)
+        res = self.tracker.fit(frame.observation(self.tracker), q_prev, q_prev2)
         q = res.q.detach().to("cpu", torch.float64)
         self._prev = (q, q_prev)
         joints = named_joint_positions(forward_kinematics(q[None], self.body))[0].numpy()
-        errors = {
-            "depth_error_cm": float(res.depth_error_cm),
-            "overlap": float(res.overlap),
-            "surface_error_q97_mm": float(res.surface_error_q97_mm),
-            "iterations": float(res.iterations),
-        }
+        errors = {**res.signals.as_errors(), "iterations": float(res.iterations)}
         return PoseEstimate(q.numpy(), joints, "tracked", errors, observed=observed_of(res))
 
 

@@ -36,6 +36,7 @@ from .regions import Regions, sample_pixels
 
 __all__ = [
     "LIMB_SEGMENTS",
+    "FitSignals",
     "FrameSignals",
     "frame_signals",
     "limb_visibility",
@@ -50,6 +51,29 @@ LIMB_SEGMENTS: tuple[tuple[int, int], ...] = tuple(
     for upper, lower in (("upper_arm", "forearm"), ("thigh", "shank"))
     for side in "lr"
 )
+
+
+@dataclass(frozen=True)
+class FitSignals:
+    """One fit's three failure signals (what the hybrid's tests and comparisons read).
+
+    Attributes:
+        depth_error_cm: mean depth / extra-depth residual (cm), Wei's epsilon1 signal.
+        overlap: |R and O| / |R or O| of the rendered and observed silhouettes (epsilon2).
+        surface_error_q97_mm: 97% quantile of observed points' distances to the model (mm).
+    """
+
+    depth_error_cm: float
+    overlap: float
+    surface_error_q97_mm: float
+
+    def as_errors(self, prefix: str = "") -> dict[str, float]:
+        """The signals as a result file's ``errors`` entries (keys optionally prefixed)."""
+        return {
+            f"{prefix}depth_error_cm": float(self.depth_error_cm),
+            f"{prefix}overlap": float(self.overlap),
+            f"{prefix}surface_error_q97_mm": float(self.surface_error_q97_mm),
+        }
 
 
 @dataclass

@@ -19,6 +19,7 @@ Everything is batch-first (B poses on B frames) and follows the device/dtype of 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -48,7 +49,7 @@ from .observation import Observation, automatic_factor, observe, person_window
 from .prior_term import predict_pose, prior_system
 from .regions import classify
 from .shoulder_branch import align_branch, move_to_roomier_branch
-from .signals import FrameSignals, frame_signals
+from .signals import FitSignals, FrameSignals, frame_signals
 from .silhouette_term import silhouette_rows
 
 __all__ = ["TrackerError", "TrackResult", "FrameFit", "fit_frames", "Tracker", "track_sequence"]
@@ -83,6 +84,11 @@ class TrackResult:
     converged: bool
     limb_visibility: torch.Tensor | None = None
     observed: torch.Tensor | None = None
+
+    @property
+    def signals(self) -> FitSignals:
+        """The three failure signals as one typed value."""
+        return FitSignals(self.depth_error_cm, self.overlap, self.surface_error_q97_mm)
 
 
 @dataclass
@@ -289,13 +295,27 @@ class Tracker:
         """
         if depth_m.dim() != 2:
             raise TrackerError(f"depth must be (H, W), got {tuple(depth_m.shape)}")
+        return self.fit(self.observe(depth_m, mask, labels), q_prev, q_prev2)
+
+    def fit(
+        self,
+        obs: Observation,
+        q_prev: torch.Tensor,
+        q_prev2: torch.Tensor | None = None,
+        iterations: int | None = None,
+    ) -> TrackResult:
+        """Fit one frame's observation (from :meth:`observe`, batch 1) from ``q_prev`` (34,)
+        and ``q_prev2`` (34,) or None, with at most ``iterations`` Gauss-Newton steps
+        (default: the config's). The frame's refits share one observation this way."""
         for name, q in (("q_prev", q_prev), ("q_prev2", q_prev2)):
             if q is not None and tuple(q.shape) != (sk.NUM_DOFS,):
                 raise TrackerError(f"{name} must have shape ({sk.NUM_DOFS},), got {q.shape}")
-        obs = self.observe(depth_m, mask, labels)
+        cfg = (
+            self.cfg if iterations is None else dataclasses.replace(self.cfg, iterations=iterations)
+        )
         qp = q_prev.to(device=self.device, dtype=self.dtype)[None]
         qp2 = None if q_prev2 is None else q_prev2.to(device=self.device, dtype=self.dtype)[None]
-        fit = fit_frames(obs, qp, qp2, self.body, self.cfg)
+        fit = fit_frames(obs, qp, qp2, self.body, cfg)
         s = fit.signals
         return TrackResult(
             q=fit.q[0],

@@ -19,7 +19,8 @@ from runtime.detector import (
     part_markers,
 )
 from runtime.detector.meanshift_baseline import propose_joints
-from runtime.estimator import make_estimator
+from runtime.estimator import estimate_frame, make_estimator
+from runtime.frame import Frame
 from runtime.raycast import render_body
 from runtime.streams.base import DepthFrame
 from runtime.tracker import Tracker, TrackerConfig
@@ -72,6 +73,12 @@ def refiner() -> Tracker:
     return Tracker(BODY, INTR, TrackerConfig(iterations=3))
 
 
+def refine_with(tracker: Tracker, depth, mask, labels=None):
+    """The refinement the estimators bind: the tracker on this frame's one observation."""
+    obs = tracker.observe(depth, mask, labels)
+    return lambda q: tracker.fit(obs, q)
+
+
 def corrupt(
     labels: torch.Tensor, fraction: float, seed: int = 1
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -94,7 +101,15 @@ def corrupt(
 def test_detector_recovers_joints(name, refiner):
     q = make_pose(name)
     depth, labels, mask = render_labels(q, BODY)
-    res = detect_pose(depth, labels, INTR, BODY, DetectorConfig(), mask=mask, tracker=refiner)
+    res = detect_pose(
+        depth,
+        labels,
+        INTR,
+        BODY,
+        DetectorConfig(),
+        mask=mask,
+        refine=refine_with(refiner, depth, mask),
+    )
     assert res.found
     err = (res.joints - true_joints(q)).norm(dim=-1)
     assert float(err.mean()) < 0.05, err
@@ -107,7 +122,15 @@ def test_ransac_rejects_corrupted_labels(refiner):
     q = make_pose("arms_raised")
     depth, labels, mask = render_labels(q, BODY)
     bad_labels, wrong = corrupt(labels, 0.2)
-    res = detect_pose(depth, bad_labels, INTR, BODY, DetectorConfig(), mask=mask, tracker=refiner)
+    res = detect_pose(
+        depth,
+        bad_labels,
+        INTR,
+        BODY,
+        DetectorConfig(),
+        mask=mask,
+        refine=refine_with(refiner, depth, mask),
+    )
     err = (res.joints - true_joints(q)).norm(dim=-1)
     assert float(err.mean()) < 0.05
     # Most wrongly labelled pixels are dropped; most correct ones survive.
@@ -121,7 +144,15 @@ def test_missing_arm_does_not_break_it(refiner):
     depth, labels, mask = render_labels(q, BODY)
     for part in ("l_upper_arm", "l_forearm"):
         labels[labels == PART_NAMES.index(part)] = 0
-    res = detect_pose(depth, labels, INTR, BODY, DetectorConfig(), mask=mask, tracker=refiner)
+    res = detect_pose(
+        depth,
+        labels,
+        INTR,
+        BODY,
+        DetectorConfig(),
+        mask=mask,
+        refine=refine_with(refiner, depth, mask),
+    )
     assert res.found and bool(torch.isfinite(res.q).all())
     assert float(res.weights[PART_NAMES.index("l_forearm") - 1]) == 0.0
     err = (res.joints - true_joints(q)).norm(dim=-1)
@@ -184,11 +215,15 @@ def test_detector_estimator_statuses():
     est = DetectorEstimator(
         lambda d, m: labels * m, Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
     )
-    frame = DepthFrame(0, 0.0, (depth.numpy() * 1000).astype(np.uint16), INTR)
-    out = est.estimate(frame, mask.numpy())
+    raw = DepthFrame(0, 0.0, (depth.numpy() * 1000).astype(np.uint16), INTR)
+    out = estimate_frame(est, Frame.from_depth(raw, mask.numpy()))
     assert out.status == "detected" and out.joints.shape == (16, 3)
     assert np.linalg.norm(out.joints - true_joints(q).numpy(), axis=-1).mean() < 0.06
-    assert est.estimate(frame, np.zeros_like(mask.numpy())).status == "lost"
+    empty = Frame.from_depth(raw, np.zeros_like(mask.numpy()))
+    assert estimate_frame(est, empty).status == "lost"
+    # Too few labelled pixels on a person: lost, from the detector itself.
+    nobody = DetectorEstimator(lambda d, m: labels * 0, est.detector)
+    assert nobody.estimate(Frame.from_depth(raw, mask.numpy())).status == "lost"
 
 
 def test_modes_need_a_model(tmp_path):
@@ -218,14 +253,14 @@ def test_refinement_gets_the_labels_for_the_label_term(use_labels):
     q = make_pose("walk")
     depth, labels, mask = render_labels(q, BODY)
     tracker = Tracker(BODY, INTR, TrackerConfig(iterations=3, use_labels=use_labels))
+    obs = tracker.observe(depth, mask, labels)
+    assert (obs.labels is not None) == use_labels
     seen = []
-    step = tracker.step
 
-    def spy(*args, labels=None, **kw):
-        seen.append(labels)
-        return step(*args, labels=labels, **kw)
+    def refine(q):
+        seen.append(q)
+        return tracker.fit(obs, q)
 
-    tracker.step = spy
-    res = detect_pose(depth, labels, INTR, BODY, DetectorConfig(), mask=mask, tracker=tracker)
-    assert len(seen) == 4 and all(torch.equal(s, labels) for s in seen)
+    res = detect_pose(depth, labels, INTR, BODY, DetectorConfig(), mask=mask, refine=refine)
+    assert len(seen) == 4  # the IK pose and its three limb swaps
     assert float((res.joints - true_joints(q)).norm(dim=-1).mean()) < 0.05

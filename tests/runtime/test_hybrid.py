@@ -10,19 +10,24 @@ import pytest
 import torch
 
 from runtime.detector import Detector, DetectorConfig
-from runtime.estimator import make_estimator
+from runtime.estimator import estimate_frame, make_estimator
+from runtime.frame import Frame
 from runtime.hybrid import (
+    ArmSearchConfig,
+    FailureThresholds,
     HybridConfig,
     HybridError,
     HybridEstimator,
+    KeepBetterConfig,
+    MisplacedArmConfig,
     create_estimator,
-    fit_badness,
     root_turn,
-    tracking_failed,
 )
+from runtime.hybrid import hybrid_config as config_from_mapping
 from runtime.raycast import render_body
 from runtime.streams.base import DepthFrame
 from runtime.tracker import Tracker, TrackerConfig
+from runtime.tracker.signals import FitSignals
 from shared import skeleton as sk
 from shared.body import BodyShape
 from shared.camera import Intrinsics
@@ -42,8 +47,51 @@ def render_labels(q: torch.Tensor):
     return r.depth[0], labels, r.mask[0]
 
 
-def frame_of(depth: torch.Tensor, index: int) -> DepthFrame:
-    return DepthFrame(index, index / 30, (depth.numpy() * 1000).round().astype(np.uint16), INTR)
+def frame_of(depth: torch.Tensor, index: int, mask) -> Frame:
+    """The prepared frame ``runtime-track`` would hand the estimator."""
+    raw = DepthFrame(index, index / 30, (depth.numpy() * 1000).round().astype(np.uint16), INTR)
+    return Frame.from_depth(raw, torch.as_tensor(mask))
+
+
+def _off(value):
+    return None if value is None or not math.isfinite(value) or value == 0 else value
+
+
+def cfg_of(**flat) -> HybridConfig:
+    """The settings tree from the scenarios' flat names (``keep_better=True`` and its keys,
+    ``arm_search_badness`` and the ``*arm*`` keys, ``misplaced_arm_*``); ``inf`` or 0 in a
+    threshold means that mechanism is off, as the scenarios were first written."""
+    failure = {k: flat.pop(k) for k in ("epsilon1_cm", "epsilon2", "epsilon3_mm") if k in flat}
+    if "epsilon3_mm" in failure:
+        failure["epsilon3_mm"] = _off(failure["epsilon3_mm"])
+    keep = {k: flat.pop(k) for k in ("compare_all_tests", "max_turn_rad", "max_turn_frames",
+                                     "recheck_every", "recheck_badness") if k in flat}  # fmt: skip
+    for k in ("max_turn_rad", "recheck_every", "recheck_badness"):
+        if k in keep:
+            keep[k] = _off(keep[k])
+    names = {"hidden_arm_visibility": "hidden_visibility", "seen_arm_fraction": "seen_fraction",
+             "other_arm_margin_m": "other_arm_margin_m", "partial_arm_visibility":
+             "partial_visibility", "partial_arm_agreement": "partial_agreement",
+             "arm_agreement_slack": "agreement_slack"}  # fmt: skip
+    arm = {new: flat.pop(old) for old, new in names.items() if old in flat}
+    if "agreement_slack" in arm and not math.isfinite(arm["agreement_slack"]):
+        arm["agreement_slack"] = None
+    misplaced_names = {"misplaced_arm_conflict": "conflict", "misplaced_arm_points":
+                       "min_points", "misplaced_arm_other_arm": "other_arm_counts",
+                       "misplaced_arm_cooldown": "cooldown_frames",
+                       "misplaced_arm_relief": "relief"}  # fmt: skip
+    misplaced = {new: flat.pop(old) for old, new in misplaced_names.items() if old in flat}
+    badness = _off(flat.pop("arm_search_badness", None))
+    if _off(misplaced.get("conflict", math.inf)) is None:
+        misplaced = None
+    search = None
+    if badness is not None:
+        misplaced_cfg = None if misplaced is None else MisplacedArmConfig(**misplaced)
+        search = ArmSearchConfig(badness=badness, misplaced=misplaced_cfg, **arm)
+    keep_cfg = KeepBetterConfig(**keep) if flat.pop("keep_better", False) else None
+    return HybridConfig(
+        failure=FailureThresholds(**failure), keep_better=keep_cfg, arm_search=search, **flat
+    )
 
 
 @dataclass
@@ -55,12 +103,37 @@ class FakeResult:
     iterations: int = 1
     converged: bool = True
     limb_visibility: torch.Tensor | None = None
+    observed: torch.Tensor | None = None
+
+    @property
+    def signals(self) -> FitSignals:
+        return FitSignals(self.depth_error_cm, self.overlap, self.surface_error_q97_mm)
 
 
-class FakeTracker:
+class ScriptedTracker:
+    """The hybrid's tracker API around a scripted ``step``: the frame's own fits follow the
+    script, the detector's refinements (``iterations`` given) run a real tracker."""
+
+    cfg = TrackerConfig()
+    body = BODY.to(dtype=torch.float32)
+
+    def __init__(self) -> None:
+        self.real = Tracker(BODY, INTR)
+
+    def observe(self, depth, mask, labels=None):
+        return self.real.observe(depth, mask, labels), (labels if self.cfg.use_labels else None)
+
+    def fit(self, obs, q_prev, q_prev2=None, iterations=None):
+        if iterations is not None:
+            return self.real.fit(obs[0], q_prev, q_prev2, iterations)
+        return self.step(None, None, q_prev, q_prev2, labels=obs[1])
+
+
+class FakeTracker(ScriptedTracker):
     """Returns the previous pose; fails (large depth error) on the listed call numbers."""
 
     def __init__(self, fail_calls=(), low_overlap_calls=(), surface_mm=12.0):
+        super().__init__()
         self.calls, self.fail, self.low = 0, set(fail_calls), set(low_overlap_calls)
         self.seen_prev2 = []
         self.surface_mm = surface_mm
@@ -85,11 +158,11 @@ def make_hybrid(scene, tracker, refine_iterations=0, **cfg):
     det = Detector(BODY, INTR, DetectorConfig(refine_iterations=refine_iterations))
     calls = []
 
-    def labeler(d, m):
+    def labeler(f):
         calls.append(1)
-        return labels * m
+        return labels * f.mask
 
-    return HybridEstimator(labeler, det, tracker, HybridConfig(**cfg)), calls
+    return HybridEstimator(labeler, det, tracker, cfg_of(**cfg)), calls
 
 
 def test_status_sequence_with_failures_and_empty_frames(scene):
@@ -98,7 +171,7 @@ def test_status_sequence_with_failures_and_empty_frames(scene):
     est, labeler_calls = make_hybrid(scene, tracker)
     empty = np.zeros(mask.shape, dtype=bool)
     masks = [mask, mask, mask, mask, mask, mask, empty, empty, mask, mask]
-    statuses = [est.estimate(frame_of(depth, i), m).status for i, m in enumerate(masks)]
+    statuses = [estimate_frame(est, frame_of(depth, i, m)).status for i, m in enumerate(masks)]
     # d: first frame; t; tracker call 2 fails (depth) -> d; t; call 4 fails (overlap) -> d;
     # t; two empty frames lost; the person returns -> d; t.
     assert statuses == ["detected", "tracked", "detected", "tracked", "detected", "tracked",
@@ -111,13 +184,13 @@ def test_status_sequence_with_failures_and_empty_frames(scene):
 def test_errors_and_joints_are_reported(scene):
     q, depth, labels, mask = scene
     est, _ = make_hybrid(scene, FakeTracker(fail_calls={2}))
-    first = est.estimate(frame_of(depth, 0), mask)
+    first = estimate_frame(est, frame_of(depth, 0, mask))
     assert first.status == "detected" and first.labels is not None
     true = named_joint_positions(forward_kinematics(q[None], BODY))[0].numpy()
     assert np.linalg.norm(first.joints - true, axis=-1).mean() < 0.06
-    tracked = est.estimate(frame_of(depth, 1), mask)
+    tracked = estimate_frame(est, frame_of(depth, 1, mask))
     assert set(tracked.errors) == {"depth_error_cm", "overlap", "surface_error_q97_mm"}
-    redetected = est.estimate(frame_of(depth, 2), mask)
+    redetected = estimate_frame(est, frame_of(depth, 2, mask))
     assert redetected.status == "detected"
     assert redetected.errors["tracker_depth_error_cm"] == 5.0
 
@@ -127,34 +200,36 @@ def test_observed_joints_come_from_the_tracker_fits(scene):
     without flags (the fake tracker, or no refinement) reports none."""
     q, depth, labels, mask = scene
     est, _ = make_hybrid(scene, Tracker(BODY, INTR), refine_iterations=2)
-    first, second = (est.estimate(frame_of(depth, i), mask) for i in range(2))
+    first, second = (estimate_frame(est, frame_of(depth, i, mask)) for i in range(2))
     assert (first.status, second.status) == ("detected", "tracked")
     for e in (first, second):
         assert e.observed.shape == (16,) and e.observed.dtype == bool
         assert e.observed.sum() >= 14, e.observed
     fake, _ = make_hybrid(scene, FakeTracker())
-    assert all(fake.estimate(frame_of(depth, i), mask).observed is None for i in range(2))
+    assert all(estimate_frame(fake, frame_of(depth, i, mask)).observed is None for i in range(2))
 
 
 def test_no_labelled_pixels_is_lost_and_resets(scene):
     q, depth, labels, mask = scene
     det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
-    est = HybridEstimator(lambda d, m: torch.zeros_like(labels), det, FakeTracker(), HybridConfig())
-    assert est.estimate(frame_of(depth, 0), mask).status == "lost"
-    assert est.q_prev is None
+    est = HybridEstimator(lambda f: torch.zeros_like(labels), det, FakeTracker(), HybridConfig())
+    assert estimate_frame(est, frame_of(depth, 0, mask)).status == "lost"
+    assert est.state.q_prev is None
 
 
 def test_failure_thresholds():
-    cfg = HybridConfig()
-    assert cfg.epsilon1_cm == 2.5 and cfg.epsilon2 == 0.9
-    assert not tracking_failed(2.4, 0.95, cfg)
-    assert tracking_failed(2.6, 0.95, cfg)
-    assert tracking_failed(1.0, 0.85, cfg)
-    assert not tracking_failed(3.0, 0.5, HybridConfig(epsilon1_cm=4.0, epsilon2=0.4))
-    assert not tracking_failed(1.0, 0.95, cfg, surface_error_q97_mm=1e4)  # off by default
-    with_surface = HybridConfig(epsilon3_mm=100.0)
-    assert not tracking_failed(1.0, 0.95, with_surface, surface_error_q97_mm=99.0)
-    assert tracking_failed(1.0, 0.95, with_surface, surface_error_q97_mm=101.0)
+    paper = FailureThresholds()
+    assert (paper.epsilon1_cm, paper.epsilon2, paper.epsilon3_mm) == (2.5, 0.9, None)
+
+    def failed(thresholds, d, o, surface=0.0):
+        return thresholds.failed(FitSignals(d, o, surface))
+
+    assert not failed(paper, 2.4, 0.95) and failed(paper, 2.6, 0.95) and failed(paper, 1.0, 0.85)
+    assert not failed(FailureThresholds(4.0, 0.4), 3.0, 0.5)
+    assert not failed(paper, 1.0, 0.95, 1e4)  # no surface test by default
+    with_surface = FailureThresholds(epsilon3_mm=100.0)
+    assert not failed(with_surface, 1.0, 0.95, 99.0) and failed(with_surface, 1.0, 0.95, 101.0)
+    assert failed(paper, math.nan, 0.95)  # a NaN signal fails
 
 
 @pytest.mark.parametrize("tracker_surface_mm, status", [(1e4, "detected"), (0.0, "tracked")])
@@ -164,17 +239,17 @@ def test_keep_better_takes_the_pose_with_the_smaller_surface_error(
     q, depth, labels, mask = scene
     tracker = FakeTracker(fail_calls={2, 3}, surface_mm=tracker_surface_mm)
     est, _ = make_hybrid(scene, tracker, refine_iterations=1, keep_better=True)
-    assert est.estimate(frame_of(depth, 0), mask).status == "detected"
-    first = est.q_prev.clone()
-    assert est.estimate(frame_of(depth, 1), mask).status == "tracked"
-    failed = est.estimate(frame_of(depth, 2), mask)  # the tracker fails its depth test
+    assert estimate_frame(est, frame_of(depth, 0, mask)).status == "detected"
+    first = est.state.q_prev.clone()
+    assert estimate_frame(est, frame_of(depth, 1, mask)).status == "tracked"
+    failed = estimate_frame(est, frame_of(depth, 2, mask))  # the tracker fails its depth test
     assert failed.status == status
     if status == "tracked":  # kept: the tracker's pose, and the history goes on from it
         assert failed.errors["kept_over_detector"] == 1.0
-        assert torch.equal(est.q_prev, first) and est.q_prev2 is not None
+        assert torch.equal(est.state.q_prev, first) and est.state.q_prev2 is not None
     else:
         assert failed.errors["tracker_surface_error_q97_mm"] == 1e4
-        assert est.q_prev2 is None
+        assert est.state.q_prev2 is None
 
 
 @pytest.mark.parametrize("tracker_surface_mm, status", [(1e4, "detected"), (0.0, "tracked")])
@@ -182,7 +257,7 @@ def test_recheck_asks_the_detector_every_nth_passed_frame(scene, tracker_surface
     q, depth, labels, mask = scene
     tracker = FakeTracker(surface_mm=tracker_surface_mm)  # never fails its tests
     est, calls = make_hybrid(scene, tracker, refine_iterations=1, keep_better=True, recheck_every=3)
-    got = [est.estimate(frame_of(depth, i), mask) for i in range(7)]
+    got = [estimate_frame(est, frame_of(depth, i, mask)) for i in range(7)]
     # Frame 0 detected; tracker calls 1, 2 pass; call 3 is rechecked; 4, 5 pass; 6 rechecked.
     assert len(calls) == 3
     assert [g.status for g in got[:3]] == ["detected", "tracked", "tracked"]
@@ -202,7 +277,7 @@ def test_recheck_badness_questions_suspect_fits(scene, threshold, rechecked):
         scene, FakeTracker(surface_mm=0.0), refine_iterations=1, keep_better=True,
         recheck_badness=threshold,
     )  # fmt: skip
-    got = [est.estimate(frame_of(depth, i), mask) for i in range(3)]
+    got = [estimate_frame(est, frame_of(depth, i, mask)) for i in range(3)]
     assert [g.status for g in got] == ["detected", "tracked", "tracked"]
     assert len(calls) == (3 if rechecked else 1)
     assert ("rechecked" in got[1].errors) == rechecked
@@ -211,7 +286,7 @@ def test_recheck_badness_questions_suspect_fits(scene, threshold, rechecked):
 def test_recheck_is_off_without_keep_better_and_never_turns_the_track(scene):
     q, depth, labels, mask = scene
     est, calls = make_hybrid(scene, FakeTracker(surface_mm=1e4), recheck_every=1)
-    assert [est.estimate(frame_of(depth, i), mask).status for i in range(3)] == [
+    assert [estimate_frame(est, frame_of(depth, i, mask)).status for i in range(3)] == [
         "detected",
         "tracked",
         "tracked",
@@ -225,18 +300,19 @@ def test_recheck_is_off_without_keep_better_and_never_turns_the_track(scene):
         max_turn_rad=1.6,
         max_turn_frames=2,
     )
-    est.estimate(frame_of(depth, 0), mask)
-    est.q_prev[3:6] = torch.tensor([0.0, 0.0, math.pi])  # the track faces away but passes
-    statuses = [est.estimate(frame_of(depth, i), mask).status for i in range(1, 5)]
-    assert statuses == ["tracked"] * 4 and len(calls) == 5 and est.turned_round == 0
+    estimate_frame(est, frame_of(depth, 0, mask))
+    est.state.q_prev[3:6] = torch.tensor([0.0, 0.0, math.pi])  # the track faces away but passes
+    statuses = [estimate_frame(est, frame_of(depth, i, mask)).status for i in range(1, 5)]
+    assert statuses == ["tracked"] * 4 and len(calls) == 5 and est.state.turned_round == 0
 
 
 def test_fit_badness_golden():
-    cfg = HybridConfig(epsilon1_cm=3.0, epsilon2=0.7, epsilon3_mm=80.0)
-    assert fit_badness(3.0, 0.7, 80.0, cfg) == pytest.approx(3.0)
-    assert fit_badness(0.0, 1.0, 0.0, cfg) == 0.0
-    assert fit_badness(1.5, 0.85, 40.0, cfg) == pytest.approx(1.5)
-    assert fit_badness(3.0, 0.7, 1e6, HybridConfig(epsilon1_cm=3.0, epsilon2=0.7)) == 2.0
+    cfg = FailureThresholds(epsilon1_cm=3.0, epsilon2=0.7, epsilon3_mm=80.0)
+    assert cfg.badness(FitSignals(3.0, 0.7, 80.0)) == pytest.approx(3.0)
+    assert cfg.badness(FitSignals(0.0, 1.0, 0.0)) == 0.0
+    assert cfg.badness(FitSignals(1.5, 0.85, 40.0)) == pytest.approx(1.5)
+    without_surface = FailureThresholds(epsilon1_cm=3.0, epsilon2=0.7)
+    assert without_surface.badness(FitSignals(3.0, 0.7, 1e6)) == 2.0
 
 
 @pytest.mark.parametrize("compare_all, status", [(False, "tracked"), (True, "detected")])
@@ -247,8 +323,8 @@ def test_keep_better_can_compare_all_three_signals(scene, compare_all, status):
     est, _ = make_hybrid(
         scene, tracker, refine_iterations=1, keep_better=True, compare_all_tests=compare_all
     )
-    est.estimate(frame_of(depth, 0), mask)
-    got = est.estimate(frame_of(depth, 1), mask)
+    estimate_frame(est, frame_of(depth, 0, mask))
+    got = estimate_frame(est, frame_of(depth, 1, mask))
     assert got.status == status
 
 
@@ -266,12 +342,12 @@ def test_a_detector_pose_turned_round_is_not_taken(scene, max_turn, status):
     q, depth, labels, mask = scene
     tracker = FakeTracker(fail_calls={1}, surface_mm=1e4)
     est, _ = make_hybrid(scene, tracker, keep_better=True, max_turn_rad=max_turn)
-    assert est.estimate(frame_of(depth, 0), mask).status == "detected"
+    assert estimate_frame(est, frame_of(depth, 0, mask)).status == "detected"
     # The track so far faces away; the detector (which finds the true pose) turns it round.
-    away = est.q_prev.clone()
+    away = est.state.q_prev.clone()
     away[3:6] = torch.tensor([0.0, 0.0, math.pi])  # facing (pi, 0, 0) turned about y
-    est.q_prev = away
-    got = est.estimate(frame_of(depth, 1), mask)
+    est.state.q_prev = away
+    got = estimate_frame(est, frame_of(depth, 1, mask))
     assert got.status == status
     if status == "tracked":
         assert got.errors["kept_over_detector"] == 1.0
@@ -281,13 +357,16 @@ def test_a_track_turned_round_for_long_gives_way_to_the_detector(scene):
     q, depth, labels, mask = scene
     tracker = FakeTracker(fail_calls={1, 2, 3, 5}, surface_mm=1e4)
     est, _ = make_hybrid(scene, tracker, keep_better=True, max_turn_rad=1.6, max_turn_frames=3)
-    est.estimate(frame_of(depth, 0), mask)
-    est.q_prev[3:6] = torch.tensor([0.0, 0.0, math.pi])  # the track faces away
-    statuses = [est.estimate(frame_of(depth, i), mask).status for i in range(1, 4)]
+    estimate_frame(est, frame_of(depth, 0, mask))
+    est.state.q_prev[3:6] = torch.tensor([0.0, 0.0, math.pi])  # the track faces away
+    statuses = [estimate_frame(est, frame_of(depth, i, mask)).status for i in range(1, 4)]
     assert statuses == ["tracked", "tracked", "detected"]  # the third turned detection wins
-    assert root_turn(est.q_prev, q) < 0.3
+    assert root_turn(est.state.q_prev, q) < 0.3
     # A frame that passes resets the count.
-    assert est.estimate(frame_of(depth, 4), mask).status == "tracked" and est.turned_round == 0
+    assert (
+        estimate_frame(est, frame_of(depth, 4, mask)).status == "tracked"
+        and est.state.turned_round == 0
+    )
 
 
 def test_with_real_tracker_and_detector(scene):
@@ -297,8 +376,8 @@ def test_with_real_tracker_and_detector(scene):
     trk = Tracker(BODY, INTR, TrackerConfig(iterations=3))
     state = {}
 
-    def labeler(d, m):
-        return state["labels"] * m
+    def labeler(f):
+        return state["labels"] * f.mask
 
     est = HybridEstimator(labeler, det, trk, HybridConfig())
     statuses, errs = [], []
@@ -308,7 +387,7 @@ def test_with_real_tracker_and_detector(scene):
         qi[sk.DOF_NAMES.index("r_humerus_abd")] = math.radians(5 * i)
         d, lab, m = render_labels(qi)
         state["labels"] = lab
-        out = est.estimate(frame_of(d, i), m)
+        out = estimate_frame(est, frame_of(d, i, m))
         statuses.append(out.status)
         true = named_joint_positions(forward_kinematics(qi[None], BODY))[0].numpy()
         errs.append(np.linalg.norm(out.joints - true, axis=-1).mean())
@@ -323,24 +402,36 @@ def test_config_and_factory_errors(tmp_path):
         )
     with pytest.raises(ValueError):
         make_estimator("hybrid", tmp_path / "missing.npz", BODY, INTR)
-    with pytest.raises(HybridError):
-        HybridConfig(tracker={"no_such_key": 1}).tracker_config()
-    for bad in (
-        {"epsilon1_cm": 0.0},
-        {"epsilon2": 1.0},
-        {"epsilon3_mm": float("nan")},
-        {"recheck_every": -1},
-        {"recheck_badness": float("nan")},
+    with pytest.raises(HybridError, match="no_such_key"):
+        config_from_mapping({"tracker": {"no_such_key": 1}})
+    for section, bad in (
+        ("failure", {"epsilon1_cm": 0.0}),
+        ("failure", {"epsilon2": 1.0}),
+        ("failure", {"epsilon3_mm": float("nan")}),
+        ("keep_better", {"recheck_every": 0}),
+        ("keep_better", {"recheck_badness": float("nan")}),
+        ("keep_better", {"max_turn_rad": -1.0}),
     ):
-        with pytest.raises(HybridError, match="epsilon|recheck"):
-            HybridConfig(**bad)
+        with pytest.raises(HybridError, match="epsilon|recheck|max_turn"):
+            config_from_mapping({section: bad})
     with pytest.raises(HybridError, match="recheck_every"):
         create_estimator(
-            model_path=tmp_path / "f.npz", body=BODY, intrinsics=INTR, config={"recheck_every": -2}
-        )
+            model_path=tmp_path / "f.npz", body=BODY, intrinsics=INTR,
+            config={"keep_better": {"recheck_every": -2}},
+        )  # fmt: skip
 
 
-class ArmHidingTracker:
+def test_the_shipped_preset_is_a_tree_of_values():
+    from shared.config import load_settings
+
+    cfg = config_from_mapping(load_settings("configs/hybrid.yaml"))
+    assert cfg.failure == FailureThresholds(3.0, 0.7, 80.0)
+    assert cfg.keep_better == KeepBetterConfig(True, 1.6, 15, None, 2.4)
+    assert cfg.arm_search.badness == 1.9 and cfg.arm_search.misplaced.conflict == 0.7
+    assert cfg.tracker.use_labels and cfg.tracker.use_collision
+
+
+class ArmHidingTracker(ScriptedTracker):
     """Tracks with the left arm hidden (visible fraction 0.1) and a suspect fit; of the refits
     that follow in the same frame, the one from 40 degrees of flexion and a straight elbow
     fits best. ``starts``: (flexion, elbow) of every call after the frame's first."""
@@ -348,6 +439,7 @@ class ArmHidingTracker:
     GOOD = (math.radians(40), 0.0)
 
     def __init__(self, use_labels=False, shown=0.1):
+        super().__init__()
         self.calls, self.starts, self.labels_seen = 0, [], []
         self.cfg = TrackerConfig(use_labels=use_labels)
         self.shown = shown
@@ -369,11 +461,11 @@ class ArmHidingTracker:
 def _track_second_frame(scene, tracker, labels_scale=1, **cfg):
     q, depth, labels, mask = scene
     det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
-    first = HybridEstimator(lambda d, m: labels * m, det, tracker, HybridConfig(**cfg))
-    assert first.estimate(frame_of(depth, 0), mask).status == "detected"
+    first = HybridEstimator(lambda f: labels * f.mask, det, tracker, cfg_of(**cfg))
+    assert estimate_frame(first, frame_of(depth, 0, mask)).status == "detected"
     # The forest's labels on the second frame decide whether the camera sees the arm.
-    first.labeler = lambda d, m: labels * m * labels_scale
-    return first.estimate(frame_of(depth, 1), mask)
+    first.label_source = lambda f: labels * f.mask * labels_scale
+    return estimate_frame(first, frame_of(depth, 1, mask))
 
 
 @pytest.mark.parametrize("use_labels", [False, True])
@@ -431,21 +523,22 @@ def test_hidden_arm_search_needs_all_its_conditions(scene, labels_scale, cfg):
 @pytest.mark.parametrize(
     "cfg",
     [
-        {"arm_search_badness": math.nan},
-        {"hidden_arm_visibility": -0.1},
-        {"seen_arm_fraction": 1.5},
-        {"arm_agreement_slack": -0.1},
-        {"partial_arm_visibility": -0.1},
-        {"partial_arm_agreement": 1.5},
-        {"misplaced_arm_conflict": math.nan},
-        {"misplaced_arm_points": 0},
-        {"misplaced_arm_cooldown": -1},
-        {"misplaced_arm_relief": 1.5},
+        {"badness": math.nan},
+        {"hidden_visibility": -0.1},
+        {"seen_fraction": 1.5},
+        {"agreement_slack": -0.1},
+        {"partial_visibility": -0.1},
+        {"partial_agreement": 1.5},
+        {"other_arm_margin_m": -0.01},
+        {"misplaced": {"conflict": math.nan}},
+        {"misplaced": {"min_points": 0}},
+        {"misplaced": {"cooldown_frames": -1}},
+        {"misplaced": {"relief": 1.5}},
     ],
 )
 def test_bad_arm_search_settings_are_rejected(cfg):
-    with pytest.raises(HybridError, match="arm_search_badness"):
-        HybridConfig(**cfg)
+    with pytest.raises(HybridError, match="arm_search|misplaced"):
+        config_from_mapping({"arm_search": cfg})
 
 
 def _left_arm_labelled_on_the_right(labels):
@@ -463,10 +556,10 @@ def _second_frame_with_labels(scene, tracker, cfg, seen):
     ``seen``."""
     q, depth, labels, mask = scene
     det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
-    est = HybridEstimator(lambda d, m: labels * m, det, tracker, cfg)
-    est.estimate(frame_of(depth, 0), mask)
-    est.labeler = lambda d, m: seen * m
-    return est.estimate(frame_of(depth, 1), mask)
+    est = HybridEstimator(lambda f: labels * f.mask, det, tracker, cfg)
+    estimate_frame(est, frame_of(depth, 0, mask))
+    est.label_source = lambda f: seen * f.mask
+    return estimate_frame(est, frame_of(depth, 1, mask))
 
 
 @pytest.mark.parametrize("swap, searched", [(False, False), (True, True)])
@@ -478,11 +571,11 @@ def test_a_partly_shown_arm_is_searched_only_away_from_its_forest_pixels(scene, 
     seen = _left_arm_labelled_on_the_right(labels) if swap else labels
     common = dict(arm_search_badness=1.0, other_arm_margin_m=0.0, arm_agreement_slack=math.inf)
     tracker = ArmHidingTracker(shown=0.45)
-    out = _second_frame_with_labels(scene, tracker, HybridConfig(**common), seen)
+    out = _second_frame_with_labels(scene, tracker, cfg_of(**common), seen)
     assert ("arm_searched" in out.errors) == searched
     assert len(tracker.starts) == (8 if searched else 0)
     # Below hidden_arm_visibility the arm counts as hidden and is searched either way.
-    cfg = HybridConfig(**common, hidden_arm_visibility=0.5)
+    cfg = cfg_of(**common, hidden_arm_visibility=0.5)
     out = _second_frame_with_labels(scene, ArmHidingTracker(shown=0.45), cfg, seen)
     assert "arm_searched" in out.errors
 
@@ -493,14 +586,12 @@ def test_forest_arm_pixels_on_the_other_arm_do_not_start_an_arm_search(scene):
     swapped = _left_arm_labelled_on_the_right(scene[2])
     for margin, searched in ((0.05, False), (0.0, True)):
         tracker = ArmHidingTracker()
-        cfg = HybridConfig(
+        cfg = cfg_of(
             arm_search_badness=1.0, other_arm_margin_m=margin, arm_agreement_slack=math.inf
         )
         out = _second_frame_with_labels(scene, tracker, cfg, swapped)
         assert ("arm_searched" in out.errors) == searched
         assert len(tracker.starts) == (8 if searched else 0)
-    with pytest.raises(HybridError, match="other_arm_margin_m"):
-        HybridConfig(other_arm_margin_m=-0.01)
 
 
 class LabelTracker(FakeTracker):
@@ -520,7 +611,7 @@ def test_label_term_gets_the_forest_labels_once_per_frame(scene):
     q, depth, labels, mask = scene
     tracker = LabelTracker(fail_calls={2})
     est, labeler_calls = make_hybrid(scene, tracker)
-    statuses = [est.estimate(frame_of(depth, i), mask).status for i in range(4)]
+    statuses = [estimate_frame(est, frame_of(depth, i, mask)).status for i in range(4)]
     assert statuses == ["detected", "tracked", "detected", "tracked"]
     # Every frame runs the forest once, also when the tracker fails and the detector runs.
     assert len(labeler_calls) == 4
@@ -532,7 +623,7 @@ def test_label_term_gets_the_forest_labels_once_per_frame(scene):
     plain.cfg = TrackerConfig()
     est, labeler_calls = make_hybrid(scene, plain)
     for i in range(3):
-        est.estimate(frame_of(depth, i), mask)
+        estimate_frame(est, frame_of(depth, i, mask))
     assert plain.labels_seen == [None, None] and len(labeler_calls) == 1
 
 
@@ -556,18 +647,18 @@ def test_labels_from_a_recording_stand_in_for_the_forest(scene, tmp_path):
                 "detector": {"refine_iterations": 2},
                 "tracker": {"use_labels": True, "iterations": 3}},
     )  # fmt: skip
-    assert est.labeler is None
-    outs = [est.estimate(frame_of(depth, i), mask) for i in range(3)]
+    outs = [estimate_frame(est, frame_of(depth, i, mask)) for i in range(3)]
     assert [o.status for o in outs] == ["detected", "tracked", "tracked"]
-    torch.testing.assert_close(est._labels(None, mask), labels * mask)
+    frame = frame_of(depth, 2, mask)
+    torch.testing.assert_close(frame.labels(est.label_source), labels * mask)
     true = named_joint_positions(forward_kinematics(q[None], BODY))[0].numpy()
     assert np.linalg.norm(outs[-1].joints - true, axis=-1).mean() < 0.03
     # Each frame reads its own labels: another frame's labels are not reused.
     seen = []
-    est.frame_labels = lambda i: seen.append(i) or labels
+    est.label_source = lambda f: seen.append(f.index) or labels
     est.reset()
     for i in (5, 6):
-        est.estimate(frame_of(depth, i), mask)
+        estimate_frame(est, frame_of(depth, i, mask))
     assert seen == [5, 6]
 
 
@@ -586,14 +677,12 @@ def test_labels_from_a_recording_errors(scene, tmp_path):
         make(tmp_path / "plain")
     _write_recording(tmp_path / "rec", depth, labels, 1)
     est = make(tmp_path / "rec")
-    est.estimate(frame_of(depth, 0), mask)
+    estimate_frame(est, frame_of(depth, 0, mask))
     with pytest.raises(HybridError, match="frame 1: .*out of range"):
-        est.estimate(frame_of(depth, 1), mask)
-    est.frame_labels = lambda i: labels[:-1]
-    with pytest.raises(HybridError, match="do not match the frame"):
-        est.estimate(frame_of(depth, 2), mask)
-    with pytest.raises(HybridError, match="labeler"):
-        HybridEstimator(None, est.detector, est.tracker, HybridConfig())
+        estimate_frame(est, frame_of(depth, 1, mask))
+    est.label_source = lambda f: labels[:-1]
+    with pytest.raises(ValueError, match="do not match the frame"):
+        estimate_frame(est, frame_of(depth, 2, mask))
 
 
 def _left_arm_labelled_chest(labels):
@@ -619,7 +708,7 @@ def test_an_arm_shown_on_pixels_the_forest_calls_something_else_is_searched(
 ):
     labels = scene[2]
     seen = _left_arm_labelled_chest(labels) if relabel else labels
-    cfg = HybridConfig(
+    cfg = cfg_of(
         arm_search_badness=1.0, misplaced_arm_conflict=conflict, misplaced_arm_relief=relief
     )
     tracker = ArmHidingTracker(shown=1.0)
@@ -654,7 +743,7 @@ def test_a_misplaced_arm_search_that_finds_nothing_waits_cooldown_frames(scene, 
     q, depth, labels, mask = scene
     seen = _left_arm_labelled_chest(labels)
     # Relief 0: every refit leaves some of its points labelled otherwise, none is taken.
-    cfg = HybridConfig(
+    cfg = cfg_of(
         arm_search_badness=1.0,
         misplaced_arm_conflict=0.5,
         misplaced_arm_relief=0.0,
@@ -662,19 +751,19 @@ def test_a_misplaced_arm_search_that_finds_nothing_waits_cooldown_frames(scene, 
     )
     tracker = ArmShowingTracker()
     det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
-    est = HybridEstimator(lambda d, m: labels * m, det, tracker, cfg)
-    assert est.estimate(frame_of(depth, 0), mask).status == "detected"
-    est.labeler = lambda d, m: seen * m
+    est = HybridEstimator(lambda f: labels * f.mask, det, tracker, cfg)
+    assert estimate_frame(est, frame_of(depth, 0, mask)).status == "detected"
+    est.label_source = lambda f: seen * f.mask
     for i in range(1, 5):
-        out = est.estimate(frame_of(depth, i), mask)
+        out = estimate_frame(est, frame_of(depth, i, mask))
         assert out.status == "tracked" and "arm_searched" not in out.errors
     assert tracker.refits == refits
     # A lost frame forgets the wait: the next track searches again.
-    est.estimate(frame_of(depth * 0, 5), torch.zeros_like(mask))
-    est.labeler = lambda d, m: labels * m
-    est.estimate(frame_of(depth, 6), mask)
-    est.labeler = lambda d, m: seen * m
-    est.estimate(frame_of(depth, 7), mask)
+    estimate_frame(est, frame_of(depth * 0, 5, torch.zeros_like(mask)))
+    est.label_source = lambda f: labels * f.mask
+    estimate_frame(est, frame_of(depth, 6, mask))
+    est.label_source = lambda f: seen * f.mask
+    estimate_frame(est, frame_of(depth, 7, mask))
     assert tracker.refits[-1] == 8
 
 
@@ -686,7 +775,7 @@ def test_other_arm_labels_count_against_an_arm_unless_swaps_are_forgiven(
     seen = labels.clone()
     for part in ("upper_arm", "forearm"):  # the left arm's pixels labelled right arm
         seen[labels == PART_NAMES.index(f"l_{part}")] = PART_NAMES.index(f"r_{part}")
-    cfg = HybridConfig(
+    cfg = cfg_of(
         arm_search_badness=1.0,
         misplaced_arm_conflict=0.5,
         misplaced_arm_other_arm=other_arm,

@@ -32,6 +32,7 @@ def test_inferred_joints_are_logged_grey(monkeypatch):
     import numpy as np
 
     from runtime.estimator import PoseEstimate
+    from runtime.frame import Frame
     from runtime.live_view import LiveView
     from runtime.streams.base import DepthFrame
     from shared.camera import Intrinsics
@@ -54,7 +55,8 @@ def test_inferred_joints_are_logged_grey(monkeypatch):
     observed = np.ones(16, bool)
     observed[9] = False  # r_wrist
     est = PoseEstimate(None, np.zeros((16, 3)), "tracked", observed=observed)
-    view.log_frame(DepthFrame(0, 0.0, depth, Intrinsics.kinect_v1(160)), depth > 0, est)
+    raw = DepthFrame(0, 0.0, depth, Intrinsics.kinect_v1(160))
+    view.log_frame(Frame.from_depth(raw, depth > 0), est)
     _, colours = logged["world/joints"]
     assert tuple(colours[9]) == (128, 128, 128) and tuple(colours[0]) == (60, 220, 60)
     assert logged["status"] == "tracked"

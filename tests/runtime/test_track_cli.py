@@ -23,6 +23,7 @@ from runtime.estimator import (
     PoseEstimator,
     make_estimator,
 )
+from runtime.frame import Frame, depth_mm_to_metres
 from runtime.streams import DepthFrame, DepthStream, SensorDisconnected, StreamError
 from shared.body import BodyShape
 from shared.camera import Intrinsics
@@ -52,8 +53,8 @@ class FakeEstimator:
     def reset(self) -> None:
         self.resets += 1
 
-    def estimate(self, frame: DepthFrame, mask) -> PoseEstimate:
-        assert mask.shape == frame.depth_mm.shape and bool(mask.any())
+    def estimate(self, frame: Frame) -> PoseEstimate:
+        assert frame.mask.shape == frame.depth_m.shape and frame.has_person
         self.calls.append(frame.index)
         time.sleep(self.delay_s)
         q = np.zeros(34)
@@ -222,10 +223,10 @@ def test_track_function_directly():
 
 
 def test_depth_to_metres_handles_nan_and_uint16():
-    m = cli.depth_to_metres(np.array([[1500, 0]], np.uint16))
+    m = depth_mm_to_metres(np.array([[1500, 0]], np.uint16))
     assert m.dtype == torch.float32
     np.testing.assert_allclose(m.numpy(), [[1.5, 0.0]])
-    m = cli.depth_to_metres(np.array([[np.nan, 2000.0, -5.0, np.inf]], np.float32))
+    m = depth_mm_to_metres(np.array([[np.nan, 2000.0, -5.0, np.inf]], np.float32))
     np.testing.assert_allclose(m.numpy(), [[0.0, 2.0, 0.0, 0.0]])
 
 
@@ -420,7 +421,7 @@ _CHILD = """
     class Slow:
         def reset(self):
             pass
-        def estimate(self, frame, mask):
+        def estimate(self, frame):
             time.sleep(0.02)
             q = np.zeros(34); q[2] = 2.5; q[3] = np.pi
             return PoseEstimate(q, np.tile([0.0, 0.0, 2.5], (16, 1)), "tracked", {})

@@ -401,9 +401,12 @@ def test_limit_step_shortens_long_steps_along_their_direction():
     assert torch.equal(limit_step(dq, 0.0), dq)
 
 
-def test_config_preset_loads():
-    cfg = load_config(TrackerConfig, REPO / "configs" / "tracker.yaml")
-    assert cfg == TrackerConfig()
+def test_hybrid_preset_sets_the_tracker_terms():
+    from runtime.hybrid import HybridConfig
+
+    cfg = load_config(HybridConfig, REPO / "configs" / "hybrid.yaml")
+    assert cfg.tracker.use_labels and cfg.tracker.use_collision
+    assert cfg.tracker == TrackerConfig(use_labels=True, use_collision=True)
 
 
 # ---------------------------------------------------------------- tracking

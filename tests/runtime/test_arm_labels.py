@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from runtime.hidden_arm_search import (
+from runtime.hybrid.arm_labels import (
     ARM_FLEXION_DEG,
     ELBOW_FLEXION_DEG,
     arm_candidates,

@@ -1,0 +1,133 @@
+"""Hybrid tracking and detection (Wei section 5): mode "hybrid" of ``runtime-track``.
+
+- :mod:`.config`: the settings tree (failure tests, keep-better, arm search, both estimators);
+- :mod:`.policy`: the switching decisions as pure functions;
+- :mod:`.arm_search` and :mod:`.arm_labels`: refitting a hidden or misplaced arm;
+- :mod:`.estimator`: :class:`HybridEstimator`, the per-stream state around them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from runtime.detector import Detector, forest_label_source, load_forest_labeler
+from runtime.frame import LabelSource
+from shared.body import BodyShape
+from shared.camera import Intrinsics
+from shared.config import ConfigError, config_from_dict
+
+from .config import (
+    ArmSearchConfig,
+    FailureThresholds,
+    HybridConfig,
+    HybridError,
+    KeepBetterConfig,
+    MisplacedArmConfig,
+)
+from .estimator import HybridEstimator, TrackState, root_turn
+from .policy import Decision, Detection, TrackVerdict, choose, judge_track
+
+__all__ = [
+    "ArmSearchConfig",
+    "Decision",
+    "Detection",
+    "FailureThresholds",
+    "HybridConfig",
+    "HybridError",
+    "HybridEstimator",
+    "KeepBetterConfig",
+    "MisplacedArmConfig",
+    "TrackState",
+    "TrackVerdict",
+    "choose",
+    "create_estimator",
+    "judge_track",
+    "recording_labels",
+    "root_turn",
+]
+
+
+def hybrid_config(config: Mapping[str, Any] | HybridConfig | None) -> HybridConfig:
+    """``config`` (a preset's mapping, or a config) as a :class:`HybridConfig`.
+
+    Raises:
+        HybridError: unknown keys, wrong types or values out of range.
+    """
+    if config is None:
+        return HybridConfig()
+    if isinstance(config, HybridConfig):
+        return config
+    try:
+        return config_from_dict(HybridConfig, dict(config), "hybrid config")
+    except HybridError:
+        raise
+    except ConfigError as err:
+        raise HybridError(str(err)) from None
+
+
+def create_estimator(
+    *,
+    model_path: Path | None,
+    body: BodyShape,
+    intrinsics: Intrinsics,
+    device: str = "cpu",
+    config: Mapping[str, Any] | HybridConfig | None = None,
+) -> HybridEstimator:
+    """Mode "hybrid" for ``runtime.estimator.make_estimator`` (``config``: HybridConfig keys)."""
+    cfg = hybrid_config(config)
+    from runtime.tracker import Tracker, TrackerError
+
+    if cfg.labels_from_recording:
+        labels = recording_labels(Path(cfg.labels_from_recording))
+    else:
+        labeler = load_forest_labeler(
+            model_path,
+            device,
+            intrinsics,
+            smooth_window=cfg.detector.label_smoothing_window,
+            smooth_depth_gate_m=cfg.detector.label_smoothing_gate_m,
+        )
+        labels = forest_label_source(labeler)
+    try:
+        tracker = Tracker(body, intrinsics, cfg.tracker, device=device)
+    except TrackerError as err:
+        raise HybridError(str(err)) from None
+    detector = Detector(body, intrinsics, cfg.detector, device=device)
+    return HybridEstimator(labels, detector, tracker, cfg)
+
+
+def recording_labels(path: Path) -> LabelSource:
+    """The ground-truth part labels of the synthetic recording at ``path`` as a label source:
+    a frame's (H, W) int64 part classes (``shared.labels``), zero off the person's mask.
+
+    Raises:
+        HybridError: not a readable recording, no labels/, or (when called) a frame the
+            recording does not have or cannot read.
+    """
+    from shared.recording import Recording
+
+    try:
+        rec = Recording(path)
+    except (OSError, ValueError) as err:
+        raise HybridError(f"labels_from_recording: {err}") from None
+    if not rec.has_labels:
+        raise HybridError(f"labels_from_recording: {path} has no labels/")
+
+    def labels(frame) -> torch.Tensor:
+        try:
+            image = torch.from_numpy(rec.read_labels(frame.index).astype(np.int64))
+        except (OSError, ValueError, IndexError) as err:
+            raise HybridError(f"labels_from_recording, frame {frame.index}: {err}") from None
+        if image.shape != frame.mask.shape:
+            raise HybridError(
+                f"frame {frame.index}: labels {tuple(image.shape)} do not match the frame "
+                f"{tuple(frame.mask.shape)}"
+            )
+        return image.to(device=frame.device) * frame.mask
+
+    return labels

@@ -1,0 +1,188 @@
+"""The hidden-arm search: refit a suspect frame from a few arm poses, keep the best fit.
+
+In profile the tracker can slip the far arm behind the torso while the camera sees it, or lay
+a lost arm on a leg or the torso; either fits the depth well enough to pass the failure tests.
+The model's rendering says which arm it hides (``TrackResult.limb_visibility``) and the
+forest's labels say whether the camera sees that arm anyway
+(:mod:`runtime.hybrid.arm_labels`). When both hold on a suspect fit, :class:`ArmSearch`
+refits the frame from each start of :func:`~runtime.hybrid.arm_labels.arm_candidates` and
+keeps the refit with the smallest badness, if it beats the track's and keeps the forest's
+pixels of that arm near it.
+
+The search remembers, per arm, the frame of its last fruitless misplaced-arm search (the
+cooldown); nothing else carries over between frames.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+
+from runtime.frame import Frame
+from runtime.raycast import segment_distances
+from runtime.tracker.signals import FitSignals
+from runtime.tracker.tracker import TrackResult
+from shared.body import BodyShape
+from shared.camera import depth_to_points
+from shared.kinematics import Kinematics, forward_kinematics
+
+from .arm_labels import (
+    AGREEMENT_MARGIN_M,
+    CONFLICT_MARGIN_M,
+    arm_candidates,
+    arm_label_agreement,
+    arm_label_conflict,
+    arm_pixel_fraction,
+    arm_pixels,
+    label_conflict_from_distances,
+    near_other_arm,
+)
+from .config import ArmSearchConfig
+
+__all__ = ["ArmSearch", "SearchResult"]
+
+# A start pose (34,) -> the tracker's refit of the frame from it.
+Refit = Callable[[torch.Tensor], TrackResult]
+
+
+@dataclass
+class SearchResult:
+    """The best refit (None if none beat the track) with its badness, and how many arms'
+    refits were tried (what the search cost)."""
+
+    best: TrackResult | None
+    badness: float
+    arms_searched: int
+
+
+@dataclass
+class _Suspect:
+    """One arm to search and what its refits must respect."""
+
+    side: str
+    arm_points: torch.Tensor  # (N, 3) the forest's pixels of the arm not near the other arm
+    agreement_floor: float | None  # a refit keeps at least this share of them near the arm
+    conflicts: float | None  # the track's labelled-otherwise points (misplaced arms), or None
+    points: torch.Tensor  # (M, 3) all the person's points, for the conflict of a refit
+    point_labels: torch.Tensor  # (M,) their part labels
+
+
+class ArmSearch:
+    """The search of one stream (module docstring)."""
+
+    def __init__(self, cfg: ArmSearchConfig, body: BodyShape) -> None:
+        self.cfg, self.body = cfg, body
+        self.misplaced_failed_at: dict[str, int] = {}
+
+    def reset(self) -> None:
+        """Forget the cooldowns (a new track)."""
+        self.misplaced_failed_at = {}
+
+    def wanted(self, badness: float) -> bool:
+        """Whether a fit this bad is suspect enough to search."""
+        return badness > self.cfg.badness
+
+    def _kinematics(self, q: torch.Tensor) -> Kinematics:
+        return forward_kinematics(q[None].to(self.body.lengths), self.body)
+
+    def search(
+        self,
+        frame: Frame,
+        labels: torch.Tensor,
+        track: TrackResult,
+        badness: float,
+        refit: Refit,
+        badness_of: Callable[[FitSignals], float],
+    ) -> SearchResult:
+        """Search every suspect arm of ``track`` (whose badness is ``badness``) on ``frame``
+        with its part ``labels`` (H, W); ``refit`` fits the frame from a start pose."""
+        best, searched = None, 0
+        for suspect in self._suspects(frame, labels, track):
+            searched += 1
+            found = None
+            for start in arm_candidates(track.q, suspect.side):
+                r = refit(start)
+                b = badness_of(r.signals)
+                if b < badness and self._accepts(suspect, r.q):
+                    found, badness = r, b
+            if found is not None:
+                best = found
+            elif suspect.conflicts is not None:
+                self.misplaced_failed_at[suspect.side] = frame.index
+        return SearchResult(best, badness, searched)
+
+    def _suspects(self, frame: Frame, labels: torch.Tensor, track: TrackResult):
+        """The arms to search, in order (left, right), lazily: most suspect frames have none."""
+        cfg, vis = self.cfg, track.limb_visibility
+        if vis is None:
+            return
+        mask = frame.mask
+        misplaced = cfg.misplaced
+        points = kin = signed = None
+        for limb, side in ((0, "l"), (1, "r")):
+            shown = float(vis[limb])
+            hidden = shown < max(cfg.hidden_visibility, cfg.partial_visibility)
+            if not (hidden or misplaced is not None):
+                continue
+            if points is None:
+                points = depth_to_points(frame.depth_m[None], frame.intrinsics)[0][mask]
+                kin = self._kinematics(track.q)
+                point_labels = labels[mask]
+                if misplaced is not None:  # both arms' conflicts from one distance evaluation
+                    signed = segment_distances(points[None].to(kin.origins), kin, self.body)
+            conflicts = None
+            last = self.misplaced_failed_at.get(side)
+            if misplaced is not None and (
+                last is None or frame.index - last > misplaced.cooldown_frames
+            ):
+                share, count = label_conflict_from_distances(
+                    signed, point_labels, side, CONFLICT_MARGIN_M, misplaced.other_arm_counts
+                )
+                share, count = float(share[0]), int(count[0])
+                if count >= misplaced.min_points and share > misplaced.conflict:
+                    conflicts = share * count
+            if not hidden and conflicts is None:
+                continue
+            explained = torch.zeros_like(mask)
+            if cfg.other_arm_margin_m > 0:
+                explained[mask] = near_other_arm(
+                    points, kin, self.body, side, cfg.other_arm_margin_m
+                )
+            seen = arm_pixel_fraction(labels, mask, side, explained) >= cfg.seen_fraction
+            if not seen and conflicts is None:
+                continue
+            arm_points = points[(arm_pixels(labels, mask, side) & ~explained)[mask]]
+            mine = float(
+                arm_label_agreement(arm_points, kin, self.body, side, AGREEMENT_MARGIN_M)[0]
+            )
+            partly = shown >= cfg.hidden_visibility
+            if conflicts is None and partly and not mine < cfg.partial_agreement:
+                continue  # shown partly, where the forest sees it: no search
+            # No forest pixels of the arm (NaN agreement): nothing to keep the refit near.
+            check = cfg.agreement_slack is not None and math.isfinite(mine)
+            floor = mine - cfg.agreement_slack if check else None
+            yield _Suspect(side, arm_points, floor, conflicts, points, point_labels)
+
+    def _accepts(self, suspect: _Suspect, q: torch.Tensor) -> bool:
+        """Whether a refit's pose ``q`` keeps the arm's labelled pixels near it and, for a
+        misplaced arm, leaves enough fewer of its points labelled otherwise."""
+        pose = self._kinematics(q)
+        side = suspect.side
+        if suspect.agreement_floor is not None:
+            agree = arm_label_agreement(
+                suspect.arm_points, pose, self.body, side, AGREEMENT_MARGIN_M
+            )
+            if not float(agree[0]) >= suspect.agreement_floor:
+                return False
+        if suspect.conflicts is None:
+            return True
+        misplaced = self.cfg.misplaced
+        share, count = arm_label_conflict(
+            suspect.points, suspect.point_labels, pose, self.body, side, CONFLICT_MARGIN_M,
+            misplaced.other_arm_counts,
+        )  # fmt: skip
+        theirs = float(share[0]) * int(count[0]) if int(count[0]) else 0.0
+        return theirs <= misplaced.relief * suspect.conflicts

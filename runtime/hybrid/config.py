@@ -1,0 +1,232 @@
+"""Settings of the hybrid tracker/detector (Wei section 5), as a tree.
+
+``HybridConfig`` holds the failure tests, how a detection is weighed against the track
+(``keep_better``), the hidden-arm search (``arm_search``), and the detector's and tracker's own
+settings. A mechanism that is off is ``None`` (its section absent from the preset), never an
+infinite threshold. The class defaults are Wei's paper values with every addition off; the
+shipped preset ``configs/hybrid.yaml`` switches on what measured better, and
+``docs/experiments.md`` records why each value is what it is.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from runtime.detector.config import DetectorConfig
+from runtime.tracker.config import TrackerConfig
+from runtime.tracker.signals import FitSignals
+from shared.config import ConfigError, field_doc
+
+__all__ = [
+    "ArmSearchConfig",
+    "FailureThresholds",
+    "HybridConfig",
+    "HybridError",
+    "KeepBetterConfig",
+    "MisplacedArmConfig",
+]
+
+
+class HybridError(ConfigError):
+    """Bad settings or inputs of the hybrid estimator."""
+
+
+def _check(ok: bool, what: str, got: object) -> None:
+    if not ok:
+        raise HybridError(f"hybrid settings: {what}, got {got!r}")
+
+
+@dataclass
+class FailureThresholds:
+    """When a tracked frame has failed (Wei section 5), and how bad a fit is."""
+
+    epsilon1_cm: float = field_doc(
+        2.5, "tracking fails above this mean depth / extra-depth error, cm (Wei: 2.5)"
+    )
+    epsilon2: float = field_doc(
+        0.9, "tracking fails below this silhouette overlap |R and O| / |R or O| (Wei: 0.9)"
+    )
+    epsilon3_mm: float | None = field_doc(
+        None,
+        "tracking also fails when the 97% quantile of the observed points' distances to the "
+        "model exceeds this, mm: a limb left behind (not in Wei; None: no such test)",
+    )
+
+    def __post_init__(self) -> None:
+        # badness divides by the thresholds; a NaN would silently switch a test off.
+        _check(self.epsilon1_cm > 0, "epsilon1_cm must be > 0", self.epsilon1_cm)
+        _check(0 <= self.epsilon2 < 1, "epsilon2 must be in [0, 1)", self.epsilon2)
+        e3 = self.epsilon3_mm
+        _check(e3 is None or e3 > 0, "epsilon3_mm must be > 0 or None", e3)
+
+    def failed(self, s: FitSignals) -> bool:
+        """Wei's two tests, plus the surface-error test when it is set (NaN fails)."""
+        e3 = math.inf if self.epsilon3_mm is None else self.epsilon3_mm
+        return not (
+            s.depth_error_cm <= self.epsilon1_cm
+            and s.overlap >= self.epsilon2
+            and s.surface_error_q97_mm <= e3
+        )
+
+    def badness(self, s: FitSignals) -> float:
+        """The signals in units of their thresholds, summed: 0 is a perfect fit, a fit on
+        every threshold scores the number of tests (the surface term only when it is set)."""
+        score = s.depth_error_cm / self.epsilon1_cm + (1.0 - s.overlap) / max(
+            1.0 - self.epsilon2, 1e-6
+        )
+        if self.epsilon3_mm is not None:
+            score += s.surface_error_q97_mm / self.epsilon3_mm
+        return score
+
+
+@dataclass
+class KeepBetterConfig:
+    """After a failed test (or a recheck), the detector's pose replaces the track only when it
+    explains the frame better (not in Wei: his switch always takes the detector's)."""
+
+    compare_all_tests: bool = field_doc(
+        False,
+        "compare the two fits by their badness (all three signals over their thresholds) "
+        "instead of the surface error alone",
+    )
+    max_turn_rad: float | None = field_doc(
+        None,
+        "a detection whose root turns more than this from the track is not taken (rad): a "
+        "person does not turn round in one frame, but a profile fits facing either way "
+        "(None: any turn)",
+    )
+    max_turn_frames: int = field_doc(
+        15,
+        "... unless the track has failed and the detector turned it round this many frames "
+        "in a row: then the track itself faces the wrong way",
+    )
+    recheck_every: int | None = field_doc(
+        None,
+        "also run the detector on every this-many-th frame the tracker passed: a wrong track "
+        "that fits well enough is otherwise never questioned (None: never)",
+    )
+    recheck_badness: float | None = field_doc(
+        None,
+        "also run the detector on a passed frame whose badness exceeds this (None: never)",
+    )
+
+    def __post_init__(self) -> None:
+        t = self.max_turn_rad
+        _check(t is None or t >= 0, "max_turn_rad must be >= 0 or None", t)
+        _check(self.max_turn_frames >= 0, "max_turn_frames must be >= 0", self.max_turn_frames)
+        r = self.recheck_every
+        _check(r is None or r >= 1, "recheck_every must be >= 1 or None", r)
+        b = self.recheck_badness
+        _check(b is None or not math.isnan(b), "recheck_badness must be a number or None", b)
+
+
+@dataclass
+class MisplacedArmConfig:
+    """The arm search also questions an arm the model shows where the forest sees something
+    else: a lost arm laid on a leg or the torso fits the depth and passes every test."""
+
+    conflict: float = field_doc(
+        0.7,
+        "search an arm when the forest labels more than this share of the person's points it "
+        "explains (nearest to it, within 3 cm) as something else",
+    )
+    min_points: int = field_doc(20, "... and the arm explains at least this many points")
+    other_arm_counts: bool = field_doc(
+        True,
+        "points labelled as the other arm count as something else (false: only torso, head "
+        "and leg labels do; the forest swaps arms in profile)",
+    )
+    cooldown_frames: int = field_doc(
+        0,
+        "after a search of a misplaced arm found nothing to take, that arm is not searched as "
+        "misplaced again for this many frames",
+    )
+    relief: float = field_doc(
+        0.5,
+        "a refit is taken only if the points of its arm labelled otherwise are at most this "
+        "fraction of the track's (0-1)",
+    )
+
+    def __post_init__(self) -> None:
+        _check(0 <= self.conflict <= 1, "misplaced.conflict must be in [0, 1]", self.conflict)
+        _check(self.min_points >= 1, "misplaced.min_points must be >= 1", self.min_points)
+        _check(self.cooldown_frames >= 0, "misplaced.cooldown_frames must be >= 0",
+               self.cooldown_frames)  # fmt: skip
+        _check(0 <= self.relief <= 1, "misplaced.relief must be in [0, 1]", self.relief)
+
+
+@dataclass
+class ArmSearchConfig:
+    """When a suspect fit's model hides an arm the forest sees, refit the frame from a few arm
+    poses and keep the best fit (not in Wei; :mod:`runtime.hybrid.arm_search`)."""
+
+    badness: float = field_doc(1.9, "search only when the track's badness exceeds this")
+    hidden_visibility: float = field_doc(
+        0.3, "an arm counts as hidden by the model below this visible fraction (0-1)"
+    )
+    seen_fraction: float = field_doc(
+        0.02, "the camera sees an arm from this share of the person's pixels labelled as it"
+    )
+    other_arm_margin_m: float = field_doc(
+        0.05,
+        "labelled arm pixels within this distance of the model's other arm do not count as "
+        "seeing the arm (m; 0: all count): in profile the far arm's labels land on the near arm",
+    )
+    partial_visibility: float = field_doc(
+        0.6,
+        "an arm the model shows partly (below this visible fraction) is searched too when the "
+        "forest's pixels of it mostly lie off the model's arm",
+    )
+    partial_agreement: float = field_doc(
+        0.5,
+        "... that is, when under this share of them lie within 5 cm of the model's arm",
+    )
+    agreement_slack: float | None = field_doc(
+        0.1,
+        "a refit is taken only if its share of the arm's labelled pixels within 5 cm is at "
+        "least the track's minus this (None: no such check)",
+    )
+    misplaced: MisplacedArmConfig | None = field_doc(
+        None, "search arms the model shows on pixels the forest calls something else (None: off)"
+    )
+
+    def __post_init__(self) -> None:
+        _check(not math.isnan(self.badness), "arm_search.badness must be a number", self.badness)
+        _check(self.hidden_visibility >= 0, "arm_search.hidden_visibility must be >= 0",
+               self.hidden_visibility)  # fmt: skip
+        _check(0 <= self.seen_fraction <= 1, "arm_search.seen_fraction must be in [0, 1]",
+               self.seen_fraction)  # fmt: skip
+        _check(self.other_arm_margin_m >= 0, "arm_search.other_arm_margin_m must be >= 0",
+               self.other_arm_margin_m)  # fmt: skip
+        _check(self.partial_visibility >= 0, "arm_search.partial_visibility must be >= 0",
+               self.partial_visibility)  # fmt: skip
+        _check(0 <= self.partial_agreement <= 1, "arm_search.partial_agreement must be in "
+               "[0, 1]", self.partial_agreement)  # fmt: skip
+        s = self.agreement_slack
+        _check(s is None or s >= 0, "arm_search.agreement_slack must be >= 0 or None", s)
+
+
+@dataclass
+class HybridConfig:
+    """Tracker with detector (re)initialization: the switching tests and both estimators."""
+
+    failure: FailureThresholds = field_doc(
+        help="when a tracked frame has failed", default_factory=FailureThresholds
+    )
+    keep_better: KeepBetterConfig | None = field_doc(
+        None, "weigh a detection against the track instead of always taking it (None: Wei)"
+    )
+    arm_search: ArmSearchConfig | None = field_doc(
+        None, "refit a hidden or misplaced arm on suspect frames (None: off)"
+    )
+    hint_from_tracker: bool = field_doc(
+        True, "give the detector's IK the last pose as one more start (used if it fits best)"
+    )
+    labels_from_recording: str | None = field_doc(
+        None,
+        "a synthetic recording whose ground-truth part labels stand in for the forest's "
+        "(a diagnostic of what the forest's errors cost; the forest is then not loaded)",
+    )
+    detector: DetectorConfig = field_doc(help="detector settings", default_factory=DetectorConfig)
+    tracker: TrackerConfig = field_doc(help="tracker settings", default_factory=TrackerConfig)

@@ -1,0 +1,185 @@
+"""Hybrid tracking and detection (Wei section 5): mode "hybrid" of ``runtime-track``.
+
+Per frame (a :class:`~runtime.frame.Frame` with a person in it):
+
+1. No previous pose (first frame, after a lost one): the detector gives the pose ("detected").
+2. Otherwise the tracker fits the frame from the previous two poses. A suspect fit (badness
+   over ``arm_search.badness``) whose model hides or misplaces an arm the forest sees is
+   refitted from a few arm poses first (:class:`~runtime.hybrid.arm_search.ArmSearch`).
+3. :func:`~runtime.hybrid.policy.judge_track` tests the fit (Wei's epsilon1, epsilon2, and the
+   optional surface error). A passed fit is the frame's pose ("tracked").
+4. A failed (or rechecked) fit goes to the detector; :func:`~runtime.hybrid.policy.choose`
+   keeps the track ("tracked", flagged ``kept_over_detector`` or ``rechecked``) or takes the
+   detection ("detected"). A detection that finds nobody leaves the frame "lost" and the next
+   frame starts afresh.
+
+One tracker serves the tracking, every refit and the detector's refinement, all on the frame's
+one observation. The forest's labels are computed once per frame, when first needed (every
+frame when the tracker's label term is on).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from runtime.detector import DetectionResult, Detector
+from runtime.estimator import PoseEstimate, lost, observed_of
+from runtime.frame import Frame, LabelSource
+from runtime.tracker.tracker import Tracker, TrackResult
+from shared.kinematics import forward_kinematics, named_joint_positions
+from shared.so3 import rotvec_to_matrix
+
+from .arm_search import ArmSearch
+from .config import HybridConfig
+from .policy import Detection, choose, judge_track
+
+__all__ = ["HybridEstimator", "TrackState", "root_turn"]
+
+
+def root_turn(q_a: torch.Tensor, q_b: torch.Tensor) -> float:
+    """Angle (rad) of the rotation between the root orientations of two (34,) poses."""
+    r = rotvec_to_matrix(q_a[3:6]) @ rotvec_to_matrix(q_b[3:6]).T
+    return float(torch.arccos(((torch.diagonal(r).sum() - 1.0) / 2.0).clamp(-1.0, 1.0)))
+
+
+@dataclass
+class TrackState:
+    """What the hybrid carries from frame to frame.
+
+    Attributes:
+        q_prev, q_prev2: (34,) the last two poses (None: no track).
+        passed: frames tracked since the detector last ran.
+        turned_round: failed frames in a row whose detection turned the person round.
+    """
+
+    q_prev: torch.Tensor | None = None
+    q_prev2: torch.Tensor | None = None
+    passed: int = 0
+    turned_round: int = 0
+
+
+class HybridEstimator:
+    """Tracker with detector (re)initialization for one stream (a ``PoseEstimator``).
+
+    Args:
+        labels: the frame's part labels (the forest's, or a recording's).
+        detector: the pose detector (its refinement runs on ``tracker``).
+        tracker: the one tracker of the stream.
+        cfg: the settings.
+    """
+
+    def __init__(
+        self, labels: LabelSource, detector: Detector, tracker: Tracker, cfg: HybridConfig
+    ) -> None:
+        self.label_source, self.detector, self.tracker, self.cfg = labels, detector, tracker, cfg
+        self.arm_search = (
+            None if cfg.arm_search is None else ArmSearch(cfg.arm_search, tracker.body)
+        )
+        self.state = TrackState()
+
+    def reset(self) -> None:
+        """Forget the track: the next frame goes to the detector."""
+        self.state = TrackState()
+        if self.arm_search is not None:
+            self.arm_search.reset()
+
+    # ---- the pieces a frame is made of ----
+
+    def _tracker_labels(self, frame: Frame) -> torch.Tensor | None:
+        """The labels the tracker's label term reads (None when it is off)."""
+        return frame.labels(self.label_source) if self.tracker.cfg.use_labels else None
+
+    def _fit(self, frame: Frame, start: torch.Tensor, before: torch.Tensor | None = None,
+             iterations: int | None = None) -> TrackResult:  # fmt: skip
+        obs = frame.observation(self.tracker, self._tracker_labels(frame))
+        return self.tracker.fit(obs, start, before, iterations)
+
+    def _joints(self, q: torch.Tensor) -> np.ndarray:
+        body = self.tracker.body
+        kin = forward_kinematics(q[None].to(body.lengths), body)
+        return named_joint_positions(kin)[0].detach().cpu().double().numpy()
+
+    def _run_detector(self, frame: Frame) -> DetectionResult:
+        """The detector on ``frame``, refined on the shared tracker; changes no state."""
+        labels = frame.labels(self.label_source)
+        hint = self.state.q_prev if self.cfg.hint_from_tracker else None
+        k = self.detector.cfg.refine_iterations
+        refine = None if k <= 0 else (lambda q: self._fit(frame, q, None, k))
+        return self.detector.detect(frame.depth_m, labels, frame.mask, q_hint=hint, refine=refine)
+
+    # ---- estimates, each updating the track ----
+
+    def _tracked(self, res: TrackResult, errors: dict) -> PoseEstimate:
+        q = res.q.detach()
+        self.state.q_prev, self.state.q_prev2 = q, self.state.q_prev
+        return PoseEstimate(
+            q.cpu().double().numpy(), self._joints(q), "tracked", errors, observed=observed_of(res)
+        )
+
+    def _detected(self, det: DetectionResult, errors: dict) -> PoseEstimate:
+        errors["labelled_pixels"] = float(det.labelled_pixels)
+        if not det.found:
+            self.reset()
+            return lost(**errors)
+        errors["ik_rms_m"] = det.ik_rms
+        if det.refined is not None:
+            errors.update(det.refined.signals.as_errors())
+        q = det.q.detach()
+        self.state.q_prev, self.state.q_prev2 = q, None
+        return PoseEstimate(
+            q.cpu().double().numpy(),
+            self._joints(q),
+            "detected",
+            errors,
+            det.labels.cpu().numpy().astype(np.uint8),
+            observed=observed_of(det.refined),
+        )
+
+    def estimate(self, frame: Frame) -> PoseEstimate:
+        """Pose of the person in ``frame`` (module docstring)."""
+        state, cfg = self.state, self.cfg
+        if state.q_prev is None:
+            return self._detected(self._run_detector(frame), {})
+        res = self._fit(frame, state.q_prev, state.q_prev2)
+        errors = res.signals.as_errors()
+        state.passed += 1
+        badness = cfg.failure.badness(res.signals)
+        if self.arm_search is not None and self.arm_search.wanted(badness):
+            found = self.arm_search.search(
+                frame,
+                frame.labels(self.label_source),
+                res,
+                badness,
+                lambda q: self._fit(frame, q),
+                cfg.failure.badness,
+            )
+            if found.best is not None:
+                res, badness = found.best, found.badness
+                errors = {**res.signals.as_errors(), "arm_searched": 1.0}
+            if found.arms_searched:  # refits tried, taken or not: what the search costs
+                errors["arms_searched"] = float(found.arms_searched)
+        verdict = judge_track(res.signals, badness, state.passed, cfg.failure, cfg.keep_better)
+        if not verdict.run_detector:
+            state.turned_round = 0
+            return self._tracked(res, errors)
+        state.passed = 0
+        failed = {f"tracker_{k}": v for k, v in errors.items()}
+        det = self._run_detector(frame)
+        if cfg.keep_better is None:
+            return self._detected(det, failed)
+        turn = None if not det.found else root_turn(det.q.to(state.q_prev), state.q_prev)
+        detection = Detection(det.found, det.refined.signals if det.refined else None, turn)
+        decision = choose(
+            res.signals, detection, verdict.failed, state.turned_round, cfg.failure,
+            cfg.keep_better,
+        )  # fmt: skip
+        if decision.forget and self.arm_search is not None:
+            self.arm_search.reset()
+        state.turned_round = decision.turned_round
+        if decision.keep_track:
+            kept = {"kept_over_detector": 1.0} if verdict.failed else {"rechecked": 1.0}
+            return self._tracked(res, {**errors, **kept})
+        return self._detected(det, failed)

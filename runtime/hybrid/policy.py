@@ -1,0 +1,104 @@
+"""The hybrid's switching policy as pure functions of the fits' signals (Wei section 5).
+
+Two decisions per frame, both free of state and tensors so that tables can test them:
+
+1. :func:`judge_track`: has the tracked fit failed, or should the detector question it anyway
+   (a recheck)? Either way the detector runs.
+2. :func:`choose`: given the detection, keep the track or take the detection? Wei always takes
+   the detection; with ``keep_better`` it is taken only when it fits better and does not turn
+   the person round, unless the track has kept failing and being turned round for a while.
+
+The estimator (:mod:`runtime.hybrid.estimator`) carries the counters these read between frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from runtime.tracker.signals import FitSignals
+
+from .config import FailureThresholds, KeepBetterConfig
+
+__all__ = ["Decision", "Detection", "TrackVerdict", "choose", "judge_track"]
+
+
+@dataclass(frozen=True)
+class TrackVerdict:
+    """Whether a tracked frame ``failed`` its tests, and whether it is ``recheck``-ed anyway."""
+
+    failed: bool
+    recheck: bool
+
+    @property
+    def run_detector(self) -> bool:
+        return self.failed or self.recheck
+
+
+@dataclass(frozen=True)
+class Detection:
+    """What :func:`choose` needs of a detection.
+
+    Attributes:
+        found: the detector found a person (enough labelled pixels).
+        signals: the refined detection's signals, None when it was not refined (nothing to
+            compare: the detection is taken unless it turns the person round).
+        turn_rad: how far its root orientation is turned from the track's previous pose
+            (rad), None when not found.
+    """
+
+    found: bool
+    signals: FitSignals | None = None
+    turn_rad: float | None = None
+
+
+@dataclass(frozen=True)
+class Decision:
+    """Keep the track (``keep_track``) or take the detection; ``turned_round``: the new count
+    of failed frames in a row whose detection turned the person round; ``forget``: the
+    detector found no one, so per-track memories (cooldowns) are dropped."""
+
+    keep_track: bool
+    turned_round: int
+    forget: bool = False
+
+
+def judge_track(
+    signals: FitSignals,
+    badness: float,
+    passed: int,
+    failure: FailureThresholds,
+    keep_better: KeepBetterConfig | None,
+) -> TrackVerdict:
+    """The tests on a tracked frame; ``passed``: frames tracked since the detector last ran,
+    this one included."""
+    recheck = keep_better is not None and (
+        (keep_better.recheck_every is not None and keep_better.recheck_every <= passed)
+        or (keep_better.recheck_badness is not None and badness > keep_better.recheck_badness)
+    )
+    return TrackVerdict(failure.failed(signals), recheck)
+
+
+def choose(
+    track: FitSignals,
+    detection: Detection,
+    failed: bool,
+    turned_round: int,
+    failure: FailureThresholds,
+    keep_better: KeepBetterConfig,
+) -> Decision:
+    """Keep the track or take the detection (module docstring). ``failed``: the track failed
+    its tests (rather than being rechecked); ``turned_round``: the count so far."""
+    if not detection.found:
+        return Decision(keep_track=True, turned_round=0, forget=True)
+    worse = detection.signals is not None
+    if worse and keep_better.compare_all_tests:
+        worse = failure.badness(detection.signals) >= failure.badness(track)
+    elif worse:
+        worse = detection.signals.surface_error_q97_mm >= track.surface_error_q97_mm
+    limit = keep_better.max_turn_rad
+    turned = limit is not None and detection.turn_rad is not None and detection.turn_rad > limit
+    # Only a track that keeps failing may be turned round; a recheck never.
+    turned_round = turned_round + 1 if turned and failed else 0
+    if turned_round < keep_better.max_turn_frames:
+        worse = worse or turned
+    return Decision(keep_track=worse, turned_round=turned_round)

@@ -1,0 +1,169 @@
+"""The tracking loop of ``runtime-track``: stream -> :class:`~runtime.frame.Frame` (metres,
+person mask) -> estimate -> result writer, with real-time pacing, overlays, a live view and
+progress. Each frame is prepared once here; the estimator only reads it.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TextIO
+
+from .estimator import PoseEstimator, estimate_frame
+from .frame import Frame
+from .segmentation import SegmentationConfig, segment_person
+from .streams import DepthStream
+
+__all__ = ["Progress", "TrackStats", "track"]
+
+
+@dataclass
+class TrackStats:
+    """What :func:`track` did.
+
+    Attributes:
+        frames: frames written.
+        status_counts: written frames per status.
+        dropped: frames skipped by real-time pacing.
+        last_index: index of the last written frame (None if none).
+        wall_s: seconds spent.
+    """
+
+    frames: int = 0
+    status_counts: dict[str, int] = field(
+        default_factory=lambda: {"tracked": 0, "detected": 0, "lost": 0}
+    )
+    dropped: int = 0
+    last_index: int | None = None
+    wall_s: float = 0.0
+
+    @property
+    def fps(self) -> float:
+        return self.frames / self.wall_s if self.wall_s > 0 else 0.0
+
+
+class Progress:
+    """One updating progress line on a terminal (a plain line every few seconds otherwise)."""
+
+    def __init__(self, total: int | None, out: TextIO | None = None, quiet: bool = False):
+        self.total, self.out, self.quiet = total, out or sys.stderr, quiet
+        self.tty = bool(getattr(self.out, "isatty", lambda: False)())
+        self._interval = 0.2 if self.tty else 5.0
+        self._shown = -math.inf
+        self._fps = 0.0
+        self._t_last: float | None = None
+        self._width = 0
+        self._latest: tuple[TrackStats, int] | None = None
+
+    def update(self, stats: TrackStats, index: int) -> None:
+        now = time.perf_counter()
+        if self._t_last is not None:
+            inst = 1.0 / max(now - self._t_last, 1e-6)
+            self._fps = inst if self._fps == 0 else 0.9 * self._fps + 0.1 * inst
+        self._t_last = now
+        self._latest = (stats, index)
+        if self.quiet or now - self._shown < self._interval:
+            return
+        self._shown = now
+        self._show(stats, index)
+
+    def _show(self, stats: TrackStats, index: int) -> None:
+        c = stats.status_counts
+        of = f"/{self.total}" if self.total else ""
+        line = (
+            f"frame {index} ({stats.frames}{of})  {self._fps:5.1f} fps  "
+            f"tracked {c['tracked']}  detected {c['detected']}  lost {c['lost']}"
+        )
+        if stats.dropped:
+            line += f"  dropped {stats.dropped}"
+        if self.tty:
+            self.out.write("\r" + line.ljust(self._width))
+            self._width = len(line)
+        else:
+            self.out.write(line + "\n")
+        self.out.flush()
+
+    def close(self) -> None:
+        if self.tty and self._width and not self.quiet:
+            self._show(*self._latest)  # the final counts, not the last periodic ones
+            self.out.write("\n")
+            self.out.flush()
+
+
+def track(
+    stream: DepthStream,
+    estimator: PoseEstimator,
+    writer,
+    seg_cfg: SegmentationConfig | None = None,
+    device: str = "cpu",
+    *,
+    realtime: bool = False,
+    overlay_dir: Path | None = None,
+    progress: Progress | None = None,
+    stop: threading.Event | None = None,
+    stats: TrackStats | None = None,
+    view=None,
+) -> TrackStats:
+    """Run the pipeline over ``stream``, writing every frame to ``writer``.
+
+    Args:
+        writer: a ResultWriter (``write_frame(index, time, status, joints, q, errors,
+            observed=...)``).
+        realtime: pace a file source to its frame rate and drop frames when behind.
+        stop: set it to end the loop after the frame in flight (Ctrl-C handler).
+        stats: filled in place (so a caller sees the counts even if the loop raises).
+    Raises:
+        whatever the stream raises (StreamError, SensorDisconnected, KeyboardInterrupt); the
+        frames written before are complete.
+    """
+    stats = stats if stats is not None else TrackStats()
+    seg_cfg = seg_cfg or SegmentationConfig()
+    t_begin = time.perf_counter()
+    t_stream0: float | None = None
+    t_wall0 = t_begin
+    frame_dt = 1.0 / stream.fps
+    if overlay_dir is not None:
+        overlay_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        for frame in stream:
+            if realtime and not stream.is_live:
+                if t_stream0 is None:  # the clocks start at the first frame: never dropped
+                    t_stream0, t_wall0 = frame.time, time.perf_counter()
+                lag = time.perf_counter() - t_wall0 - (frame.time - t_stream0)
+                if lag < 0:
+                    time.sleep(-lag)
+                elif lag > 1.5 * frame_dt:  # a live camera would have dropped this frame
+                    stats.dropped += 1
+                    continue
+            prepared = Frame.from_depth(
+                frame, device=device, segment=lambda d, intr: segment_person(d, intr, seg_cfg)
+            )
+            est = estimate_frame(estimator, prepared)
+            writer.write_frame(
+                frame.index, frame.time, est.status, est.joints, est.q, est.errors,
+                observed=est.observed,
+            )  # fmt: skip
+            stats.frames += 1
+            stats.status_counts[est.status] = stats.status_counts.get(est.status, 0) + 1
+            stats.last_index = frame.index
+            if view is not None:
+                view.log_frame(prepared, est)
+            if overlay_dir is not None:
+                import cv2
+
+                from .export.overlay import draw_overlay
+
+                cv2.imwrite(
+                    str(overlay_dir / f"{frame.index:06d}.png"), draw_overlay(prepared, est)
+                )
+            if progress is not None:
+                progress.update(stats, frame.index)
+            if stop is not None and stop.is_set():
+                break
+    finally:
+        stats.wall_s = time.perf_counter() - t_begin
+    return stats
