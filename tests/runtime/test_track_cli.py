@@ -350,7 +350,7 @@ def test_registry_unknown_missing_and_factory(monkeypatch):
     monkeypatch.setitem(reg.MODE_MODULES, "hybrid", "runtime.no_such_module")
     with pytest.raises(EstimatorUnavailable, match="not available in this build"):
         make_estimator("hybrid", *args)
-    monkeypatch.setitem(reg.MODE_MODULES, "hybrid", "runtime.bench")  # no create_estimator
+    monkeypatch.setitem(reg.MODE_MODULES, "hybrid", "runtime.raycast")  # no create_estimator
     with pytest.raises(EstimatorUnavailable, match="has no create_estimator"):
         make_estimator("hybrid", *args)
     module = types.ModuleType("fake_mode")
