@@ -29,7 +29,7 @@ demo: $(SETUP_STAMP) ## set up if needed; render a person, personalize their bod
 
 test: $(SETUP_STAMP) ## lint, then the whole test suite
 	$(PY) -m ruff check .
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q --durations=15
 
 lint: $(SETUP_STAMP)
 	$(PY) -m ruff check .
