@@ -29,7 +29,7 @@ demo: $(SETUP_STAMP) ## set up if needed; render a person, personalize their bod
 
 test: $(SETUP_STAMP) ## lint, then the whole test suite
 	$(PY) -m ruff check .
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q --durations=15
 
 lint: $(SETUP_STAMP)
 	$(PY) -m ruff check .
@@ -62,7 +62,7 @@ train-forest-eval: $(SETUP_STAMP) ## accuracy of models/forest.npz on the dev re
 	$(PY) -m train.forest.eval_cli --model models/forest.npz --data data/dev --out out/forest_eval
 
 bench: $(SETUP_STAMP) ## speed figures, then the accuracy table on data/dev (printed, never asserted)
-	$(PY) -m runtime.bench $(if $(wildcard data/dev),--recordings data/dev,)
+	$(PY) -m bench $(if $(wildcard data/dev),--recordings data/dev,)
 	@if [ -d data/dev ]; then $(PY) -m train.dev_benchmark --recordings data/dev; \
 	else echo "accuracy table skipped: no data/dev (run make dev-recordings)"; fi
 

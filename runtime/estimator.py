@@ -21,6 +21,7 @@ import numpy as np
 
 from shared.body import BodyShape
 from shared.camera import Intrinsics
+from shared.poses_format import STATUSES
 
 if TYPE_CHECKING:
     from runtime.frame import Frame
@@ -40,7 +41,6 @@ __all__ = [
 ]
 
 Status = Literal["tracked", "detected", "lost"]
-STATUSES: tuple[str, ...] = ("tracked", "detected", "lost")
 MODE_MODULES = {
     "hybrid": "runtime.hybrid",
     "tracker": "runtime.tracker",

@@ -3,9 +3,10 @@
 Used by retargeting (mocap joints -> q for ground truth) and by the detector (class
 centroids -> q, Wei section 4.2). A marker is a point on a segment's axis at a fraction of
 the segment's length (the named joints are markers). The solver is Levenberg-Marquardt with
-the analytic Jacobians of :mod:`shared.kinematics`, batched over poses, with joint limits
-enforced by projection after every step and a weak prior towards a reference pose that
-settles what the markers leave free (e.g. the twist of a straight arm).
+the analytic Jacobians of :mod:`shared.kinematics` and the damped solve of
+:mod:`shared.least_squares`, batched over poses, with joint limits enforced by projection
+after every step and a weak prior towards a reference pose that settles what the markers
+leave free (e.g. the twist of a straight arm).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from .kinematics import (
     pose_update,
     segment_points_to_world,
 )
+from .least_squares import damped_solve
 
 __all__ = ["Markers", "NAMED_JOINT_MARKERS", "marker_positions", "IKResult", "fit_pose"]
 
@@ -119,7 +121,6 @@ def fit_pose(
     q_ref = q if q_ref is None else q_ref
     seg = torch.as_tensor(markers.segment, dtype=torch.long, device=targets.device)
     lam = targets.new_full((B,), 1e-3)
-    eye = torch.eye(sk.NUM_DOFS, dtype=targets.dtype, device=targets.device)
     prior_diag = torch.cat([targets.new_zeros(6), targets.new_full((28,), prior)])
     cost, kin, p, r = _cost(q, targets, weights, body, markers, q_ref, prior)
     it = 0
@@ -133,10 +134,8 @@ def fit_pose(
             [q.new_zeros(B, 6), q[:, 6:] - q_ref[:, 6:]], 1
         )
         # Marquardt scaling: damping proportional to the curvature of each DoF.
-        damp = lam[:, None, None] * (
-            torch.diagonal(hess, dim1=1, dim2=2)[:, None, :] * eye + 1e-9 * eye
-        )
-        dq = torch.linalg.solve(hess + damp, grad[..., None])[..., 0]
+        damping = lam[:, None] * (torch.diagonal(hess, dim1=1, dim2=2) + 1e-9)
+        dq = damped_solve(hess, grad, damping)
         q_new = clamp_to_limits(pose_update(q, dq))
         cost_new, kin_new, p_new, r_new = _cost(
             q_new, targets, weights, body, markers, q_ref, prior

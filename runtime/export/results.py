@@ -4,7 +4,7 @@
 
     OUT/body.json      the body in use (shared.body format), written first: evaluation and
                        re-export rebuild the skeleton from it
-    OUT/poses.jsonl    one line per frame, flushed per frame (runtime.export.poses_jsonl)
+    OUT/poses.jsonl    one line per frame, flushed per frame (shared.poses_format)
     OUT/motion.bvh     the motion, valid between any two frames (runtime.export.bvh)
     OUT/summary.json   run summary, refreshed about once a second while running and final
                        (``"complete": true``) after close (runtime.export.summary)
@@ -36,10 +36,10 @@ import numpy as np
 
 from shared.body import BodyShape
 from shared.camera import Intrinsics
+from shared.poses_format import STATUSES, PosesJsonlWriter, pose_record
 from shared.skeleton import JOINT_NAMES, NUM_DOFS
 
 from .bvh import BvhWriter
-from .poses_jsonl import STATUSES, PosesJsonlWriter, pose_record
 from .summary import RESULT_FORMAT, RESULT_VERSION, write_summary
 
 __all__ = ["ResultWriter", "ResultDirError", "RESULT_FILES"]

@@ -56,6 +56,7 @@ from shared.body import BodyShape
 from shared.camera import Intrinsics
 from shared.config import field_doc
 from shared.kinematics import clamp_to_limits, forward_kinematics, pose_update
+from shared.least_squares import damped_solve
 from shared.so3 import skew
 
 from .shape_model import PHENOTYPE_BOUNDS, RestShape, ShapeModel, vertex_normals
@@ -498,7 +499,7 @@ def fit_shape(
             # LM step with the correspondences fixed; retry with more damping if it fails.
             diag = hess.diagonal().clamp_min(1e-12)
             for _try in range(4):
-                step = -torch.linalg.solve(hess + lam * torch.diag(diag), grad)
+                step = -damped_solve(hess, grad, lam * diag)
                 new_phen = (phen + step[:6]).clamp(bounds[:, 0], bounds[:, 1])
                 new_local = local + step[6:n_shape]
                 new_q = pose_update(q, step[n_shape:].reshape(n_views, sk.NUM_DOFS))

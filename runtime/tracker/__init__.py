@@ -1,6 +1,5 @@
 """MAP tracker of Wei et al. 2012 section 3 (depth, extra depth, silhouette, prior terms)."""
 
-from .benchmark import benchmark_tracker
 from .config import TrackerConfig
 from .estimator import TrackerEstimator, create_estimator
 from .tracker import FrameFit, Tracker, TrackerError, TrackResult, fit_frames, track_sequence
@@ -13,7 +12,6 @@ __all__ = [
     "FrameFit",
     "fit_frames",
     "track_sequence",
-    "benchmark_tracker",
     "TrackerEstimator",
     "create_estimator",
 ]

@@ -21,6 +21,7 @@ import torch
 
 from shared import skeleton as sk
 from shared.kinematics import Kinematics, clamp_to_limits, pose_update
+from shared.least_squares import damped, solve, solve_with_fixed
 
 __all__ = [
     "Rows",
@@ -109,24 +110,22 @@ def solve_step(
 
     After the unconstrained solve, joint angles that would leave their limits are fixed at the
     limit and the remaining DoFs are solved again with that fixed contribution moved to the
-    right-hand side, so the other joints can compensate. (B, 34) in q's dtype.
+    right-hand side, so the other joints can compensate
+    (:func:`shared.least_squares.solve_with_fixed`). The damping is uniform: ``damping`` times
+    the mean curvature, so one setting suits poses whatever their data's scale. (B, 34) in q's
+    dtype.
     """
     diag = hess.diagonal(dim1=-2, dim2=-1)
     lam = damping * diag.mean(-1, keepdim=True) + 1e-9
-    damped = hess + torch.diag_embed(lam.expand_as(diag))
-    dq = torch.linalg.solve(damped, grad[..., None])[..., 0]
+    matrix = damped(hess, lam.expand_as(diag))
+    dq = solve(matrix, grad)
     if limits:
         q64 = q.double()
         target = clamp_to_limits(q64 + dq)
         fixed = torch.zeros_like(dq, dtype=torch.bool)
         fixed[:, 6:] = (target - (q64 + dq)).abs()[:, 6:] > 0
         fixed_dq = torch.where(fixed, target - q64, torch.zeros_like(dq))
-        free = ~fixed
-        both = free[:, :, None] & free[:, None, :]
-        reduced = torch.where(both, damped, torch.zeros_like(damped))
-        reduced = reduced + torch.diag_embed(fixed.to(damped.dtype))
-        rhs = torch.where(free, grad - (damped @ fixed_dq[..., None])[..., 0], fixed_dq)
-        dq = torch.linalg.solve(reduced, rhs[..., None])[..., 0]
+        dq = solve_with_fixed(matrix, grad, fixed, fixed_dq)
     return dq.to(q.dtype)
 
 

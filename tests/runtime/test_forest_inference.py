@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from runtime.forest.benchmark import benchmark_forest, person_frame
+from bench.forest import benchmark_forest
+from bench.scenes import person_frame
 from runtime.forest.inference import ForestClassifier, load_classifier
 from shared.camera import Intrinsics
 from shared.forest_format import ForestFormatError, save_forest
@@ -166,7 +167,7 @@ def test_benchmark_reports_milliseconds(forest, tmp_path):
 
 
 def test_default_model_path_points_into_models():
-    from runtime.forest.benchmark import DEFAULT_MODEL
+    from runtime.forest.inference import DEFAULT_MODEL
 
     assert (
         DEFAULT_MODEL.parent.name == "models"

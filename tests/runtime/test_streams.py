@@ -183,7 +183,6 @@ def test_missing_source_and_invalid_intrinsics(tmp_path):
 
 
 def test_demo_dispatch():
-    pytest.importorskip("runtime.streams.demo", reason="the demo stream is not written yet")
     with open_stream("demo", frame_range=FrameRange(0, 2)) as s:
         got = list(s)
     assert len(got) == 2 and got[0].depth_mm.dtype == np.uint16

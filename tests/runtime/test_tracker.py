@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 import torch
 
+from bench.scenes import camera_motion
 from runtime.raycast import render_body
 from runtime.tracker import Tracker, TrackerConfig, TrackerError, track_sequence
-from runtime.tracker.benchmark import camera_motion
 from runtime.tracker.depth_term import depth_rows
 from runtime.tracker.extra_depth_term import closest_points, extra_rows, observed_candidates
 from runtime.tracker.gauss_newton import (

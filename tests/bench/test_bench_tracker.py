@@ -1,13 +1,15 @@
-"""``make bench`` helpers: the tracker timed on a recording with ground truth."""
+"""The tracker benchmarks (bench.tracker, bench.tracker_terms): a recording with ground truth
+is timed and one without is refused; the term costs are ratios against a step."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from runtime.bench import bench_recordings
+from bench.scenes import camera_motion
+from bench.tracker import benchmark_recording, benchmark_tracker, recording_rows
+from bench.tracker_terms import collision_cost, joint_support_cost
 from runtime.raycast import render_body
-from runtime.tracker.benchmark import benchmark_recording, camera_motion
 from shared import skeleton as sk
 from shared.body import BodyShape
 from shared.camera import Intrinsics
@@ -34,12 +36,19 @@ def _recording(path, frames=4, truth=True):
     return path
 
 
+def test_tracker_is_timed_on_the_cylinder_walk():
+    r = benchmark_tracker(frames=3)
+    assert r["ms_per_frame"] > 0 and r["frames_per_s"] == pytest.approx(1e3 / r["ms_per_frame"])
+    assert r["raycast_ms"] > 0 and 1 <= r["iterations_mean"] <= 5
+    assert r["joint_error_mm"] < 30 and r["working_pixels"] > 500
+
+
 def test_tracker_is_timed_on_a_recording(tmp_path):
     rec = _recording(tmp_path / "walk")
     r = benchmark_recording(rec, frames=3)
     assert r["frames"] == 3 and r["ms_per_frame"] > 0
     assert 1 <= r["iterations_mean"] <= 5 and r["working_pixels"] > 500
-    rows = bench_recordings(tmp_path, "cpu")
+    rows = recording_rows(tmp_path, "cpu")
     assert len(rows) == 1 and rows[0][0].endswith("walk") and "frames/s" in rows[0][2]
 
 
@@ -47,21 +56,10 @@ def test_a_recording_without_ground_truth_is_refused(tmp_path):
     rec = _recording(tmp_path / "bare", truth=False)
     with pytest.raises(RecordingError, match="groundtruth"):
         benchmark_recording(rec, frames=2)
-    assert bench_recordings(tmp_path, "cpu") == []  # skipped by the folder scan
-
-
-def test_bench_refuses_a_missing_recordings_folder(tmp_path, capsys):
-    from runtime.bench import main
-
-    with pytest.raises(SystemExit) as exit_info:
-        main(["--recordings", str(tmp_path / "nowhere")])
-    assert exit_info.value.code == 2
-    assert "no such folder" in capsys.readouterr().err
+    assert recording_rows(tmp_path, "cpu") == []  # skipped by the folder scan
 
 
 def test_collision_cost_is_a_ratio_against_the_step_without_it():
-    from runtime.bench import collision_cost
-
     what, ms, note = collision_cost("cpu", rounds=1, frames=3)
     assert "collision" in what and ms > 0
     ratio = float(note.split(" of the step")[0])
@@ -69,8 +67,6 @@ def test_collision_cost_is_a_ratio_against_the_step_without_it():
 
 
 def test_joint_support_cost_is_a_ratio_against_a_tracker_step():
-    from runtime.bench import joint_support_cost
-
     what, ms, note = joint_support_cost("cpu", repeats=2)
     assert "observed-joint" in what and ms > 0
     ratio = float(note.split(" of a tracker step")[0])

@@ -1,0 +1,5 @@
+"""``python -m bench``: the same as ``runtime-bench`` / ``make bench``'s speed half."""
+
+from .cli import main
+
+main()

@@ -1,0 +1,102 @@
+"""``make bench`` / ``runtime-bench``: speed figures of the runtime's hot paths, printed, never
+asserted.
+
+Each figure is the median over repeats after a warm-up (:mod:`bench.timing`); ratios compare
+against a baseline measured in the same run, because these machines are noisy.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import torch
+
+from .kinematics import kinematics_rows
+
+__all__ = ["main"]
+
+
+def _print_rows(rows: list[tuple[str, float, str]]) -> None:
+    for what, ms, note in rows:
+        print(f"  {what:<45s} {ms:9.3f} ms  {note}")
+
+
+def _print_segmentation() -> None:
+    from .segmentation import benchmark_segmentation
+
+    seg = benchmark_segmentation()
+    print("\n== person segmentation (CPU, numpy/OpenCV), 320x240 demo frames ==")
+    print(f"  {'segment_person, one frame':<45s} {seg['segment_person_ms']:9.3f} ms")
+
+
+def _print_forest(threads: int) -> None:
+    from .forest import benchmark_forest
+
+    fr = benchmark_forest(threads=threads)
+    if not fr:
+        return
+    print(
+        f"\n== forest inference (models/forest.npz: {fr['trees']:.0f} trees, depth "
+        f"{fr['depth']:.0f}), {fr['pixels']:.0f} person pixels of a 320x240 frame =="
+    )
+    for key, what in (
+        ("torch_cpu_ms", "torch CPU, every person pixel"),
+        ("torch_cpu_stride2_ms", "torch CPU, every 2nd pixel (detector)"),
+        ("onnxruntime_ms", "onnxruntime CPU, every person pixel"),
+    ):
+        if key in fr:
+            print(f"  {what:<45s} {fr[key]:9.3f} ms  target <= 10 ms")
+    if "torch_cpu_smoothed_ms" in fr:
+        ratio = fr["torch_cpu_smoothed_ms"] / fr["torch_cpu_ms"]
+        print(
+            f"  {'torch CPU, 5x5 smoothed (detector, hybrid)':<45s} "
+            f"{fr['torch_cpu_smoothed_ms']:9.3f} ms  {ratio:.2f} of the raw forest's"
+        )
+
+
+def _print_tracker(device: str, name: str) -> None:
+    from .tracker import tracker_rows
+    from .tracker_terms import collision_cost, joint_support_cost
+
+    print(f"\n== tracker on {name} (cylinder-model walk, 320x240 in; working resolution ==")
+    print("   and window from the person's size)")
+    _print_rows(tracker_rows(device) + [collision_cost(device), joint_support_cost(device)])
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--batch", type=int, default=1000, help="poses per FK call")
+    parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    parser.add_argument("--device", default="cpu", choices=["cpu", "cuda", "all"])
+    parser.add_argument(
+        "--recordings",
+        type=Path,
+        help="also time the tracker on each recording with ground truth in this folder "
+        "(make dev-recordings: anny bodies and sensor noise)",
+    )
+    args = parser.parse_args(argv)
+    if args.recordings is not None and not args.recordings.is_dir():
+        parser.error(f"--recordings {args.recordings}: no such folder")
+    torch.set_num_threads(args.threads)
+    devices = ["cpu", "cuda"] if args.device == "all" else [args.device]
+    devices = [d for d in devices if d == "cpu" or torch.cuda.is_available()]
+    print(f"torch {torch.__version__}, {args.threads} CPU threads")
+    for dev in devices:
+        name = torch.cuda.get_device_name() if dev == "cuda" else "CPU"
+        print(f"\n== kinematics on {name} ==")
+        _print_rows(kinematics_rows(args.batch, dev))
+        if dev == "cpu":
+            _print_segmentation()
+            _print_forest(args.threads)
+        _print_tracker(dev, name)
+        if args.recordings is not None:
+            from .tracker import recording_rows
+
+            where = f"recordings in {args.recordings}"
+            print(f"\n== tracker on {name}, {where} (ground-truth start) ==")
+            _print_rows(recording_rows(args.recordings, dev))
+
+
+if __name__ == "__main__":
+    main()
