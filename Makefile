@@ -15,14 +15,14 @@ $(SETUP_STAMP): pyproject.toml scripts/setup.sh
 
 DEMO := out/demo
 demo: $(SETUP_STAMP) ## set up if needed; render a person, personalize their body, track, evaluate
-	$(PY) -m train.synth_cli --sequence --motion wave --frames 120 --seed 1 --overwrite \
+	$(PY) -m train.synth.cli --sequence --motion wave --frames 120 --seed 1 --overwrite \
 		--quiet --out $(DEMO)/recording
-	$(PY) -m train.personalize_views --out $(DEMO)/views --phenotype-from $(DEMO)/recording \
+	$(PY) -m train.synth.calibration_views --out $(DEMO)/views --phenotype-from $(DEMO)/recording \
 		--seed 7 --overwrite
 	$(PY) -m runtime.personalize_cli --input $(DEMO)/views --output $(DEMO)/body.json
 	$(PY) -m runtime.track_cli --input $(DEMO)/recording --output $(DEMO)/result \
 		--mode hybrid --config configs/hybrid.yaml --body $(DEMO)/body.json --save-overlays
-	$(PY) -m train.eval_cli --recording $(DEMO)/recording --result $(DEMO)/result \
+	$(PY) -m train.evaluation.cli --recording $(DEMO)/recording --result $(DEMO)/result \
 		--json $(DEMO)/metrics.json
 	@echo "demo outputs: $(DEMO)/result (poses.jsonl, motion.bvh, summary.json, overlays/),"
 	@echo "  metrics $(DEMO)/metrics.json, plot $(DEMO)/result/evaluation.png"
@@ -40,19 +40,19 @@ format: $(SETUP_STAMP)
 	$(PY) -m ruff check --fix .
 
 synth: $(SETUP_STAMP) ## the ~20k-frame training set into data/synth (resumable)
-	$(PY) -m train.synth_cli --config configs/synth.yaml --out data/synth
+	$(PY) -m train.synth.cli --config configs/synth.yaml --out data/synth
 
 dev-recordings: $(SETUP_STAMP) ## evaluation recordings from the HDM05 dev clips into data/dev
-	$(PY) -m train.dev_recordings --out data/dev
+	$(PY) -m train.evaluation.dev_recordings --out data/dev
 
 dev-recordings-all: $(SETUP_STAMP) ## every tracked dev take (39 clips, 2,433 frames) into data/dev_all, data/dev_all_calib
-	$(PY) -m train.dev_recordings --all-clips --out data/dev_all
+	$(PY) -m train.evaluation.dev_recordings --all-clips --out data/dev_all
 
 train-forest: $(SETUP_STAMP) ## the body-part forest from data/synth into models/forest.npz
 	$(PY) -m train.forest.train_cli --data data/synth --out models/forest.npz --config configs/forest.yaml
 
 synth-calib: $(SETUP_STAMP) ## the calibration-pose training set (T-pose only) into data/synth_calib
-	$(PY) -m train.synth_cli --config configs/synth_calib.yaml --out data/synth_calib
+	$(PY) -m train.synth.cli --config configs/synth_calib.yaml --out data/synth_calib
 
 train-forest-calib: $(SETUP_STAMP) ## the calibration forest from data/synth_calib into models/
 	$(PY) -m train.forest.train_cli --data data/synth_calib --out models/forest_calib.npz \
@@ -63,7 +63,7 @@ train-forest-eval: $(SETUP_STAMP) ## accuracy of models/forest.npz on the dev re
 
 bench: $(SETUP_STAMP) ## speed figures, then the accuracy table on data/dev (printed, never asserted)
 	$(PY) -m bench $(if $(wildcard data/dev),--recordings data/dev,)
-	@if [ -d data/dev ]; then $(PY) -m train.dev_benchmark --recordings data/dev; \
+	@if [ -d data/dev ]; then $(PY) -m train.evaluation.dev_benchmark --recordings data/dev; \
 	else echo "accuracy table skipped: no data/dev (run make dev-recordings)"; fi
 
 clean:

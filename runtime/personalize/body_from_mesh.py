@@ -2,8 +2,9 @@
 
 The measurement itself is :func:`shared.body_from_mesh.body_from_mesh` (lengths, section radii
 and centre offsets, extents), the same one that gives synthetic recordings their ground-truth
-body; this module supplies the named joints, defined on anny's bones as
-``train.anny_body.anatomical_joints`` defines them (head = middle of the Head bone, neck = Neck
+body; this module supplies the named joints, defined on anny's bones by the recipes of
+:data:`shared.anny_rig.JOINT_RECIPES` that synthesis uses too
+(``train.bodies.measurements.anatomical_joints``: head = middle of the Head bone, neck = Neck
 head, spine = Spine head, shoulder/elbow/wrist = Arm/ForeArm/Hand heads, hip/knee/ankle =
 UpLeg/Leg/Foot heads), so that the tracker's named joints land on the same anatomical points.
 """
@@ -14,6 +15,7 @@ import numpy as np
 import torch
 
 from shared import skeleton as sk
+from shared.anny_rig import JOINT_RECIPES
 from shared.body import BodyShape
 from shared.body_from_mesh import body_from_mesh
 
@@ -21,27 +23,15 @@ from .shape_model import RestShape, ShapeModel
 
 __all__ = ["named_joints_from_bones", "posed_shoulders", "body_from_rest"]
 
-# Named joint -> (bone, end) pairs averaged; "head" is the middle of the Head bone.
-_JOINT_BONES: dict[str, tuple[tuple[str, str], ...]] = {
-    "head": (("Head", "head"), ("Head", "tail")),
-    "neck": (("Neck", "head"),),
-    "spine": (("Spine", "head"),),
-    "pelvis": (("LeftUpLeg", "head"), ("RightUpLeg", "head")),
-    **{f"{s}_{j}": ((f"{side}{b}", "head"),)
-       for s, side in (("l", "Left"), ("r", "Right"))
-       for j, b in (("shoulder", "Arm"), ("elbow", "ForeArm"), ("wrist", "Hand"),
-                    ("hip", "UpLeg"), ("knee", "Leg"), ("ankle", "Foot"))},
-}  # fmt: skip
-
 
 def named_joints_from_bones(model: ShapeModel, rest: RestShape) -> np.ndarray:
     """(16, 3) named joints (``shared.skeleton.JOINT_NAMES`` order) of a batch-1 rest body."""
     heads, tails = rest.heads[0].detach().numpy(), rest.tails[0].detach().numpy()
     out = np.zeros((len(sk.JOINT_NAMES), 3))
     for j, name in enumerate(sk.JOINT_NAMES):
-        ends = _JOINT_BONES[name]
-        out[j] = np.mean(
-            [(heads if end == "head" else tails)[model.bone_names.index(b)] for b, end in ends], 0
+        out[j] = sum(
+            w * (heads if end == "head" else tails)[model.bone_names.index(b)]
+            for b, end, w in JOINT_RECIPES[name]
         )
     return out
 
@@ -55,7 +45,7 @@ def posed_shoulders(model: ShapeModel, rest: RestShape) -> np.ndarray:
     none = torch.zeros(0, dtype=torch.long)
     _, posed = model.pose(RestShape(rest.vertices[:1, :0], heads, tails), rotations,
                           heads.new_zeros(1, 3), none)  # fmt: skip
-    bones = [model.bone_names.index(_JOINT_BONES[f"{s}_shoulder"][0][0]) for s in "lr"]
+    bones = [model.bone_names.index(JOINT_RECIPES[f"{s}_shoulder"][0][0]) for s in "lr"]
     return posed[0, bones].numpy()
 
 

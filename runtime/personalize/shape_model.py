@@ -12,10 +12,11 @@ scanned population, rigged with a skeleton and posed by linear blend skinning (L
   is not evaluated) and stored as a small ``.npz`` under ``.cache/personalize/``; coefficients
   are in units of one population standard deviation.
 * **Rest mesh** = anny template + phenotype blendshapes + local basis, in our body frame
-  (x = the person's left, y = up, z = forward, origin at the hip centre; ``ANNY_TO_BODY``).
+  (x = the person's left, y = up, z = forward, origin at the hip centre; ``ANNY_TO_BODY``,
+  with the other anny facts in :mod:`shared.anny_rig`).
   Bone heads and tails follow the same linear model, so the skeleton moves with the shape.
 * **Pose**: the 34-DoF tracking skeleton q of :mod:`shared.skeleton` drives the mesh, as in
-  ``train.body_posing.pose_anny``: every anny bone takes the world rotation of its skeleton
+  ``train.bodies.posing.pose_anny``: every anny bone takes the world rotation of its skeleton
   segment; arm-chain bones first get a fixed rotation turning their A-pose rest direction onto
   the segment axis (so q = 0 means arms hanging down). Poses are then directly comparable
   with the ground truth of synthetic recordings and with the tracker's q.
@@ -34,6 +35,16 @@ import numpy as np
 import torch
 
 from shared import skeleton as sk
+from shared.anny_rig import (
+    ANNY_TO_BODY,
+    DEFAULT_RIG,
+    HIP_BONES,
+    PHENOTYPE_KEYS,
+    SAFE_HEIGHT_RANGE,
+    SEGMENT_BONES,
+    export_cache_dir,
+    is_forbidden_topology,
+)
 from shared.body import BodyShape
 from shared.kinematics import forward_kinematics
 
@@ -52,32 +63,11 @@ __all__ = [
 ]
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
-PHENOTYPE_KEYS: tuple[str, ...] = ("gender", "age", "muscle", "weight", "height", "proportions")
 # Search box of the fit: adults (anny age 2/3 = young adult, 1 = old) and the heights whose
 # knee stays on the mesh.
 PHENOTYPE_BOUNDS = np.array(
-    [[0.0, 1.0], [0.6, 1.0], [0.0, 1.0], [0.0, 1.0], [0.2, 0.8], [0.0, 1.0]]
+    [[0.0, 1.0], [0.6, 1.0], [0.0, 1.0], [0.0, 1.0], list(SAFE_HEIGHT_RANGE), [0.0, 1.0]]
 )
-# anny frame (X = left, Y = backward, Z = up) -> body frame (x = left, y = up, z = forward).
-ANNY_TO_BODY = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
-# cmu_mb bones of each tracking-skeleton segment (forearms carry the hand, shanks the foot).
-SEGMENT_BONES: dict[str, tuple[str, ...]] = {
-    "pelvis": ("Hips", "LHipJoint", "RHipJoint"),
-    "abdomen": ("LowerBack",),
-    "chest": ("Spine", "Spine1"),
-    "neck": ("Neck", "Neck1"),
-    "head": ("Head",),
-    "l_clavicle": ("LeftShoulder",),
-    "r_clavicle": ("RightShoulder",),
-    "l_upper_arm": ("LeftArm",),
-    "r_upper_arm": ("RightArm",),
-    "l_forearm": ("LeftForeArm", "LeftHand", "LThumb", "LeftFingerBase", "LeftHandFinger1"),
-    "r_forearm": ("RightForeArm", "RightHand", "RThumb", "RightFingerBase", "RightHandFinger1"),
-    "l_thigh": ("LeftUpLeg",),
-    "r_thigh": ("RightUpLeg",),
-    "l_shank": ("LeftLeg", "LeftFoot", "LeftToeBase"),
-    "r_shank": ("RightLeg", "RightFoot", "RightToeBase"),
-}
 _ARM_SEGMENTS = ("l_clavicle", "r_clavicle", "l_upper_arm", "r_upper_arm", "l_forearm", "r_forearm")
 # Local-change sliders of the face and head: not part of the body basis.
 _FACE_PREFIXES = (
@@ -114,8 +104,7 @@ def default_basis_path(topology: str = "anny") -> Path:
 
 
 def _import_anny(cache_dir: Path | None) -> Any:
-    cache = cache_dir or Path(os.environ.get("ANNY_CACHE_DIR", REPO_ROOT / ".cache" / "anny"))
-    os.environ.setdefault("ANNY_CACHE_DIR", str(cache))
+    cache = export_cache_dir(cache_dir)
     try:
         import anny
         import anny.paths
@@ -128,12 +117,12 @@ def _import_anny(cache_dir: Path | None) -> Any:
 
 
 def _anny_model(topology: str, local_changes: str, cache_dir: Path | None) -> Any:
-    if topology.split("-")[0] in ("smpl", "smplx"):
+    if is_forbidden_topology(topology):
         raise AnnyUnavailableError(f"topology {topology!r} downloads non-free data; use 'anny'")
     anny = _import_anny(cache_dir)
     kwargs = {"phenotype_blendshapes": "original"} if local_changes != "none" else {}
     model = anny.Anny(
-        rig="cmu_mb",
+        rig=DEFAULT_RIG,
         topology=topology,
         local_changes=local_changes,
         skinning_method="lbs",
@@ -184,7 +173,7 @@ def build_local_basis(
     offsets = np.einsum("sk,kpc->spc", weights, targets)
     names = list(model.bone_labels)
     nv, nb = verts.shape[1], heads.shape[1]
-    hips = [nv + names.index("LeftUpLeg"), nv + names.index("RightUpLeg")]
+    hips = [nv + names.index(b) for b in HIP_BONES]
     offsets = offsets - offsets[:, hips].mean(1, keepdims=True)
     flat = offsets.reshape(samples, -1)
     gram = flat @ flat.T
@@ -271,7 +260,7 @@ class ShapeModel:
         self.dense_weights = torch.zeros(len(w), nb, dtype=torch.float64).scatter_add_(
             1, self.skin_bones, self.skin_weights
         )  # (V, nb)
-        self._hips = (self.bone_names.index("LeftUpLeg"), self.bone_names.index("RightUpLeg"))
+        self._hips = tuple(self.bone_names.index(b) for b in HIP_BONES)
         seg_of_bone = {b: s for s, bones in SEGMENT_BONES.items() for b in bones}
         self.bone_segment = torch.tensor(
             [sk.SEGMENT_NAMES.index(seg_of_bone[n]) for n in self.bone_names], dtype=torch.long

@@ -2,8 +2,10 @@
 
 A default-sized body (the tracker's own cylinder model, :mod:`runtime.raycast`) performs the
 procedural motions of :mod:`shared.procedural_motion` (wave, squat, kick, arm crossing, walk)
-2.6 m in front of a level camera 1.0 m above a floor. Depth gets the Kinect v1 character the
-runtime must cope with: disparity-quantized, noise growing with z squared, the floor in view.
+2.6 m in front of a level camera 1.0 m above a floor. Depth goes through the same Kinect v1
+sensor model as the synthetic recordings (:mod:`shared.sensor_noise`): disparity-quantized,
+noise growing with z squared, projector shadows, grazing-angle dropout, holes and ragged
+silhouettes, the floor in view.
 The stream carries its ground truth (:attr:`DemoStream.groundtruth`), so the tracker alone can be
 started from it and the result evaluated.
 """
@@ -17,9 +19,16 @@ import torch
 
 from shared import skeleton as sk
 from shared.body import BodyShape
-from shared.camera import Intrinsics, pixel_grid
+from shared.camera import Intrinsics
 from shared.kinematics import forward_kinematics, named_joint_positions, transform_pose
 from shared.procedural_motion import ground_poses, motion_poses
+from shared.sensor_noise import (
+    BackgroundConfig,
+    BackgroundScene,
+    KinectNoiseConfig,
+    add_floor_and_background,
+    apply_kinect_noise,
+)
 
 from .base import ALL_FRAMES, DepthFrame, DepthStream, FrameRange
 
@@ -29,9 +38,9 @@ DEMO_MOTIONS = ("wave", "squat", "arm_cross", "kick", "walk")
 _SECONDS_PER_MOTION = 2.0
 _CAMERA_HEIGHT = 1.0  # metres above the floor
 _DISTANCE = 2.6  # person's root from the camera, metres
-# Kinect v1 (DESIGN.md facts): disparity step and random error, both growing with z^2.
-_QUANT_PER_Z2 = 2.9e-3
-_SIGMA_PER_Z2 = 1.5e-3
+# The scene: the floor only (no wall, no boxes), cut off 8 m from the camera.
+_SCENE = BackgroundScene(wall_distance=None)
+_SCENE_CONFIG = BackgroundConfig(max_distance_m=8.0)
 
 
 def demo_poses(fps: float, seed: int = 0) -> np.ndarray:
@@ -58,23 +67,6 @@ def _camera_from_world() -> tuple[torch.Tensor, torch.Tensor]:
     rot = torch.diag(torch.tensor([1.0, -1.0, -1.0], dtype=torch.float64))
     trans = torch.tensor([0.0, _CAMERA_HEIGHT, _DISTANCE], dtype=torch.float64)
     return rot, trans
-
-
-def _floor_depth(intr: Intrinsics, like: torch.Tensor) -> torch.Tensor:
-    """Depth (H, W) of the floor plane y_cam = camera height; 0 above the horizon."""
-    _, v = pixel_grid(intr.height, intr.width, dtype=like.dtype, device=like.device)
-    ray_y = (v - intr.cy) / intr.fy
-    z = _CAMERA_HEIGHT / ray_y.clamp_min(1e-6)
-    return torch.where((ray_y > 1e-6) & (z < 8.0), z, torch.zeros_like(z))
-
-
-def kinect_like(depth_m: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
-    """Quantize and perturb clean depth (B, H, W) metres like a Kinect v1; 0 stays 0."""
-    z = depth_m
-    noisy = z + _SIGMA_PER_Z2 * z * z * torch.randn(z.shape, generator=generator, dtype=z.dtype)
-    step = _QUANT_PER_Z2 * z * z
-    noisy = torch.round(noisy / step.clamp_min(1e-6)) * step
-    return torch.where(z > 0, noisy, torch.zeros_like(z))
 
 
 class DemoStream(DepthStream):
@@ -116,21 +108,22 @@ class DemoStream(DepthStream):
     def __iter__(self) -> Iterator[DepthFrame]:
         from runtime.raycast import render_body_depth
 
-        gen = torch.Generator().manual_seed(self._seed)
+        rng = np.random.default_rng(self._seed)
+        sensor = KinectNoiseConfig()
+        intr = self._intrinsics
         body = self.body.to(torch.float32)
-        floor = None
         idx = list(self._range)
         for start in range(0, len(idx), 16):
             chunk = idx[start : start + 16]
             q = self._q[chunk].to(torch.float32)
-            depth = render_body_depth(q, body, self._intrinsics)
-            if floor is None:
-                floor = _floor_depth(self._intrinsics, depth)
-            nearer = (floor > 0) & ((depth == 0) | (floor < depth))
-            depth = torch.where(nearer, floor.expand_as(depth), depth)
-            depth_mm = (kinect_like(depth, gen) * 1000.0).round().clamp(0, 65535)
-            for i, d in zip(chunk, depth_mm.to(torch.int32).numpy().astype(np.uint16)):
-                yield DepthFrame(i, i / self._fps, d, self._intrinsics)
+            depth = render_body_depth(q, body, intr).numpy()
+            for i, d in zip(chunk, depth):
+                # Level camera (pitch 0): the floor lies _CAMERA_HEIGHT below it.
+                scene, _ = add_floor_and_background(
+                    d, None, intr, _CAMERA_HEIGHT, 0.0, cfg=_SCENE_CONFIG, scene=_SCENE
+                )
+                depth_mm, _ = apply_kinect_noise(scene, None, intr, sensor, rng)
+                yield DepthFrame(i, i / self._fps, depth_mm, intr)
 
 
 def open_demo_stream(

@@ -164,7 +164,7 @@ def test_cli_errors(tmp_path, capsys):
 
 
 def test_shipped_template_is_the_cli_default():
-    """configs/body_template.json (python -m train.template_body) loads and has anny's
+    """configs/body_template.json (python -m train.bodies.template_body) loads and has anny's
     proportions: a chest (top of the lumbar spine to the base of the neck) of some 30 cm."""
     from runtime.calibrate_cli import DEFAULT_TEMPLATE, build_parser
 

@@ -17,7 +17,7 @@ from train.forest.config import ForestConfig
 from train.forest.onnx_export import embedded_graph, export_onnx
 from train.forest.predict import predict_posteriors
 from train.forest.trainer import train_forest
-from train.trainset import Shard, TrainSet, write_manifest, write_shard
+from train.synth.trainset import Shard, TrainSet, write_manifest, write_shard
 
 INTR = Intrinsics(80, 60, 62.0, 62.0, 39.5, 29.5)
 

@@ -1,5 +1,5 @@
 """Personalization (runtime.personalize, runtime-personalize): the anny shape model against
-train.anny_body, the pose Jacobian against finite differences, recovery of a known shape from
+train.bodies.anny_body, the pose Jacobian against finite differences, recovery of a known shape from
 noise-free views, the body measured on the mesh, and clear errors on bad inputs.
 
 Tests needing anny skip without it; the shape fit itself is marked slow (about 5 s).
@@ -32,7 +32,7 @@ def model():
 @pytest.fixture(scope="module")
 def gt_body():
     pytest.importorskip("anny")
-    from train.anny_body import make_body
+    from train.bodies.anny_body import make_body
 
     return make_body(PHEN)
 
@@ -57,7 +57,7 @@ def _views_q() -> np.ndarray:
 
 
 def test_rest_and_pose_match_train_anny_body(model, gt_body):
-    from train.body_posing import pose_anny
+    from train.bodies.posing import pose_anny
 
     rest = model.rest(_phen(PHEN))
     np.testing.assert_allclose(rest.vertices[0].numpy(), gt_body.vertices, atol=1e-9)
@@ -120,7 +120,7 @@ def test_pose_jacobian_matches_finite_differences(model):
 
 def test_body_from_rest_matches_ground_truth_skeleton(model, gt_body):
     from runtime.personalize.body_from_mesh import body_from_rest
-    from train.body_posing import skeleton_body_of
+    from train.bodies.posing import skeleton_body_of
 
     body = body_from_rest(model, model.rest(_phen(PHEN)))
     ref = skeleton_body_of(gt_body)
@@ -134,8 +134,8 @@ def test_body_from_rest_matches_ground_truth_skeleton(model, gt_body):
 def _visible_points(model, q: np.ndarray) -> list[torch.Tensor]:
     from runtime.personalize.fit import _visible
     from runtime.personalize.shape_model import vertex_normals
-    from train.anny_body import make_body
-    from train.body_posing import pose_anny
+    from train.bodies.anny_body import make_body
+    from train.bodies.posing import pose_anny
 
     posed = torch.tensor(pose_anny(make_body(PHEN), q).vertices)
     normals = vertex_normals(posed, model.faces)
@@ -231,3 +231,15 @@ def test_cli_missing_anny(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(sm, "load_shape_model", no_anny)
     assert _run(["--input", str(tmp_path), "--output", str(tmp_path / "b.json")]) == 2
     assert "pip install 'depthmocap[personalize]'" in capsys.readouterr().err
+
+
+def test_anny_users_share_these_tables():
+    """Personalization and synthesis read the same anny facts (shared.anny_rig), not copies."""
+    from runtime.personalize import shape_model
+    from shared import anny_rig as rig
+    from train.bodies import anny_body
+
+    assert shape_model.SEGMENT_BONES is rig.SEGMENT_BONES
+    assert shape_model.ANNY_TO_BODY is rig.ANNY_TO_BODY
+    assert anny_body.BONE_SEGMENT is rig.BONE_SEGMENT
+    assert anny_body.PHENOTYPE_KEYS is shape_model.PHENOTYPE_KEYS

@@ -189,6 +189,33 @@ def test_demo_dispatch():
     assert got[0].depth_mm.shape == (s.intrinsics.height, s.intrinsics.width)
 
 
+def test_demo_depth_has_the_kinect_sensor_model():
+    """The demo's depth goes through shared.sensor_noise: readings on disparity steps, within the
+    sensor's range, the floor below the person, missing readings where a clean render would have
+    floor or body, and the same frames on every run."""
+    pytest.importorskip("runtime.streams.demo", reason="the demo stream is not written yet")
+    from runtime.streams.demo import DemoStream
+    from shared.sensor_noise import KinectNoiseConfig, quantize_depth
+
+    first = list(DemoStream(frame_range=FrameRange(0, 2)))
+    again = list(DemoStream(frame_range=FrameRange(0, 2)))
+    assert all(np.array_equal(a.depth_mm, b.depth_mm) for a, b in zip(first, again))
+    depth = first[0].depth_mm
+    z = depth[depth > 0] / 1000.0
+    # A reading re-quantized stays put (up to the millimetre rounding of the output).
+    assert np.abs(quantize_depth(z) - z).max() <= 0.6e-3
+    cfg = KinectNoiseConfig()
+    assert cfg.min_depth_m <= z.min() and z.max() <= cfg.max_depth_m
+    h, w = depth.shape
+    # The person stands 2.6 m away in the image centre; the nearest floor fills the bottom row.
+    centre = depth[h // 2 - 5 : h // 2 + 5, w // 2 - 3 : w // 2 + 3] / 1000.0
+    assert np.all(np.abs(centre - 2.5) < 0.2)
+    assert (depth[-1] > 0).mean() > 0.9
+    # Below row 200 every clean pixel is floor or body within range: zeros there are the sensor
+    # model's shadows, holes and ragged edges (the old noise-only model had none).
+    assert (depth[200:] == 0).sum() > 0
+
+
 def test_demo_missing_is_a_clean_error(monkeypatch):
     monkeypatch.setitem(sys.modules, "runtime.streams.demo", None)  # import fails
     with pytest.raises(StreamError, match="demo sequence is not available"):

@@ -2,7 +2,7 @@
 
 :mod:`.metrics` holds the pure metric functions and their definitions, :mod:`.result_io`
 reads a result directory, :mod:`.evaluate` matches it with a recording's ground truth,
-:mod:`.plot` draws the figure; ``train-eval`` (:mod:`train.eval_cli`) ties them together.
+:mod:`.plot` draws the figure; ``train-eval`` (:mod:`train.evaluation.cli`) ties them together.
 """
 
 from .evaluate import EvalConfig, Evaluation, EvaluationError, evaluate

@@ -52,7 +52,7 @@ def labelled_batches(
     """Batches of (depth (B, H, W) uint16 mm, labels (B, H, W) uint8, intrinsics)."""
     path = Path(path)
     if (path / "manifest.json").is_file():
-        from train.trainset import TrainSet
+        from train.synth.trainset import TrainSet
 
         ts = TrainSet(path)
 

@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
         preset = PRESETS[args.preset] if args.preset else args.config
         cfg = config_from_args(ForestConfig, args, load_config(ForestConfig, preset))
         cfg.validate()
-        from train.trainset import TrainSet
+        from train.synth.trainset import TrainSet
 
         from .evaluate import evaluate_forest, save_confusion_png
         from .onnx_export import embedded_graph, export_onnx

@@ -242,7 +242,7 @@ def _limited(trainset, max_frames: int | None):
 
 
 def train_forest(trainset, cfg: ForestConfig, log=print, max_frames: int | None = None) -> Forest:
-    """Train a forest on a :class:`train.trainset.TrainSet` (see module docstring).
+    """Train a forest on a :class:`train.synth.trainset.TrainSet` (see module docstring).
 
     ``max_frames`` trains on the first frames only (quick runs, timing extrapolation).
     """

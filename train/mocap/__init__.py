@@ -1,6 +1,7 @@
 """Motion capture file readers (BVH, ASF/AMC) producing global joint poses in metres."""
 
-from .asf_amc import AsfBone, AsfSkeleton, read_amc, read_asf
+from .amc import read_amc
+from .asf import AsfBone, AsfSkeleton, read_asf
 from .bvh import UNIT_SCALES, read_bvh
 from .clip import MotionClip, axis_rotation, euler_to_matrix, forward_kinematics
 

@@ -1,0 +1,74 @@
+"""Kinect v1 depth measurement: disparity quantization and disparity-space noise.
+
+The sensor measures disparity ``d = f b / z`` in ``1/8`` pixel steps with a roughly constant
+random error, so both the depth step and the depth noise grow as ``z^2`` (the facts and their
+sources: :mod:`shared.sensor_noise.kinect`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["add_disparity_noise", "quantize_depth"]
+
+
+def quantize_depth(
+    depth: np.ndarray, focal_px: float = 580.0, baseline_m: float = 0.075, steps: int = 8
+) -> np.ndarray:
+    """Depth as the sensor reports it after rounding the disparity to ``1/steps`` pixel.
+
+    Args:
+        depth: (H, W) float metres, 0 = no reading.
+        focal_px: focal length the disparity is measured with (native 640 px sensor).
+    Returns:
+        (H, W) float32 metres, 0 where ``depth`` was 0. Step ``z^2 / (steps f b)``.
+    """
+    z = np.asarray(depth, dtype=np.float32)
+    valid = z > 0
+    fb = np.float32(focal_px * baseline_m)
+    d = fb / np.where(valid, z, np.float32(1.0))
+    dq = np.round(d * np.float32(steps)) / np.float32(steps)
+    # A disparity that rounds to 0 would mean infinite depth: no reading.
+    ok = valid & (dq > 0)
+    return np.where(ok, fb / np.where(ok, dq, np.float32(1.0)), np.float32(0.0))
+
+
+def _correlated_normal(shape: tuple[int, int], fraction: float, rng: np.random.Generator):
+    """(H, W) float32 standard normal field: ``fraction`` of the variance shared by 2x2 blocks."""
+    h, w = shape
+    out = rng.standard_normal(shape, dtype=np.float32)
+    if fraction <= 0:
+        return out
+    coarse = rng.standard_normal(((h + 1) // 2, (w + 1) // 2), dtype=np.float32)
+    coarse = np.repeat(np.repeat(coarse, 2, axis=0), 2, axis=1)[:h, :w]
+    # Mixing with sqrt weights keeps the per-pixel variance at exactly 1.
+    return np.float32(math.sqrt(1.0 - fraction)) * out + np.float32(math.sqrt(fraction)) * coarse
+
+
+def add_disparity_noise(
+    depth: np.ndarray,
+    k: float,
+    rng: np.random.Generator,
+    focal_px: float = 580.0,
+    baseline_m: float = 0.075,
+    correlated_fraction: float = 0.0,
+) -> np.ndarray:
+    """Add Gaussian disparity noise with ``sigma_d = k f b`` px, i.e. ``sigma_z ~ k z^2`` m.
+
+    Args:
+        depth: (H, W) float metres, 0 = no reading (kept 0).
+        k: depth noise coefficient in 1/m.
+    Returns:
+        (H, W) float32 metres; a disparity pushed to <= 0 (never at Kinect ranges) reads 0.
+    """
+    z = np.asarray(depth, dtype=np.float32)
+    valid = z > 0
+    fb = np.float32(focal_px * baseline_m)
+    d = fb / np.where(valid, z, np.float32(1.0))
+    d = d + np.float32(k * focal_px * baseline_m) * _correlated_normal(
+        z.shape, correlated_fraction, rng
+    )
+    ok = valid & (d > 0)
+    return np.where(ok, fb / np.where(ok, d, np.float32(1.0)), np.float32(0.0))

@@ -1,0 +1,125 @@
+"""The dev benchmark's table rows."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from train.evaluation.dev_benchmark import (
+    HEADER,
+    body_file,
+    body_length_reports,
+    format_failures,
+    format_row,
+    main,
+    mean_of_runs,
+)
+
+
+def test_rows_match_the_header_and_detector_modes_have_no_tracking_failure():
+    agg = {"mean_joint_error_mm": 36.1, "precision_10cm": 0.963, "tracking_failure_pct": 2.0,
+           "detector_frames_pct": 3.9, "system_failure_pct": 7.2}  # fmt: skip
+    columns = HEADER.splitlines()[0].count("|")
+    hybrid, detector = format_row("hybrid", agg), format_row("detector", agg)
+    assert hybrid.count("|") == detector.count("|") == columns
+    assert "| 36.1 |" in hybrid and "| 96.3% |" in hybrid and "| 2.0% | 3.9% | 7.2% |" in hybrid
+    assert "| (every frame) | 3.9% |" in detector and "2.0%" not in detector
+    assert "| n/a |" in hybrid  # missing metrics are marked, not invented
+
+
+def test_failure_lines_name_frames_and_worst_joints():
+    reports = {
+        "HDM_a": {"system_failure_frames": [
+            {"frame": 0, "worst_joint": "l_wrist", "error_mm": 312.4},
+            {"frame": 7, "worst_joint": None, "error_mm": None},
+        ]},
+        "HDM_b": {"system_failure_frames": []},
+        "HDM_c": {},  # a report from before the field existed
+    }  # fmt: skip
+    text = format_failures("hybrid", reports)
+    assert text.splitlines()[1:] == ["  HDM_a: 0 l_wrist 31 cm, 7 no pose"]
+    assert format_failures("hybrid", {"HDM_b": reports["HDM_b"]}).endswith("\n  none")
+
+
+def test_mean_of_runs_and_rows_of_runs():
+    a = {"mean_joint_error_mm": 34.0, "system_failure_pct": 1.1, "fps": None}
+    b = {"mean_joint_error_mm": 35.0, "system_failure_pct": 1.5, "fps": 12.0}
+    mean = mean_of_runs([a, b])
+    assert mean["mean_joint_error_mm"] == 34.5 and mean["system_failure_pct"] == 1.3
+    assert mean["fps"] is None and mean["precision_10cm"] is None  # missing in a run: no mean
+    # Rows of a run are named freely; the mode decides the tracking column.
+    assert "| 1.3% | n/a |" in format_row("hybrid, mean of 2", mean, "hybrid")
+    assert "(every frame)" in format_row("detector @ run 2", mean, "detector")
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--trust-regions", "0.2", "nan"], "--trust-regions must be positive radians"),
+        (["--trust-regions", "-0.1"], "--trust-regions must be positive radians"),
+        (["--mode-config", "no/such.yaml"], "--mode-config: no such file"),
+    ],
+)
+def test_bad_arguments_exit_2_before_running_anything(tmp_path, capsys, args, message):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--recordings", str(tmp_path), "--out", str(tmp_path / "out"), *args])
+    assert exit_info.value.code == 2 and message in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_ground_truth_labels_row_reads_each_recording_s_own_labels(tmp_path, monkeypatch):
+    import yaml
+
+    import train.evaluation.dev_benchmark as bench
+
+    commands = []
+    monkeypatch.setattr(bench, "_run", commands.append)
+    monkeypatch.setattr(bench, "evaluate", lambda rec, result: type("E", (), {"report": {}})())
+    rec, out = tmp_path / "HDM_a", tmp_path / "out" / "hybrid" / "HDM_a"
+    cfg = tmp_path / "hybrid.yaml"
+    cfg.write_text("epsilon1_cm: 3.0\ntracker:\n  use_labels: true\n")
+    bench.run_config(
+        "hybrid, ground-truth labels", rec, out, "forest.npz", "cpu", cfg, {"max_step_rad": 0.2}
+    )
+    cmd = commands[0]
+    written = yaml.safe_load(Path(cmd[cmd.index("--config") + 1]).read_text())
+    assert written["labels_from_recording"] == str(rec)
+    assert written["epsilon1_cm"] == 3.0  # the preset's other settings stay
+    assert written["tracker"] == {"use_labels": True, "max_step_rad": 0.2}
+
+
+def test_calibration_recordings_are_looked_up_beside_the_recordings_folder(tmp_path):
+    """data/dev_all's clips hold other bodies than data/dev's of the same name: each set's
+    calibration recordings live in its own OUT_calib folder."""
+    rec = tmp_path / "dev_all" / "HDM_mm_squat1Reps_037_120"
+    rec.mkdir(parents=True)
+    (tmp_path / "dev_calib" / rec.name).mkdir(parents=True)  # the other set's: not used
+    with pytest.raises(RuntimeError, match=r"dev_all_calib/HDM_mm_squat1Reps_037_120"):
+        body_file("calibrated", rec, tmp_path / "bodies", "forest.npz")
+
+
+def test_body_length_reports_compare_made_bodies_and_name_unreadable_ones(tmp_path):
+    import torch
+
+    from shared.body import BodyShape
+
+    body = BodyShape.default(torch.float64)
+    recs = [tmp_path / "recs" / n for n in ("HDM_a", "HDM_b", "HDM_c")]
+    for r in recs:
+        r.mkdir(parents=True)
+        body.save(r / "body.json")
+    bodies = tmp_path / "bodies"
+    for r, scale in ((recs[0], 1.0), (recs[1], 1.1)):  # HDM_c has no calibrated body
+        (bodies / "calibrated" / r.name).mkdir(parents=True)
+        body.scaled(scale).save(bodies / "calibrated" / r.name / "body.json")
+    reports = body_length_reports(bodies, recs, {"calibrated", "gt", "personalized"})
+    assert list(reports) == ["calibrated"]  # no personalized bodies were made; gt is no estimate
+    errors, text = reports["calibrated"]
+    assert errors["bodies"] == 2 and errors["per_body_cm"][0] == 0.0
+    assert errors["per_body_cm"][1] == pytest.approx(10 * float(body.lengths.mean()), abs=1e-3)
+    assert text.startswith("calibrated bodies (2): bone lengths")
+    # A corrupt reference body: named, and no exception (the runs' report is still written).
+    (recs[1] / "body.json").write_text("{broken")
+    errors, text = body_length_reports(bodies, recs, {"calibrated"})["calibrated"]
+    assert errors is None and "not compared" in text and "HDM_b" in text

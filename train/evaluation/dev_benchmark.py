@@ -1,0 +1,331 @@
+"""``python -m train.evaluation.dev_benchmark``: the accuracy table on the dev recordings
+(``make bench``).
+
+For every recording under ``--recordings`` (``make dev-recordings``) and every requested
+configuration, runs ``runtime-track`` in a subprocess (``train`` never imports ``runtime``),
+evaluates the result with :func:`train.evaluation.evaluate`, and prints one row per
+configuration averaged over the recordings (frame-weighted), as a Markdown table. Rows:
+
+- ``tracker`` (ground-truth start, ground-truth body), its ablations (``no occlusion``,
+  ``no silhouette``, ``no extra depth``) and ``tracker, default body``;
+- ``hybrid``, ``detector`` and ``shotton`` (no ground truth at run time; need the forest);
+  ``hybrid, calibrated body`` is Wei's whole system: the body from ``runtime-calibrate`` on
+  the same person's T-pose recording, the pose from the forest, no ground truth anywhere;
+  ``hybrid, ground-truth labels`` is a diagnostic, not a system: the recording's own part
+  labels instead of the forest's (what the forest's label errors cost).
+
+The tracker is chaotic where a limb is hidden: a small change anywhere moves a few frames of
+a far arm across the 20 cm system-failure line, so one run's system failure varies by about
+half a percent. ``--trust-regions 0.18 0.2 0.22`` runs every hybrid configuration once per
+tracker trust region (``max_step_rad``) and adds the runs' mean as a row of its own.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from shared.config import load_settings
+from train.evaluation.body_lengths import bone_length_errors, format_bone_length_errors
+from train.evaluation.evaluate import evaluate, format_failed_frames
+
+# name -> (mode, body, settings overriding the mode's config). Bodies: "gt" (the rendered
+# body's skeleton), "default" (average adult), "personalized" (runtime-personalize on the same
+# anny body's two calibration views, Helten III), "calibrated" (runtime-calibrate, Wei 6, on
+# the body holding the T-pose: data/dev_calib, forest labels). A setting equal to RECORDING
+# is replaced by the recording's directory.
+RECORDING = "<recording>"
+CONFIGS: dict[str, tuple[str, str, dict]] = {
+    "tracker": ("tracker", "gt", {}),
+    "tracker, no occlusion handling": ("tracker", "gt", {"occlusion_handling": False}),
+    "tracker, no silhouette term": ("tracker", "gt", {"use_silhouette": False}),
+    "tracker, no extra depth term": ("tracker", "gt", {"use_extra_depth": False}),
+    "tracker, default body": ("tracker", "default", {}),
+    "tracker, personalized body": ("tracker", "personalized", {}),
+    "tracker, calibrated body": ("tracker", "calibrated", {}),
+    "hybrid": ("hybrid", "gt", {}),
+    "hybrid, personalized body": ("hybrid", "personalized", {}),
+    "hybrid, calibrated body": ("hybrid", "calibrated", {}),
+    "hybrid, ground-truth labels": ("hybrid", "gt", {"labels_from_recording": RECORDING}),
+    "detector": ("detector", "gt", {}),
+    "shotton": ("shotton", "gt", {}),
+}
+METRICS = (
+    "mean_joint_error_mm",
+    "mean_joint_error_offset_normalized_mm",
+    "precision_10cm",
+    "surface_error_q97_mm",
+    "tracking_failure_pct",
+    "detector_frames_pct",
+    "system_failure_pct",
+    "system_failure_visible_pct",
+    "system_failure_observed_pct",
+    "observed_joints_pct",
+    "observed_flag_recall_pct",
+    "observed_flag_precision_pct",
+    "fps",
+)
+
+
+def _run(cmd: list[str]) -> None:
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed:\n{done.stderr.strip()[-2000:]}")
+
+
+def body_file(kind: str, rec: Path, bodies: Path, model: str) -> Path:
+    """The body file of ``kind`` for recording ``rec``, made (once) when missing."""
+    if kind == "gt":
+        return rec / "body.json"
+    out = bodies / kind / rec.name
+    path = out / "body.json"
+    if path.is_file():
+        return path
+    out.mkdir(parents=True, exist_ok=True)
+    py = sys.executable
+    if kind == "personalized":
+        _run([py, "-m", "train.synth.calibration_views", "--out", str(out / "views"), "--seed", "7",
+              "--phenotype-from", str(rec), "--overwrite"])  # fmt: skip
+        _run([py, "-m", "runtime.personalize_cli", "--input", str(out / "views"),
+              "--output", str(path)])  # fmt: skip
+    elif kind == "calibrated":
+        # Beside the recordings' folder: data/dev -> data/dev_calib, data/dev_all ->
+        # data/dev_all_calib (the same clip names hold other bodies there).
+        calib = rec.parent.with_name(rec.parent.name + "_calib") / rec.name
+        if not calib.is_dir():
+            raise RuntimeError(f"{calib}: no calibration recording (run make dev-recordings)")
+        # The recording is known to hold the pose: skip the automatic pose check. Labels come
+        # from runtime-calibrate's default, the calibration-pose forest.
+        _run([py, "-m", "runtime.calibrate_cli", "--input", str(calib), "--output", str(path),
+              "--no-pose-check", "-q"])  # fmt: skip
+    else:
+        raise ValueError(f"unknown body kind {kind}")
+    return path
+
+
+def run_config(
+    name: str,
+    rec: Path,
+    out: Path,
+    model: str,
+    device: str,
+    mode_config: Path | None,
+    tracker: dict | None = None,
+) -> dict:
+    """Track ``rec`` with configuration ``name`` and evaluate; returns the report.
+
+    ``tracker``: settings merged into the hybrid's tracker settings (e.g. ``max_step_rad``).
+    """
+    import yaml
+
+    mode, body, overrides = CONFIGS[name]
+    overrides = {k: str(rec) if v == RECORDING else v for k, v in overrides.items()}
+    if mode == "hybrid" and tracker:
+        base = load_settings(mode_config) if mode_config else {}
+        overrides = {**overrides, "tracker": {**base.get("tracker", {}), **tracker}}
+    out.mkdir(parents=True, exist_ok=True)
+    cmd = [sys.executable, "-m", "runtime.track_cli", "--input", str(rec), "-q",
+           "--output", str(out / "result"), "--mode", mode, "--model", model,
+           "--device", device]  # fmt: skip
+    if body != "default":
+        cmd += ["--body", str(body_file(body, rec, out.parent.parent / "bodies", model))]
+    cfg_path = mode_config if mode == "hybrid" else None  # the hybrid's thresholds preset
+    if overrides:
+        base = load_settings(cfg_path) if cfg_path else {}
+        cfg_path = out / "mode_config.yaml"
+        cfg_path.write_text(yaml.safe_dump({**base, **overrides}))
+    if cfg_path is not None:
+        cmd += ["--config", str(cfg_path)]
+    _run(cmd)
+    return evaluate(rec, out / "result").report
+
+
+def aggregate(reports: list[dict]) -> dict:
+    """Frame-weighted means of the metrics over recordings (None where all are None)."""
+    out = {}
+    for key in METRICS:
+        vals = [(r.get(key), r.get("frames") or 1) for r in reports]
+        vals = [(v, w) for v, w in vals if v is not None]
+        out[key] = (
+            float(np.average([v for v, _ in vals], weights=[w for _, w in vals])) if vals else None
+        )
+    return out
+
+
+def mean_of_runs(aggs: list[dict]) -> dict:
+    """The mean of several runs' :func:`aggregate` results (None where any run has None)."""
+    return {
+        key: None
+        if any(a.get(key) is None for a in aggs)
+        else float(np.mean([a[key] for a in aggs]))
+        for key in METRICS
+    }
+
+
+def format_row(name: str, agg: dict, mode: str | None = None) -> str:
+    """One table row; ``mode`` defaults to configuration ``name``'s."""
+
+    def f(key, digits=1, scale=1.0):
+        v = agg.get(key)
+        return "n/a" if v is None else f"{v * scale:.{digits}f}"
+
+    # A mode without a tracker has no tracking failures to count: the detector runs always.
+    tracking = (
+        "(every frame)"
+        if (mode or CONFIGS[name][0]) in ("detector", "shotton")
+        else (f"{f('tracking_failure_pct')}%")
+    )
+    return (
+        f"| {name} | {f('mean_joint_error_mm')} | {f('mean_joint_error_offset_normalized_mm')} | "
+        f"{f('precision_10cm', 1, 100)}% | {f('surface_error_q97_mm')} | "
+        f"{tracking} | {f('detector_frames_pct')}% | "
+        f"{f('system_failure_pct')}% | {f('fps')} |"
+    )
+
+
+def format_failures(name: str, per_recording: dict[str, dict], agg: dict | None = None) -> str:
+    """The system-failure frames of one configuration, one line per recording that has any:
+    frame index and worst joint in cm ("no pose" for frames without one, "(hidden)" for a
+    joint the camera did not see); then, given the configuration's ``agg``, the rate counting
+    only the joints the camera sees."""
+    lines = [f"{name}: system-failure frames (any joint beyond the threshold)"]
+    for rec, report in per_recording.items():
+        frames = report.get("system_failure_frames") or []
+        if frames:
+            lines.append(f"  {rec}: {format_failed_frames(frames)}")
+    if len(lines) == 1:
+        lines.append("  none")
+    seen = (agg or {}).get("system_failure_visible_pct")
+    if seen is not None:
+        lines.append(f"  counting only the joints the camera sees: {seen:.1f}%")
+    claimed = (agg or {}).get("system_failure_observed_pct")
+    if claimed is not None:
+        flags = [agg.get(f"observed_flag_{k}_pct") for k in ("recall", "precision")]
+        agreement = (
+            f" (the flags cover {flags[0]:.1f}% of the joints the camera sees; "
+            f"{flags[1]:.1f}% of the joints flagged are seen)"
+            if None not in flags
+            else ""
+        )
+        lines.append(
+            f"  counting only the joints the result reports as observed: {claimed:.1f}%{agreement}"
+        )
+    return "\n".join(lines)
+
+
+def body_length_reports(
+    bodies: Path, recs: list[Path], kinds: set[str]
+) -> dict[str, tuple[dict | None, str]]:
+    """For each estimated body kind among ``kinds`` (calibrated, personalized) with body files
+    under ``bodies``: its bone-length errors against the recordings' own bodies and a line
+    to print. An unreadable file gives (None, a line naming it) instead of an error: the
+    runs' results are worth more than this comparison."""
+    out = {}
+    for kind in sorted(kinds & {"calibrated", "personalized"}):
+        made = [r for r in recs if (bodies / kind / r.name / "body.json").is_file()]
+        if not made:
+            continue
+        try:
+            errors = bone_length_errors(
+                [bodies / kind / r.name / "body.json" for r in made],
+                [r / "body.json" for r in made],
+            )
+        except (OSError, ValueError) as err:
+            out[kind] = (None, f"{kind} bodies: bone lengths not compared ({err})")
+            continue
+        out[kind] = (errors, format_bone_length_errors(kind, errors))
+    return out
+
+
+HEADER = (
+    "| configuration | joint error mm | offset-normalized mm | precision 10 cm | "
+    "surface q97 mm | tracking failure | detector frames | system failure | frames/s |\n"
+    "|---|---|---|---|---|---|---|---|---|"
+)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="train-dev-benchmark", description=__doc__.splitlines()[0])
+    p.add_argument("--recordings", default="data/dev", help="folder of dev recordings")
+    p.add_argument("--out", default="out/dev_benchmark", help="results and the JSON report")
+    p.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
+    p.add_argument("--model", default="models/forest.npz", help="forest for hybrid/detector")
+    p.add_argument("--device", default="cpu", help="cpu or cuda")
+    p.add_argument(
+        "--mode-config",
+        type=Path,
+        default=Path("configs/hybrid.yaml"),
+        help="YAML of the hybrid's settings (thresholds)",
+    )
+    p.add_argument("--limit", type=int, help="use only the first N recordings")
+    p.add_argument(
+        "--trust-regions",
+        nargs="+",
+        type=float,
+        metavar="RAD",
+        help="run each hybrid configuration once per tracker trust region (max_step_rad, "
+        "radians) and add the runs' mean (the README's three-run figures: 0.18 0.2 0.22)",
+    )
+    args = p.parse_args(argv)
+    if args.trust_regions and not all(v > 0 and math.isfinite(v) for v in args.trust_regions):
+        p.error(f"--trust-regions must be positive radians, got {args.trust_regions}")
+    if args.mode_config is not None and not args.mode_config.is_file():
+        p.error(f"--mode-config: no such file {args.mode_config}")
+    recs = sorted(d for d in Path(args.recordings).glob("*") if (d / "groundtruth.npz").is_file())
+    if args.limit:
+        recs = recs[: args.limit]
+    if not recs:
+        print(f"no dev recordings in {args.recordings}: run `make dev-recordings`", file=sys.stderr)
+        return 2
+    print(f"{len(recs)} dev recordings from {args.recordings}\n")
+    print(HEADER)
+    results = {}
+    for name in args.configs:
+        runs = [(name, None)]
+        if CONFIGS[name][0] == "hybrid" and args.trust_regions:
+            runs = [(f"{name} @ {v:g} rad", {"max_step_rad": v}) for v in args.trust_regions]
+        for row, tracker in runs:
+            t0 = time.perf_counter()
+            reports = []
+            slug = row.replace(", ", "_").replace(" @ ", "_").replace(" ", "_")
+            try:
+                for rec in recs:
+                    reports.append(
+                        run_config(name, rec, Path(args.out) / slug / rec.name, args.model,
+                                   args.device, args.mode_config, tracker)
+                    )  # fmt: skip
+            except RuntimeError as err:
+                print(f"| {row} | failed: {str(err).splitlines()[-1][:80]} |||||||")
+                continue
+            agg = aggregate(reports)
+            per_rec = dict(zip([r.name for r in recs], reports))
+            results[row] = {"mean": agg, "per_recording": per_rec}
+            print(format_row(row, agg, CONFIGS[name][0]), flush=True)
+            results[row]["seconds"] = time.perf_counter() - t0
+        done = [results[row]["mean"] for row, _ in runs if row in results]
+        if len(runs) > 1 and len(done) == len(runs):
+            row = f"{name}, mean of {len(done)}"
+            results[row] = {"mean": mean_of_runs(done)}
+            print(format_row(row, results[row]["mean"], CONFIGS[name][0]), flush=True)
+    for row, res in results.items():
+        if "per_recording" in res:
+            print("\n" + format_failures(row, res["per_recording"], res["mean"]))
+    kinds = {CONFIGS[n][1] for n in args.configs}
+    for kind, (errors, text) in body_length_reports(Path(args.out) / "bodies", recs, kinds).items():
+        results[f"{kind} bodies"] = {"bone_length_errors": errors}
+        print("\n" + text)
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    (Path(args.out) / "report.json").write_text(json.dumps(results, indent=1))
+    print(f"\nfull report: {Path(args.out) / 'report.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
