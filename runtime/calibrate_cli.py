@@ -36,7 +36,7 @@ from .forest.inference import DEFAULT_CALIBRATION_MODEL, DEFAULT_MODEL
 from .segmentation import segment_person
 from .streams import FrameRange, StreamError, describe_sources, open_stream
 
-# The training population's average body (python -m train.template_body writes it).
+# The training population's average body (python -m train.bodies.template_body writes it).
 DEFAULT_TEMPLATE = Path(__file__).resolve().parents[1] / "configs" / "body_template.json"
 
 __all__ = ["main", "build_parser", "CalibrateError"]
@@ -80,7 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         default=DEFAULT_TEMPLATE,
         help="template body file whose proportions the measurements scale (default: the "
-        "training population's average, python -m train.template_body; the built-in average "
+        "training population's average, python -m train.bodies.template_body; the built-in average "
         "adult when that file is missing)",
     )
     p.add_argument(

@@ -8,7 +8,7 @@ terms does not depend on the sampling caps (it does depend on the working resolu
 
 Wei's values (1, 100, 0.29, 14.3 for depth, silhouette, extra depth, prior) have no stated
 units; the defaults below were tuned on procedural motions rendered from the cylinder model
-(clean, and with train.sensor_noise's Kinect v1 model: 2-4 mm mean joint error) and on a few
+(clean, and with shared.sensor_noise's Kinect v1 model: 2-4 mm mean joint error) and on a few
 anny-body renders, and keep Wei's ordering: the extra depth term weighs a 3D point more than
 the depth term weighs a pixel (it acts on few pixels that carry the large corrections), the
 prior is weak and settles what the data leave free.

@@ -17,8 +17,8 @@ leg is rendered in front, at the depth the camera measures there, and would coun
 Where the forest's part labels are at hand (the hybrid computes them every frame), a pixel
 counts only when the forest puts it on the same body group as the model's segment: the
 torso with head and neck, or one of the four limbs (an arm with its clavicle). On the 39 dev
-takes (``python -m train.dev_benchmark --recordings data/dev_all``, 0.2 rad) that took the
-failed frames counting only the joints called observed from 5.6% to 1.9%, while the flags
+takes (``python -m train.evaluation.dev_benchmark --recordings data/dev_all``, 0.2 rad) that
+took the failed frames counting only the joints called observed from 5.6% to 1.9%, while the flags
 still cover 95% of the joints the camera sees (98.5% without the labels); the group, not the
 segment, because the forest confuses the upper arm and forearm near the elbow.
 
