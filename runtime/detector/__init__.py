@@ -166,7 +166,6 @@ def create_estimator(
         device,
         intrinsics,
         smooth_window=cfg.label_smoothing_window,
-        smooth_depth_gate_m=cfg.label_smoothing_gate_m,
     )
     from runtime.tracker import Tracker
 

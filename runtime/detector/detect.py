@@ -38,6 +38,36 @@ from .config import DetectorConfig
 if TYPE_CHECKING:
     from runtime.tracker import TrackResult
 
+# The detector's fixed choices (formerly DetectorConfig fields; values unchanged).
+# RANSAC (Wei 4.2): of the pairs that pass the length test, at most this many are scored by
+# their inlier count (the rest are redundant; keeps the cost bounded) ...
+RANSAC_SCORED = 128
+# ... on at most this many points per bone (a random subset).
+RANSAC_POINTS = 400
+# Pairs closer than this fraction of the bone's reach are discarded (Wei: 1/5).
+MIN_PAIR_FRACTION = 0.2
+# Slack added to the bone's diameter when testing whether a point lies on or within the
+# sampled bone (sensor noise, model error), metres.
+INLIER_MARGIN_M = 0.03
+# A class centroid lies on the visible surface; it is pushed away from the camera by this
+# fraction of the segment's radius (pi/4: the mean depth of a cylinder's visible half).
+SURFACE_OFFSET = 0.785
+# A class with fewer surviving pixels gives no centroid (missing or occluded).
+MIN_CLASS_PIXELS = 12
+# Marker confidence n / (n + this) for a class with n surviving pixels: small visible parts
+# count less in the IK.
+WEIGHT_PIXELS = 30.0
+# Levenberg-Marquardt iterations of the IK, and its prior weight towards the start pose (per
+# squared radian, against squared metres of marker error).
+IK_ITERATIONS = 15
+IK_PRIOR = 1e-3
+# IK starts: the torso frame from the centroids, the same turned by 180 degrees, upright
+# facing and with the back to the camera (this many of them, in that order) ...
+ORIENTATION_STARTS = 4
+# ... times this many arm configurations: hanging, raised sideways (raised overhead is a
+# third, unused), every start with its own prior reference.
+ARM_STARTS = 2
+
 # A start pose (34,) -> the tracker's few-iteration refinement of the frame from it.
 Refine = Callable[[torch.Tensor], "TrackResult"]
 
@@ -209,12 +239,11 @@ def detect_pose(
     pix = use.nonzero(as_tuple=True)
     points, plabels = pts_img[pix], lab[pix]
     fit = fit_bones(
-        points, plabels, body, cfg.ransac_samples, cfg.ransac_scored, cfg.ransac_points,
-        cfg.min_pair_fraction, cfg.inlier_margin_m, gen,
+        points, plabels, body, cfg.ransac_samples, RANSAC_SCORED, RANSAC_POINTS,
+        MIN_PAIR_FRACTION, INLIER_MARGIN_M, gen,
     )  # fmt: skip
     cen = class_centroids(
-        points, plabels, fit.inlier, body, cfg.surface_offset, cfg.min_class_pixels,
-        cfg.weight_pixels,
+        points, plabels, fit.inlier, body, SURFACE_OFFSET, MIN_CLASS_PIXELS, WEIGHT_PIXELS,
     )  # fmt: skip
     kept = torch.zeros_like(lab, dtype=torch.uint8)
     kept[pix] = torch.where(fit.inlier, plabels, torch.zeros_like(plabels)).to(torch.uint8)
@@ -225,11 +254,11 @@ def detect_pose(
         return empty
 
     # IK from several root orientations in one batch; the root starts at the pelvis centroid.
-    rotvecs = start_orientations(cen.targets, cen.weights, cfg.orientation_starts)
+    rotvecs = start_orientations(cen.targets, cen.weights, ORIENTATION_STARTS)
     present = cen.weights > 0
     t0 = torch.nan_to_num(cen.targets)
     root = t0[_PELVIS] if bool(present[_PELVIS]) else t0[present].mean(0)
-    arms = _arm_presets(cfg.arm_starts, depth)  # (A, 34) joint angles only
+    arms = _arm_presets(ARM_STARTS, depth)  # (A, 34) joint angles only
     q0 = arms.repeat(rotvecs.shape[0], 1)
     q0[:, 0:3], q0[:, 3:6] = root, rotvecs.repeat_interleave(arms.shape[0], 0)
     if q_hint is not None:
@@ -238,8 +267,8 @@ def detect_pose(
     markers = part_markers(body)
     ik = fit_pose(
         cen.targets[None].expand(q0.shape[0], -1, -1), q0, body,
-        cen.weights[None].expand(q0.shape[0], -1), markers, q_ref=q_ref, prior=cfg.ik_prior,
-        iterations=cfg.ik_iterations,
+        cen.weights[None].expand(q0.shape[0], -1), markers, q_ref=q_ref, prior=IK_PRIOR,
+        iterations=IK_ITERATIONS,
     )  # fmt: skip
     best = int(torch.argmin(ik.rms))
     q_ik = ik.q[best]

@@ -30,9 +30,10 @@ from .config import (
     MisplacedArmConfig,
 )
 from .estimator import HybridEstimator, TrackState, root_turn
-from .policy import Decision, Detection, TrackVerdict, choose, judge_track
+from .policy import MAX_TURN_FRAMES, Decision, Detection, TrackVerdict, choose, judge_track
 
 __all__ = [
+    "MAX_TURN_FRAMES",
     "ArmSearchConfig",
     "Decision",
     "Detection",
@@ -90,7 +91,6 @@ def create_estimator(
             device,
             intrinsics,
             smooth_window=cfg.detector.label_smoothing_window,
-            smooth_depth_gate_m=cfg.detector.label_smoothing_gate_m,
         )
         labels = forest_label_source(labeler)
     try:

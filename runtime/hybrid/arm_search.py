@@ -42,7 +42,33 @@ from .arm_labels import (
 )
 from .config import ArmSearchConfig
 
-__all__ = ["ArmSearch", "SearchResult"]
+__all__ = [
+    "HIDDEN_VISIBILITY",
+    "MISPLACED_MIN_POINTS",
+    "OTHER_ARM_COUNTS",
+    "PARTIAL_AGREEMENT",
+    "PARTIAL_VISIBILITY",
+    "SEEN_FRACTION",
+    "ArmSearch",
+    "SearchResult",
+]
+
+# When an arm is suspect (module docstring). Read at call time, so tests can vary them.
+# The model hides an arm it shows less than this fraction of (TrackResult.limb_visibility) ...
+HIDDEN_VISIBILITY = 0.3
+# ... and shows it partly below this fraction: a partly shown arm is searched too when under
+# PARTIAL_AGREEMENT of the forest's pixels of it lie within 5 cm of the model's arm (jog: a
+# far forearm folded back while the camera sees it reach forward).
+PARTIAL_VISIBILITY = 0.6
+PARTIAL_AGREEMENT = 0.5
+# The camera sees an arm when the forest labels it on this share of the person's pixels.
+SEEN_FRACTION = 0.02
+# A shown arm counts as misplaced only when it explains at least this many of the person's
+# points (fewer say too little about where it lies) ...
+MISPLACED_MIN_POINTS = 20
+# ... and points the forest labels as the other arm count against it (the forest swaps arms
+# in profile, but a lost arm laid on the other one is misplaced all the same).
+OTHER_ARM_COUNTS = True
 
 # A start pose (34,) -> the tracker's refit of the frame from it.
 Refit = Callable[[torch.Tensor], TrackResult]
@@ -124,7 +150,7 @@ class ArmSearch:
         points = kin = signed = None
         for limb, side in ((0, "l"), (1, "r")):
             shown = float(vis[limb])
-            hidden = shown < max(cfg.hidden_visibility, cfg.partial_visibility)
+            hidden = shown < max(HIDDEN_VISIBILITY, PARTIAL_VISIBILITY)
             if not (hidden or misplaced is not None):
                 continue
             if points is None:
@@ -139,10 +165,10 @@ class ArmSearch:
                 last is None or frame.index - last > misplaced.cooldown_frames
             ):
                 share, count = label_conflict_from_distances(
-                    signed, point_labels, side, CONFLICT_MARGIN_M, misplaced.other_arm_counts
+                    signed, point_labels, side, CONFLICT_MARGIN_M, OTHER_ARM_COUNTS
                 )
                 share, count = float(share[0]), int(count[0])
-                if count >= misplaced.min_points and share > misplaced.conflict:
+                if count >= MISPLACED_MIN_POINTS and share > misplaced.conflict:
                     conflicts = share * count
             if not hidden and conflicts is None:
                 continue
@@ -151,15 +177,15 @@ class ArmSearch:
                 explained[mask] = near_other_arm(
                     points, kin, self.body, side, cfg.other_arm_margin_m
                 )
-            seen = arm_pixel_fraction(labels, mask, side, explained) >= cfg.seen_fraction
+            seen = arm_pixel_fraction(labels, mask, side, explained) >= SEEN_FRACTION
             if not seen and conflicts is None:
                 continue
             arm_points = points[(arm_pixels(labels, mask, side) & ~explained)[mask]]
             mine = float(
                 arm_label_agreement(arm_points, kin, self.body, side, AGREEMENT_MARGIN_M)[0]
             )
-            partly = shown >= cfg.hidden_visibility
-            if conflicts is None and partly and not mine < cfg.partial_agreement:
+            partly = shown >= HIDDEN_VISIBILITY
+            if conflicts is None and partly and not mine < PARTIAL_AGREEMENT:
                 continue  # shown partly, where the forest sees it: no search
             # No forest pixels of the arm (NaN agreement): nothing to keep the refit near.
             check = cfg.agreement_slack is not None and math.isfinite(mine)
@@ -179,10 +205,9 @@ class ArmSearch:
                 return False
         if suspect.conflicts is None:
             return True
-        misplaced = self.cfg.misplaced
         share, count = arm_label_conflict(
             suspect.points, suspect.point_labels, pose, self.body, side, CONFLICT_MARGIN_M,
-            misplaced.other_arm_counts,
+            OTHER_ARM_COUNTS,
         )  # fmt: skip
         theirs = float(share[0]) * int(count[0]) if int(count[0]) else 0.0
-        return theirs <= misplaced.relief * suspect.conflicts
+        return theirs <= self.cfg.misplaced.relief * suspect.conflicts

@@ -93,18 +93,9 @@ class KeepBetterConfig:
     max_turn_rad: float | None = field_doc(
         None,
         "a detection whose root turns more than this from the track is not taken (rad): a "
-        "person does not turn round in one frame, but a profile fits facing either way "
-        "(None: any turn)",
-    )
-    max_turn_frames: int = field_doc(
-        15,
-        "... unless the track has failed and the detector turned it round this many frames "
-        "in a row: then the track itself faces the wrong way",
-    )
-    recheck_every: int | None = field_doc(
-        None,
-        "also run the detector on every this-many-th frame the tracker passed: a wrong track "
-        "that fits well enough is otherwise never questioned (None: never)",
+        "person does not turn round in one frame, but a profile fits facing either way; "
+        "unless the failing track has been turned round for "
+        "runtime.hybrid.policy.MAX_TURN_FRAMES frames in a row (None: any turn)",
     )
     recheck_badness: float | None = field_doc(
         None,
@@ -114,9 +105,6 @@ class KeepBetterConfig:
     def __post_init__(self) -> None:
         t = self.max_turn_rad
         _check(t is None or t >= 0, "max_turn_rad must be >= 0 or None", t)
-        _check(self.max_turn_frames >= 0, "max_turn_frames must be >= 0", self.max_turn_frames)
-        r = self.recheck_every
-        _check(r is None or r >= 1, "recheck_every must be >= 1 or None", r)
         b = self.recheck_badness
         _check(b is None or not math.isnan(b), "recheck_badness must be a number or None", b)
 
@@ -129,13 +117,8 @@ class MisplacedArmConfig:
     conflict: float = field_doc(
         0.7,
         "search an arm when the forest labels more than this share of the person's points it "
-        "explains (nearest to it, within 3 cm) as something else",
-    )
-    min_points: int = field_doc(20, "... and the arm explains at least this many points")
-    other_arm_counts: bool = field_doc(
-        True,
-        "points labelled as the other arm count as something else (false: only torso, head "
-        "and leg labels do; the forest swaps arms in profile)",
+        "explains (nearest to it, within 3 cm; at least runtime.hybrid.arm_search."
+        "MISPLACED_MIN_POINTS of them) as something else",
     )
     cooldown_frames: int = field_doc(
         0,
@@ -150,7 +133,6 @@ class MisplacedArmConfig:
 
     def __post_init__(self) -> None:
         _check(0 <= self.conflict <= 1, "misplaced.conflict must be in [0, 1]", self.conflict)
-        _check(self.min_points >= 1, "misplaced.min_points must be >= 1", self.min_points)
         _check(self.cooldown_frames >= 0, "misplaced.cooldown_frames must be >= 0",
                self.cooldown_frames)  # fmt: skip
         _check(0 <= self.relief <= 1, "misplaced.relief must be in [0, 1]", self.relief)
@@ -159,28 +141,14 @@ class MisplacedArmConfig:
 @dataclass
 class ArmSearchConfig:
     """When a suspect fit's model hides an arm the forest sees, refit the frame from a few arm
-    poses and keep the best fit (not in Wei; :mod:`runtime.hybrid.arm_search`)."""
+    poses and keep the best fit (not in Wei; :mod:`runtime.hybrid.arm_search`, whose
+    constants say when an arm counts as hidden, partly shown or seen)."""
 
     badness: float = field_doc(1.9, "search only when the track's badness exceeds this")
-    hidden_visibility: float = field_doc(
-        0.3, "an arm counts as hidden by the model below this visible fraction (0-1)"
-    )
-    seen_fraction: float = field_doc(
-        0.02, "the camera sees an arm from this share of the person's pixels labelled as it"
-    )
     other_arm_margin_m: float = field_doc(
         0.05,
         "labelled arm pixels within this distance of the model's other arm do not count as "
         "seeing the arm (m; 0: all count): in profile the far arm's labels land on the near arm",
-    )
-    partial_visibility: float = field_doc(
-        0.6,
-        "an arm the model shows partly (below this visible fraction) is searched too when the "
-        "forest's pixels of it mostly lie off the model's arm",
-    )
-    partial_agreement: float = field_doc(
-        0.5,
-        "... that is, when under this share of them lie within 5 cm of the model's arm",
     )
     agreement_slack: float | None = field_doc(
         0.1,
@@ -193,16 +161,8 @@ class ArmSearchConfig:
 
     def __post_init__(self) -> None:
         _check(not math.isnan(self.badness), "arm_search.badness must be a number", self.badness)
-        _check(self.hidden_visibility >= 0, "arm_search.hidden_visibility must be >= 0",
-               self.hidden_visibility)  # fmt: skip
-        _check(0 <= self.seen_fraction <= 1, "arm_search.seen_fraction must be in [0, 1]",
-               self.seen_fraction)  # fmt: skip
         _check(self.other_arm_margin_m >= 0, "arm_search.other_arm_margin_m must be >= 0",
                self.other_arm_margin_m)  # fmt: skip
-        _check(self.partial_visibility >= 0, "arm_search.partial_visibility must be >= 0",
-               self.partial_visibility)  # fmt: skip
-        _check(0 <= self.partial_agreement <= 1, "arm_search.partial_agreement must be in "
-               "[0, 1]", self.partial_agreement)  # fmt: skip
         s = self.agreement_slack
         _check(s is None or s >= 0, "arm_search.agreement_slack must be >= 0 or None", s)
 
@@ -219,9 +179,6 @@ class HybridConfig:
     )
     arm_search: ArmSearchConfig | None = field_doc(
         None, "refit a hidden or misplaced arm on suspect frames (None: off)"
-    )
-    hint_from_tracker: bool = field_doc(
-        True, "give the detector's IK the last pose as one more start (used if it fits best)"
     )
     labels_from_recording: str | None = field_doc(
         None,

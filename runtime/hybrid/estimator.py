@@ -105,7 +105,7 @@ class HybridEstimator:
     def _run_detector(self, frame: Frame) -> DetectionResult:
         """The detector on ``frame``, refined on the shared tracker; changes no state."""
         labels = frame.labels(self.label_source)
-        hint = self.state.q_prev if self.cfg.hint_from_tracker else None
+        hint = self.state.q_prev  # one more IK start, used only if it fits the centroids best
         k = self.detector.cfg.refine_iterations
         refine = None if k <= 0 else (lambda q: self._fit(frame, q, None, k))
         return self.detector.detect(frame.depth_m, labels, frame.mask, q_hint=hint, refine=refine)

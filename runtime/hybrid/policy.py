@@ -19,7 +19,12 @@ from runtime.tracker.signals import FitSignals
 
 from .config import FailureThresholds, KeepBetterConfig
 
-__all__ = ["Decision", "Detection", "TrackVerdict", "choose", "judge_track"]
+__all__ = ["MAX_TURN_FRAMES", "Decision", "Detection", "TrackVerdict", "choose", "judge_track"]
+
+# A detection that turns the person round is refused (keep_better.max_turn_rad) until the
+# failing track has been turned round this many frames in a row: then the track itself is
+# taken to face the wrong way (half a second at 30 frames/s).
+MAX_TURN_FRAMES = 15
 
 
 @dataclass(frozen=True)
@@ -71,9 +76,11 @@ def judge_track(
 ) -> TrackVerdict:
     """The tests on a tracked frame; ``passed``: frames tracked since the detector last ran,
     this one included."""
-    recheck = keep_better is not None and (
-        (keep_better.recheck_every is not None and keep_better.recheck_every <= passed)
-        or (keep_better.recheck_badness is not None and badness > keep_better.recheck_badness)
+    del passed  # kept in the signature: a periodic recheck would read it
+    recheck = (
+        keep_better is not None
+        and keep_better.recheck_badness is not None
+        and badness > keep_better.recheck_badness
     )
     return TrackVerdict(failure.failed(signals), recheck)
 
@@ -99,6 +106,6 @@ def choose(
     turned = limit is not None and detection.turn_rad is not None and detection.turn_rad > limit
     # Only a track that keeps failing may be turned round; a recheck never.
     turned_round = turned_round + 1 if turned and failed else 0
-    if turned_round < keep_better.max_turn_frames:
+    if turned_round < MAX_TURN_FRAMES:
         worse = worse or turned
     return Decision(keep_track=worse, turned_round=turned_round)

@@ -23,7 +23,9 @@ from runtime.hybrid import (
     create_estimator,
     root_turn,
 )
+from runtime.hybrid import arm_search as arm_search_module
 from runtime.hybrid import hybrid_config as config_from_mapping
+from runtime.hybrid import policy as policy_module
 from runtime.raycast import render_body
 from runtime.streams.base import DepthFrame
 from runtime.tracker import Tracker, TrackerConfig
@@ -54,30 +56,27 @@ def frame_of(depth: torch.Tensor, index: int, mask) -> Frame:
 
 
 def _off(value):
-    return None if value is None or not math.isfinite(value) or value == 0 else value
+    return None if value is None or not math.isfinite(value) else value
 
 
 def cfg_of(**flat) -> HybridConfig:
     """The settings tree from the scenarios' flat names (``keep_better=True`` and its keys,
-    ``arm_search_badness`` and the ``*arm*`` keys, ``misplaced_arm_*``); ``inf`` or 0 in a
-    threshold means that mechanism is off, as the scenarios were first written."""
+    ``arm_search_badness`` and the ``*arm*`` keys, ``misplaced_arm_*``); an infinite
+    threshold means that mechanism is off, as the scenarios were first written. Fixed
+    choices (runtime.hybrid.arm_search's and policy's constants) are set with
+    :func:`constants`."""
     failure = {k: flat.pop(k) for k in ("epsilon1_cm", "epsilon2", "epsilon3_mm") if k in flat}
     if "epsilon3_mm" in failure:
         failure["epsilon3_mm"] = _off(failure["epsilon3_mm"])
-    keep = {k: flat.pop(k) for k in ("compare_all_tests", "max_turn_rad", "max_turn_frames",
-                                     "recheck_every", "recheck_badness") if k in flat}  # fmt: skip
-    for k in ("max_turn_rad", "recheck_every", "recheck_badness"):
+    keep = {k: flat.pop(k) for k in ("compare_all_tests", "max_turn_rad", "recheck_badness")
+            if k in flat}  # fmt: skip
+    for k in ("max_turn_rad", "recheck_badness"):
         if k in keep:
             keep[k] = _off(keep[k])
-    names = {"hidden_arm_visibility": "hidden_visibility", "seen_arm_fraction": "seen_fraction",
-             "other_arm_margin_m": "other_arm_margin_m", "partial_arm_visibility":
-             "partial_visibility", "partial_arm_agreement": "partial_agreement",
-             "arm_agreement_slack": "agreement_slack"}  # fmt: skip
-    arm = {new: flat.pop(old) for old, new in names.items() if old in flat}
-    if "agreement_slack" in arm and not math.isfinite(arm["agreement_slack"]):
-        arm["agreement_slack"] = None
-    misplaced_names = {"misplaced_arm_conflict": "conflict", "misplaced_arm_points":
-                       "min_points", "misplaced_arm_other_arm": "other_arm_counts",
+    arm = {k: flat.pop(k) for k in ("other_arm_margin_m",) if k in flat}
+    if "arm_agreement_slack" in flat:
+        arm["agreement_slack"] = _off(flat.pop("arm_agreement_slack"))
+    misplaced_names = {"misplaced_arm_conflict": "conflict",
                        "misplaced_arm_cooldown": "cooldown_frames",
                        "misplaced_arm_relief": "relief"}  # fmt: skip
     misplaced = {new: flat.pop(old) for old, new in misplaced_names.items() if old in flat}
@@ -92,6 +91,19 @@ def cfg_of(**flat) -> HybridConfig:
     return HybridConfig(
         failure=FailureThresholds(**failure), keep_better=keep_cfg, arm_search=search, **flat
     )
+
+
+@pytest.fixture
+def constants(monkeypatch):
+    """Sets the hybrid's fixed choices for one test: ``constants(HIDDEN_VISIBILITY=0.5)``."""
+
+    def set_constants(**values):
+        for name, value in values.items():
+            module = policy_module if hasattr(policy_module, name) else arm_search_module
+            assert hasattr(module, name), name
+            monkeypatch.setattr(module, name, value)
+
+    return set_constants
 
 
 @dataclass
@@ -252,23 +264,6 @@ def test_keep_better_takes_the_pose_with_the_smaller_surface_error(
         assert est.state.q_prev2 is None
 
 
-@pytest.mark.parametrize("tracker_surface_mm, status", [(1e4, "detected"), (0.0, "tracked")])
-def test_recheck_asks_the_detector_every_nth_passed_frame(scene, tracker_surface_mm, status):
-    q, depth, labels, mask = scene
-    tracker = FakeTracker(surface_mm=tracker_surface_mm)  # never fails its tests
-    est, calls = make_hybrid(scene, tracker, refine_iterations=1, keep_better=True, recheck_every=3)
-    got = [estimate_frame(est, frame_of(depth, i, mask)) for i in range(7)]
-    # Frame 0 detected; tracker calls 1, 2 pass; call 3 is rechecked; 4, 5 pass; 6 rechecked.
-    assert len(calls) == 3
-    assert [g.status for g in got[:3]] == ["detected", "tracked", "tracked"]
-    assert [g.status for g in got[3:6]] == [status, "tracked", "tracked"]
-    assert got[6].status == status
-    if status == "tracked":
-        assert got[3].errors["rechecked"] == 1.0 and "kept_over_detector" not in got[3].errors
-    else:
-        assert got[3].errors["tracker_surface_error_q97_mm"] == 1e4
-
-
 @pytest.mark.parametrize("threshold, rechecked", [(0.5, True), (1.0, False)])
 def test_recheck_badness_questions_suspect_fits(scene, threshold, rechecked):
     q, depth, labels, mask = scene
@@ -283,9 +278,9 @@ def test_recheck_badness_questions_suspect_fits(scene, threshold, rechecked):
     assert ("rechecked" in got[1].errors) == rechecked
 
 
-def test_recheck_is_off_without_keep_better_and_never_turns_the_track(scene):
+def test_recheck_is_off_without_keep_better_and_never_turns_the_track(scene, constants):
     q, depth, labels, mask = scene
-    est, calls = make_hybrid(scene, FakeTracker(surface_mm=1e4), recheck_every=1)
+    est, calls = make_hybrid(scene, FakeTracker(surface_mm=1e4), recheck_badness=0.0)
     assert [estimate_frame(est, frame_of(depth, i, mask)).status for i in range(3)] == [
         "detected",
         "tracked",
@@ -296,10 +291,10 @@ def test_recheck_is_off_without_keep_better_and_never_turns_the_track(scene):
         scene,
         FakeTracker(surface_mm=1e4),
         keep_better=True,
-        recheck_every=1,
+        recheck_badness=0.0,  # every passed frame is rechecked
         max_turn_rad=1.6,
-        max_turn_frames=2,
     )
+    constants(MAX_TURN_FRAMES=2)
     estimate_frame(est, frame_of(depth, 0, mask))
     est.state.q_prev[3:6] = torch.tensor([0.0, 0.0, math.pi])  # the track faces away but passes
     statuses = [estimate_frame(est, frame_of(depth, i, mask)).status for i in range(1, 5)]
@@ -353,10 +348,11 @@ def test_a_detector_pose_turned_round_is_not_taken(scene, max_turn, status):
         assert got.errors["kept_over_detector"] == 1.0
 
 
-def test_a_track_turned_round_for_long_gives_way_to_the_detector(scene):
+def test_a_track_turned_round_for_long_gives_way_to_the_detector(scene, constants):
     q, depth, labels, mask = scene
     tracker = FakeTracker(fail_calls={1, 2, 3, 5}, surface_mm=1e4)
-    est, _ = make_hybrid(scene, tracker, keep_better=True, max_turn_rad=1.6, max_turn_frames=3)
+    est, _ = make_hybrid(scene, tracker, keep_better=True, max_turn_rad=1.6)
+    constants(MAX_TURN_FRAMES=3)
     estimate_frame(est, frame_of(depth, 0, mask))
     est.state.q_prev[3:6] = torch.tensor([0.0, 0.0, math.pi])  # the track faces away
     statuses = [estimate_frame(est, frame_of(depth, i, mask)).status for i in range(1, 4)]
@@ -408,16 +404,15 @@ def test_config_and_factory_errors(tmp_path):
         ("failure", {"epsilon1_cm": 0.0}),
         ("failure", {"epsilon2": 1.0}),
         ("failure", {"epsilon3_mm": float("nan")}),
-        ("keep_better", {"recheck_every": 0}),
         ("keep_better", {"recheck_badness": float("nan")}),
         ("keep_better", {"max_turn_rad": -1.0}),
     ):
         with pytest.raises(HybridError, match="epsilon|recheck|max_turn"):
             config_from_mapping({section: bad})
-    with pytest.raises(HybridError, match="recheck_every"):
+    with pytest.raises(HybridError, match="recheck_every"):  # a setting that is no more
         create_estimator(
             model_path=tmp_path / "f.npz", body=BODY, intrinsics=INTR,
-            config={"keep_better": {"recheck_every": -2}},
+            config={"keep_better": {"recheck_every": 5}},
         )  # fmt: skip
 
 
@@ -426,7 +421,7 @@ def test_the_shipped_preset_is_a_tree_of_values():
 
     cfg = config_from_mapping(load_settings("configs/hybrid.yaml"))
     assert cfg.failure == FailureThresholds(3.0, 0.7, 80.0)
-    assert cfg.keep_better == KeepBetterConfig(True, 1.6, 15, None, 2.4)
+    assert cfg.keep_better == KeepBetterConfig(True, 1.6, 2.4)
     assert cfg.arm_search.badness == 1.9 and cfg.arm_search.misplaced.conflict == 0.7
     assert cfg.tracker.use_labels and cfg.tracker.use_collision
 
@@ -494,26 +489,28 @@ def test_an_arm_search_refit_must_keep_the_forest_s_arm_pixels(scene, slack, sea
     assert (flex == pytest.approx(ArmHidingTracker.GOOD[0], abs=1e-6)) == searched
 
 
-def test_an_arm_the_forest_does_not_label_is_searched_without_the_agreement_test(scene):
-    # With seen_arm_fraction 0 a hidden arm is searched even where the forest labels none of
+def test_an_arm_the_forest_does_not_label_is_searched_without_the_agreement_test(scene, constants):
+    # With SEEN_FRACTION 0 a hidden arm is searched even where the forest labels none of
     # it; there is then no label to keep the arm near, and the best refit is taken.
+    constants(SEEN_FRACTION=0.0)
     tracker = ArmHidingTracker()
-    out = _track_second_frame(scene, tracker, 0, arm_search_badness=1.0, seen_arm_fraction=0.0)
+    out = _track_second_frame(scene, tracker, 0, arm_search_badness=1.0)
     assert out.errors["arm_searched"] == 1.0 and len(tracker.starts) == 8
     flex = out.q[sk.DOF_NAMES.index("l_humerus_flex")]
     assert flex == pytest.approx(ArmHidingTracker.GOOD[0], abs=1e-6)
 
 
 @pytest.mark.parametrize(
-    "labels_scale, cfg",
+    "labels_scale, cfg, fixed",
     [
-        (1, {}),  # off by default
-        (1, {"arm_search_badness": 1.5}),  # the fit is not suspect enough
-        (1, {"arm_search_badness": 1.0, "hidden_arm_visibility": 0.05}),  # not hidden enough
-        (0, {"arm_search_badness": 1.0}),  # the forest does not see the arm
+        (1, {}, {}),  # off by default
+        (1, {"arm_search_badness": 1.5}, {}),  # the fit is not suspect enough
+        (1, {"arm_search_badness": 1.0}, {"HIDDEN_VISIBILITY": 0.05}),  # not hidden enough
+        (0, {"arm_search_badness": 1.0}, {}),  # the forest does not see the arm
     ],
 )
-def test_hidden_arm_search_needs_all_its_conditions(scene, labels_scale, cfg):
+def test_hidden_arm_search_needs_all_its_conditions(scene, labels_scale, cfg, fixed, constants):
+    constants(**fixed)
     tracker = ArmHidingTracker()
     out = _track_second_frame(scene, tracker, labels_scale, **cfg)
     assert out.status == "tracked" and "arm_searched" not in out.errors
@@ -563,7 +560,9 @@ def _second_frame_with_labels(scene, tracker, cfg, seen):
 
 
 @pytest.mark.parametrize("swap, searched", [(False, False), (True, True)])
-def test_a_partly_shown_arm_is_searched_only_away_from_its_forest_pixels(scene, swap, searched):
+def test_a_partly_shown_arm_is_searched_only_away_from_its_forest_pixels(
+    scene, swap, searched, constants
+):
     labels = scene[2]
     # The model shows 45% of the left arm. Where the forest labels the left arm on the
     # model's left arm there is nothing to search; where it labels it elsewhere (here: on
@@ -574,8 +573,9 @@ def test_a_partly_shown_arm_is_searched_only_away_from_its_forest_pixels(scene, 
     out = _second_frame_with_labels(scene, tracker, cfg_of(**common), seen)
     assert ("arm_searched" in out.errors) == searched
     assert len(tracker.starts) == (8 if searched else 0)
-    # Below hidden_arm_visibility the arm counts as hidden and is searched either way.
-    cfg = cfg_of(**common, hidden_arm_visibility=0.5)
+    # Below HIDDEN_VISIBILITY the arm counts as hidden and is searched either way.
+    constants(HIDDEN_VISIBILITY=0.5)
+    cfg = cfg_of(**common)
     out = _second_frame_with_labels(scene, ArmHidingTracker(shown=0.45), cfg, seen)
     assert "arm_searched" in out.errors
 
@@ -769,7 +769,7 @@ def test_a_misplaced_arm_search_that_finds_nothing_waits_cooldown_frames(scene, 
 
 @pytest.mark.parametrize("other_arm, searched", [(True, True), (False, False)])
 def test_other_arm_labels_count_against_an_arm_unless_swaps_are_forgiven(
-    scene, other_arm, searched
+    scene, other_arm, searched, constants
 ):
     labels = scene[2]
     seen = labels.clone()
@@ -778,9 +778,9 @@ def test_other_arm_labels_count_against_an_arm_unless_swaps_are_forgiven(
     cfg = cfg_of(
         arm_search_badness=1.0,
         misplaced_arm_conflict=0.5,
-        misplaced_arm_other_arm=other_arm,
         other_arm_margin_m=0.0,
     )
+    constants(OTHER_ARM_COUNTS=other_arm)
     tracker = ArmHidingTracker(shown=1.0)
     out = _second_frame_with_labels(scene, tracker, cfg, seen)
     assert (out.errors.get("arms_searched") == 1.0) == searched

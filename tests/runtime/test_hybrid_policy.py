@@ -7,6 +7,7 @@ import math
 import pytest
 
 from runtime.hybrid import (
+    MAX_TURN_FRAMES,
     Decision,
     Detection,
     FailureThresholds,
@@ -29,8 +30,7 @@ FAILED = FitSignals(4.0, 0.9, 20.0)  # depth error over epsilon1
         (FAILED, 1, None, True, False),
         (SUSPECT, 1, KeepBetterConfig(recheck_badness=2.0), False, True),
         (SUSPECT, 1, KeepBetterConfig(recheck_badness=2.4), False, False),
-        (GOOD, 3, KeepBetterConfig(recheck_every=3), False, True),
-        (GOOD, 2, KeepBetterConfig(recheck_every=3), False, False),
+        (GOOD, 1, KeepBetterConfig(recheck_badness=0.0), False, True),
         (SUSPECT, 9, None, False, False),  # rechecks need keep_better
         (FitSignals(math.nan, 0.95, 30.0), 1, None, True, False),  # NaN fails
     ],
@@ -41,7 +41,8 @@ def test_judge_track(signals, passed, keep, failed, recheck):
     assert verdict.run_detector == (failed or recheck)
 
 
-KEEP = KeepBetterConfig(compare_all_tests=True, max_turn_rad=1.6, max_turn_frames=3)
+KEEP = KeepBetterConfig(compare_all_tests=True, max_turn_rad=1.6)
+N = MAX_TURN_FRAMES
 SURFACE_ONLY = KeepBetterConfig(compare_all_tests=False)
 BETTER = FitSignals(1.0, 0.9, 60.0)  # badness 1.42 < FAILED badness 1.92; surface 60 > 20
 WORSE = FitSignals(3.5, 0.6, 90.0)
@@ -59,10 +60,11 @@ WORSE = FitSignals(3.5, 0.6, 90.0)
         (FAILED, Detection(True, None, 0.1), True, 0, KEEP, Decision(False, 0)),
         # Turned round: not taken, counted while the track keeps failing ...
         (FAILED, Detection(True, BETTER, 3.0), True, 0, KEEP, Decision(True, 1)),
-        # ... until it has turned max_turn_frames times in a row.
-        (FAILED, Detection(True, BETTER, 3.0), True, 2, KEEP, Decision(False, 3)),
+        # ... until it has turned MAX_TURN_FRAMES times in a row.
+        (FAILED, Detection(True, BETTER, 3.0), True, N - 2, KEEP, Decision(True, N - 1)),
+        (FAILED, Detection(True, BETTER, 3.0), True, N - 1, KEEP, Decision(False, N)),
         # A recheck never turns the track, nor counts.
-        (FAILED, Detection(True, BETTER, 3.0), False, 2, KEEP, Decision(True, 0)),
+        (FAILED, Detection(True, BETTER, 3.0), False, N - 1, KEEP, Decision(True, 0)),
         # No limit on the turn.
         (FAILED, Detection(True, BETTER, 3.0), True, 0, SURFACE_ONLY, Decision(True, 0)),
         # Nobody found: keep the track and forget the per-track memories.

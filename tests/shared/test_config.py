@@ -99,7 +99,7 @@ def test_shipped_presets_load():
 
     configs = Path(__file__).resolve().parents[2] / "configs"
     shipped = load_settings(configs / "hybrid.yaml")
-    assert shipped["keep_better"] is True
+    assert shipped["keep_better"]["compare_all_tests"] is True
     assert shipped["tracker"] == {"use_labels": True, "use_collision": True}
 
 
