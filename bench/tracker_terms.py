@@ -43,12 +43,13 @@ def joint_support_cost(device: str, repeats: int = 20) -> tuple[str, float, str]
     from runtime.tracker.joint_support import joint_support_cm2
     from runtime.tracker.observation import observe
     from runtime.tracker.regions import classify
+    from runtime.tracker.tracker import SILHOUETTE_MAX_PX
     from shared.camera import Intrinsics
 
     intr, body = Intrinsics.kinect_v1(320), BodyShape.default().to(device=device)
     q = rest_pose(1, root_position=(0.0, 0.1, 3.0)).to(device)
     render = render_body(q, body, intr)
-    obs = observe(render.depth, render.mask, intr, 1, 10.0)
+    obs = observe(render.depth, render.mask, intr, 1, SILHOUETTE_MAX_PX)
     regions = classify(render, obs, 0.08, True)
     tracker, depth = Tracker(body, intr, device=device), render.depth[0]
     ms = median_ms(

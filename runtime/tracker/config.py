@@ -1,4 +1,4 @@
-"""Settings of the MAP tracker (Wei section 3): resolution, term weights and gates, solver.
+"""Settings of the MAP tracker (Wei section 3): resolution, term switches, gates and weights.
 
 Each energy term is a sum of squared, weighted residuals. Weights are the reciprocals of the
 noise scales ``sigma_*`` of Wei eq. 9-12, each with its unit stated, so ``residual / sigma`` is
@@ -12,15 +12,46 @@ units; the defaults below were tuned on procedural motions rendered from the cyl
 anny-body renders, and keep Wei's ordering: the extra depth term weighs a 3D point more than
 the depth term weighs a pixel (it acts on few pixels that carry the large corrections), the
 prior is weak and settles what the data leave free.
+
+:class:`TrackerConfig` keeps only the knobs worth turning per run (issue 34): the working
+resolution (``downsample``, ``person_pixels``), the solver (``iterations``, ``max_step_rad``,
+``damping``), the term switches (``use_*``, ``occlusion_handling``), the two correspondence
+gates, the noise scales of Wei's terms and of the label term, and when a joint counts as
+observed. Everything else is a documented module-level constant next to the code that reads
+it, with the value it had as a setting:
+
+- :mod:`runtime.tracker.tracker`: the person window (``CROP_MARGIN``), the distance transform's
+  truncation (``SILHOUETTE_MAX_PX``), the stop tests (``STOP_ANGLE_RAD``,
+  ``STOP_TRANSLATION_M``, ``STOP_DECREASE``), the prior's prediction (``PRIOR_VELOCITY_GAIN``)
+  and the shoulder's branch move (``SHOULDER_BRANCH_TURN_RAD``);
+- :mod:`runtime.tracker.depth_term`: ``MAX_DEPTH_PIXELS``, ``MIN_COSINE``;
+- :mod:`runtime.tracker.extra_depth_term`: ``MAX_EXTRA_POINTS``, ``MAX_CANDIDATES``,
+  ``EXTRA_MARGIN_PX``, ``EXTRA_MAX_DISTANCE_M``, ``SIGMA_EXTRA_TORSO_M``;
+- :mod:`runtime.tracker.silhouette_term`: ``MAX_SILHOUETTE_PIXELS``, ``SILHOUETTE_DEADZONE_PX``;
+- :mod:`runtime.tracker.label_term`: ``MAX_LABEL_PIXELS``, ``LABEL_GATE_M``;
+- :mod:`runtime.tracker.collision_term`: ``SIGMA_COLLISION_M``, ``COLLISION_TOLERANCE_M``,
+  ``COLLISION_HAND_TOLERANCE_M``;
+- :mod:`runtime.tracker.signals`: ``MAX_SURFACE_POINTS``.
+
+The tracker always starts a frame from the previous pose (as Wei does), keeps the joint angles
+within :data:`shared.skeleton.DOF_LIMITS`, computes the surface-error quantile, and takes the
+failure signals from the last iteration's rendering. :meth:`TrackerConfig.__post_init__` is the
+one place the settings are checked.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
 
-from shared.config import field_doc
+from shared.config import ConfigError, field_doc
 
-__all__ = ["TrackerConfig"]
+__all__ = ["TrackerConfig", "TrackerConfigError"]
+
+
+class TrackerConfigError(ConfigError):
+    """Tracker settings out of range."""
 
 
 @dataclass
@@ -39,26 +70,7 @@ class TrackerConfig:
         "this many working pixels: a person far away keeps the stream's resolution, one close "
         "by is pooled",
     )
-    crop_margin: float = field_doc(
-        0.25,
-        "work in a window around the observed silhouette's bounding box, grown on every side "
-        "by this fraction of its larger side (and at least silhouette_max_px + 2 working "
-        "pixels): model parts outside it are not seen. Negative: the whole image",
-    )
     iterations: int = field_doc(5, "Gauss-Newton iterations per frame at most (Wei: about 5)")
-    stop_angle_rad: float = field_doc(
-        2e-3, "stop when every joint-angle / root-rotation update is below this (rad)"
-    )
-    stop_translation_m: float = field_doc(
-        1e-3, "... and every root-translation update is below this (m)"
-    )
-    stop_decrease: float = field_doc(
-        800.0,
-        "... or, from the second step on, when a step's predicted energy decrease dq^T H dq "
-        "falls below this (noise scales squared; 0: off). On noisy data the angles the data "
-        "hardly see keep moving by degrees per iteration, so the update test alone never "
-        "stops; on the dev recordings the first step removes ~20,000, the fifth ~250",
-    )
     damping: float = field_doc(
         1e-3, "Levenberg damping added to the Gauss-Newton diagonal, relative to its mean"
     )
@@ -68,11 +80,6 @@ class TrackerConfig:
         "shortened along their direction (a trust region; 0 = none). The data terms' "
         "correspondences change as the model moves, so a full step can overshoot into a "
         "wrong basin, and on the dev recordings unlimited steps diverged on a third of the clips",
-    )
-    init_from_prediction: bool = field_doc(
-        False,
-        "start each frame from the constant-velocity prediction 2 q_prev - q_prev2 instead of "
-        "q_prev (Wei starts from the previous pose)",
     )
     # ---------------- term switches ----------------
     use_depth: bool = field_doc(True, "depth image term (Wei eq. 9, 15) over G = R - B1 - B2")
@@ -92,9 +99,8 @@ class TrackerConfig:
     use_collision: bool = field_doc(
         False,
         "collision term (not in Wei; runtime.tracker.collision_term): points on the arms' "
-        "axes deeper than collision_tolerance_m inside the torso capsules are pushed out",
+        "axes deeper than a tolerance inside the torso capsules are pushed out",
     )
-    use_limits: bool = field_doc(True, "keep joint angles within shared.skeleton.DOF_LIMITS")
     occlusion_handling: bool = field_doc(
         True,
         "Wei's pixel classification: exclude B2 (|depth difference| > gate) from the depth "
@@ -112,16 +118,6 @@ class TrackerConfig:
         "finds nothing to pull it back (dev recordings, tracker alone: 8 cm 47-54 mm, "
         "15 cm 37.5 mm, 20 cm 42.4 mm)",
     )
-    extra_margin_px: int = field_doc(
-        1,
-        "B1 / B3 pixels within this many working pixels of the other silhouette, and B2 pixels "
-        "this close to G, get no extra depth correspondence: there the offset is a "
-        "pixel-quantization artefact of an edge that would demand a whole-pixel move for any "
-        "sub-pixel misalignment; the depth and silhouette terms align the last pixel",
-    )
-    extra_max_distance_m: float = field_doc(
-        0.3, "extra depth correspondences farther apart in 3D are rejected (m)"
-    )
     # ---------------- weights (noise scales) ----------------
     sigma_depth_m: float = field_doc(
         0.01,
@@ -131,15 +127,6 @@ class TrackerConfig:
     sigma_extra_m: float = field_doc(
         0.005, "extra depth term noise scale per correspondence and axis (m)"
     )
-    sigma_extra_torso_m: float = field_doc(
-        0.04,
-        "extra depth term noise scale for correspondences on the torso, neck, head and "
-        "clavicles (m). The capsule torso matches a real one's shape only roughly (an anny "
-        "body's silhouette is covered to 0.75-0.8): at full weight, closest points on the "
-        "unmatched chest and back turned the chest against the pelvis in near-profile views, "
-        "the lower back's twist to its 50 degree limit and the far shoulder 25-35 cm off "
-        "(docs/experiments.md). The limbs keep sigma_extra_m: theirs carry the large corrections",
-    )
     sigma_silhouette_px: float = field_doc(
         1.0,
         "silhouette term noise scale per rendered boundary pixel, in working-resolution "
@@ -148,85 +135,37 @@ class TrackerConfig:
     sigma_label_m: float = field_doc(
         0.015, "label term noise scale per labelled pixel, distance to its limb's surface (m)"
     )
-    label_gate_m: float = field_doc(
-        0.15,
-        "labelled pixels farther than this from their limb's surface are ignored (m): a "
-        "left/right swap of the forest must not drag a limb across the body",
-    )
-    sigma_collision_m: float = field_doc(
-        0.001,
-        "collision term noise scale per arm sample point, depth beyond the tolerance (m); "
-        "strong: a hidden arm has no data to hold it, and the forest's arm labels on the "
-        "torso pull it in (at 5 mm arm axes still lay 3-5 cm inside)",
-    )
-    collision_tolerance_m: float = field_doc(
-        0.02,
-        "arm axis points may lie this deep inside the torso capsules before the collision "
-        "term acts (m): the capsules only approximate the body (ground-truth poses: upper arm "
-        "axis at most 1.1 cm inside on the 39 dev takes)",
-    )
-    collision_hand_tolerance_m: float = field_doc(
-        0.04,
-        "the same for the hand half of each forearm (m): hands rest on the hips and the belly "
-        "(ground truth: the wrist up to 3.4 cm inside in 1% of the 39 dev takes' frames)",
-    )
     sigma_prior_rad: float = field_doc(
         0.05, "prior noise scale of joint angles and root rotation (rad per frame^2)"
     )
     sigma_prior_m: float = field_doc(0.02, "prior noise scale of the root position (m per frame^2)")
-    prior_velocity_gain: float = field_doc(
-        1.0,
-        "prediction q_prev + gain (q_prev - q_prev2) the prior pulls towards: 1 = Wei's "
-        "constant velocity, 0 = the previous pose",
-    )
-    shoulder_branch_turn_rad: float = field_doc(
-        0.7,
-        "before each frame a shoulder pinned at its limits moves to its other Euler form when "
-        "that turns the upper arm by less than this (rad; 0: never), see "
-        "runtime/tracker/shoulder_branch.py",
-    )
-    # ---------------- sampling caps (speed) ----------------
-    max_depth_pixels: int = field_doc(
-        1200, "depth term: at most this many G pixels per iteration (strided subsample)"
-    )
-    max_extra_points: int = field_doc(
-        400, "extra depth term: at most this many query pixels per iteration"
-    )
-    max_candidates: int = field_doc(
-        1500, "closest-point candidates per side (observed / rendered) at most"
-    )
-    max_label_pixels: int = field_doc(
-        300, "label term pixels per frame at most (a fixed-lattice subsample of the limbs')"
-    )
-    max_silhouette_pixels: int = field_doc(
-        600, "silhouette term: at most this many rendered boundary pixels per iteration"
-    )
-    silhouette_deadzone_px: float = field_doc(
-        0.5,
-        "silhouette residual = distance to the observed silhouette minus this (working px, "
-        ">= 0): pixel-centre distances overstate the distance to the boundary between pixels",
-    )
-    silhouette_max_px: float = field_doc(
-        10.0, "distance transform of the observed silhouette is truncated here (working px)"
-    )
-    min_cosine: float = field_doc(
-        0.2, "depth term ignores pixels seen at grazing angles (|cos| below this)"
-    )
-    exact_signals: bool = field_doc(
-        False,
-        "ray-cast once more at the result for the failure signals when the last step did not "
-        "converge; false: use the last iteration's rendering (one Gauss-Newton step before the "
-        "result), about 15% faster",
-    )
-    surface_error: bool = field_doc(
-        True, "compute the 97% surface-error quantile (Helten IV) of each frame's result"
-    )
-    max_surface_points: int = field_doc(
-        600, "observed points used for the surface-error quantile at most"
-    )
+    # ---------------- reporting ----------------
     observed_joint_area_cm2: float = field_doc(
         5.0,
         "a named joint is reported observed (not inferred) when at least this much of the "
         "model's surface within its radius is seen and confirmed by the depth image "
         "(runtime.tracker.joint_support; about 5 pixels at 3 m in a 320x240 stream)",
     )
+
+    def __post_init__(self) -> None:
+        if self.downsample < 0 or self.person_pixels < 1:
+            raise TrackerConfigError(
+                f"downsample must be >= 0 (0: automatic) and person_pixels >= 1, got "
+                f"{self.downsample}, {self.person_pixels}"
+            )
+        # The weights are 1 / sigma: zero, negative or NaN scales would divide by zero or
+        # silently flip or drop a term.
+        scales = {
+            f.name: getattr(self, f.name)
+            for f in dataclasses.fields(self)
+            if f.name.startswith("sigma_")
+        }
+        bad = {k: v for k, v in scales.items() if not (v > 0 and math.isfinite(v))}
+        area = self.observed_joint_area_cm2
+        if not (area >= 0 and math.isfinite(area)):
+            bad["observed_joint_area_cm2"] = area
+        if bad:
+            raise TrackerConfigError(
+                f"noise scales must be positive and finite (the observed-joint area may be 0), "
+                f"got {bad}"
+            )

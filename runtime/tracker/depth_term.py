@@ -10,7 +10,7 @@ value from the ray-caster's normal, which is noise-free and defined up to the si
 The residual is measured along the normal (depth difference times the cosine of the viewing
 angle, as in point-to-plane ICP): at grazing angles, where a small lateral error makes a
 large depth difference and sensor depth is least reliable, pixels weigh less; pixels beyond
-``min_cosine`` are skipped.
+``MIN_COSINE`` are skipped.
 """
 
 from __future__ import annotations
@@ -24,12 +24,20 @@ from .gauss_newton import Rows
 from .observation import Observation
 from .regions import Regions, rendered_points, sample_pixels
 
-__all__ = ["depth_rows", "depth_error_sum"]
+__all__ = ["MAX_DEPTH_PIXELS", "MIN_COSINE", "depth_rows", "depth_error_sum"]
+
+# At most this many G pixels per iteration (a strided subsample), for speed: the rows' cost
+# grows with their number. Each kept pixel is weighed for the ones it stands for, so the cap
+# does not shift the balance between the terms.
+MAX_DEPTH_PIXELS = 1200
+# Pixels seen at grazing angles (|cos| of the viewing angle below this) are skipped: there a
+# small lateral error makes a large depth difference and the sensor's depth is least reliable.
+MIN_COSINE = 0.2
 
 
 def depth_rows(render: BodyRender, obs: Observation, regions: Regions, cfg: TrackerConfig) -> Rows:
     """Linearized depth-term rows for (a strided subsample of) the pixels in G."""
-    idx, _, ratio = sample_pixels(regions.good, cfg.max_depth_pixels)
+    idx, _, ratio = sample_pixels(regions.good, MAX_DEPTH_PIXELS)
     points, segment = rendered_points(render, idx, obs.intr)
     b, v, u = idx.unbind(1)
     normal = (
@@ -39,7 +47,7 @@ def depth_rows(render: BodyRender, obs: Observation, regions: Regions, cfg: Trac
     )
     ray_len = points.norm(dim=-1) / points[:, 2].clamp_min(1e-9)  # |d| with d_z = 1
     cosine = (normal * points).sum(-1) / points.norm(dim=-1).clamp_min(1e-9)  # < 0: facing
-    keep = cosine.abs() >= cfg.min_cosine
+    keep = cosine.abs() >= MIN_COSINE
     weight = keep.to(points.dtype) * (ratio**0.5 / cfg.sigma_depth_m)
     # d(depth)/dp = n / (n . d); scaled by |cos| = -(n . d) / |d|: g = -n / |d|.
     direction = -normal / ray_len[:, None]

@@ -11,14 +11,14 @@ The four correspondence types of Wei figure 4(c):
 So correspondences are searched in both directions (rendered -> observed for types 1, 3,
 observed -> rendered for 2, 4). A candidate whose depth differs from the query's by more than
 ``extra_gate_m`` (15 cm; Wei: 8) is not eligible, i.e. each query takes its closest point
-among the eligible ones, and matches farther than ``extra_max_distance_m`` in 3D are dropped.
+among the eligible ones, and matches farther than ``EXTRA_MAX_DISTANCE_M`` in 3D are dropped.
 The residual is the 3D offset, one row per camera axis, all on the model point's Jacobian.
-Offsets on the torso, neck, head and clavicles are weighed with ``sigma_extra_torso_m``
-(4 cm) instead of ``sigma_extra_m`` (5 mm): there they mostly measure how far the capsule
+Offsets on the torso, neck, head and clavicles are weighed with ``SIGMA_EXTRA_TORSO_M``
+(4 cm) instead of ``cfg.sigma_extra_m`` (5 mm): there they mostly measure how far the capsule
 torso's shape is from the person's, not a pose error, and at full weight they twisted the
 chest against the pelvis in near-profile views.
 
-Pixels within ``extra_margin_px`` of the other silhouette (B1, B3) or of G (B2) are skipped:
+Pixels within ``EXTRA_MARGIN_PX`` of the other silhouette (B1, B3) or of G (B2) are skipped:
 there the region is a one-pixel quantization band of an edge, and its closest-point offsets
 (a whole pixel for any sub-pixel misalignment) made Gauss-Newton chatter and drift by several
 millimetres on exact data; edges that far off are aligned by the depth and silhouette terms.
@@ -38,7 +38,42 @@ from .gauss_newton import Rows
 from .observation import Observation
 from .regions import Regions, rendered_points, sample_pixels
 
-__all__ = ["ObservedCandidates", "observed_candidates", "closest_points", "extra_rows"]
+__all__ = [
+    "MAX_EXTRA_POINTS",
+    "MAX_CANDIDATES",
+    "EXTRA_MARGIN_PX",
+    "EXTRA_MAX_DISTANCE_M",
+    "SIGMA_EXTRA_TORSO_M",
+    "ObservedCandidates",
+    "observed_candidates",
+    "closest_points",
+    "extra_rows",
+]
+
+# At most this many query pixels per iteration, half for each direction (a strided subsample),
+# for speed: every query is compared with every candidate. Each kept pixel is weighed for the
+# ones it stands for, so the cap does not shift the balance between the terms.
+MAX_EXTRA_POINTS = 400
+# Closest-point candidates per side (observed points, rendered points) at most, for the same
+# reason; the tracker draws the observed ones once per frame with this cap too.
+MAX_CANDIDATES = 1500
+# B1 / B3 pixels within this many working pixels of the other silhouette, and B2 pixels this
+# close to G, get no correspondence: there the offset is a pixel-quantization artefact of an
+# edge that would demand a whole-pixel move for any sub-pixel misalignment (Gauss-Newton
+# chattered and drifted by millimetres on exact data); the depth and silhouette terms align
+# the last pixel. 0: no margin.
+EXTRA_MARGIN_PX = 1
+# Correspondences farther apart than this in 3D are dropped (m): a closest point that far off
+# is rather another part of the body than the same surface displaced, and its pull would drag
+# the model across the gap.
+EXTRA_MAX_DISTANCE_M = 0.3
+# Noise scale of correspondences on the torso, neck, head and clavicles (m; the limbs keep
+# cfg.sigma_extra_m, theirs carry the large corrections). The capsule torso matches a real
+# one's shape only roughly (an anny body's silhouette is covered to 0.75-0.8): at full weight,
+# closest points on the unmatched chest and back turned the chest against the pelvis in
+# near-profile views, the lower back's twist to its 50 degree limit and the far shoulder
+# 25-35 cm off (docs/experiments.md).
+SIGMA_EXTRA_TORSO_M = 0.04
 
 
 @dataclass
@@ -136,12 +171,12 @@ def extra_rows(
 ) -> ExtraResult:
     """Correspondences of types 1-4 and their linearized rows."""
     intr, dtype = obs.intr, render.depth.dtype
-    half = max(1, cfg.max_extra_points // 2)
+    half = max(1, MAX_EXTRA_POINTS // 2)
     error = render.depth.new_zeros(batch_size)
     count = render.depth.new_zeros(batch_size)
 
     # Types 1 and 3: rendered point -> closest observed point.
-    m = cfg.extra_margin_px
+    m = EXTRA_MARGIN_PX
     b1, b3 = regions.b1, regions.b3
     front, behind = regions.b2_front, regions.b2_behind
     if m > 0:
@@ -157,7 +192,7 @@ def extra_rows(
         observed.points,
         observed.batch,
         cfg.extra_gate_m,
-        cfg.extra_max_distance_m,
+        EXTRA_MAX_DISTANCE_M,
     )
     target = observed.points[j] if observed.points.shape[0] else q_pts
     off_r = torch.where(found[:, None], target - q_pts, torch.zeros_like(q_pts))
@@ -169,10 +204,10 @@ def extra_rows(
     o_idx, _, o_ratio = sample_pixels(b3 | behind, half)
     b, v, u = o_idx.unbind(1)
     o_pts = obs.points[b, v, u]
-    c_idx, _, _ = sample_pixels(render.mask, cfg.max_candidates)
+    c_idx, _, _ = sample_pixels(render.mask, MAX_CANDIDATES)
     c_pts, c_seg = rendered_points(render, c_idx, intr)
     k, found_o = closest_points(
-        o_pts, b, c_pts, c_idx[:, 0], cfg.extra_gate_m, cfg.extra_max_distance_m
+        o_pts, b, c_pts, c_idx[:, 0], cfg.extra_gate_m, EXTRA_MAX_DISTANCE_M
     )
     model = c_pts[k] if c_pts.shape[0] else o_pts
     model_seg = c_seg[k] if c_pts.shape[0] else torch.zeros_like(b)
@@ -188,7 +223,7 @@ def extra_rows(
     batch = torch.cat([q_idx[:, 0], b])
     offset = torch.cat([off_r, off_o])
     weight = torch.cat([found * q_ratio**0.5, found_o * o_ratio**0.5]).to(dtype)
-    sigma = weight.new_tensor([cfg.sigma_extra_torso_m, cfg.sigma_extra_m])
+    sigma = weight.new_tensor([SIGMA_EXTRA_TORSO_M, cfg.sigma_extra_m])
     weight = weight / sigma[(segment >= sk.FIRST_LIMB_SEGMENT).long()]
     # One row per camera axis.
     n = points.shape[0]

@@ -104,7 +104,7 @@ def normal_equations(
 
 
 def solve_step(
-    hess: torch.Tensor, grad: torch.Tensor, q: torch.Tensor, damping: float, limits: bool
+    hess: torch.Tensor, grad: torch.Tensor, q: torch.Tensor, damping: float
 ) -> torch.Tensor:
     """Damped Gauss-Newton increment, with joint limits as a one-pass active set.
 
@@ -119,13 +119,12 @@ def solve_step(
     lam = damping * diag.mean(-1, keepdim=True) + 1e-9
     matrix = damped(hess, lam.expand_as(diag))
     dq = solve(matrix, grad)
-    if limits:
-        q64 = q.double()
-        target = clamp_to_limits(q64 + dq)
-        fixed = torch.zeros_like(dq, dtype=torch.bool)
-        fixed[:, 6:] = (target - (q64 + dq)).abs()[:, 6:] > 0
-        fixed_dq = torch.where(fixed, target - q64, torch.zeros_like(dq))
-        dq = solve_with_fixed(matrix, grad, fixed, fixed_dq)
+    q64 = q.double()
+    target = clamp_to_limits(q64 + dq)
+    fixed = torch.zeros_like(dq, dtype=torch.bool)
+    fixed[:, 6:] = (target - (q64 + dq)).abs()[:, 6:] > 0
+    fixed_dq = torch.where(fixed, target - q64, torch.zeros_like(dq))
+    dq = solve_with_fixed(matrix, grad, fixed, fixed_dq)
     return dq.to(q.dtype)
 
 
@@ -142,10 +141,9 @@ def limit_step(dq: torch.Tensor, max_angle: float) -> torch.Tensor:
     return dq * (max_angle / largest.clamp_min(1e-12)).clamp(max=1.0)
 
 
-def apply_step(q: torch.Tensor, dq: torch.Tensor, limits: bool) -> torch.Tensor:
-    """``q (+) dq``, clamped to the joint limits when ``limits``."""
-    q = pose_update(q, dq)
-    return clamp_to_limits(q) if limits else q
+def apply_step(q: torch.Tensor, dq: torch.Tensor) -> torch.Tensor:
+    """``q (+) dq``, clamped to the joint limits."""
+    return clamp_to_limits(pose_update(q, dq))
 
 
 def predicted_decrease(hess: torch.Tensor, dq: torch.Tensor) -> torch.Tensor:

@@ -9,8 +9,8 @@ limb's capsule: the residual is p's signed distance to the capsule (> 0 outside)
 direction the unit vector from the capsule's axis towards p, so ``g^T dx/dq dq = r`` moves x
 onto p (point-to-surface ICP with the correspondences fixed by the labels). Torso and head
 labels add little the depth terms lack and are not used. Labels are noisy (left/right swaps,
-part borders): pixels farther than ``cfg.label_gate_m`` from their limb are ignored, and at
-most ``cfg.max_label_pixels`` of them are used, weighted like the other terms' samples.
+part borders): pixels farther than ``LABEL_GATE_M`` from their limb are ignored, and at
+most ``MAX_LABEL_PIXELS`` of them are used, weighted like the other terms' samples.
 """
 
 from __future__ import annotations
@@ -26,7 +26,15 @@ from .gauss_newton import Rows
 from .observation import Observation
 from .regions import sample_pixels
 
-__all__ = ["capsule_offsets", "label_rows"]
+__all__ = ["LABEL_GATE_M", "MAX_LABEL_PIXELS", "capsule_offsets", "label_rows"]
+
+# Labelled pixels farther than this from their limb's surface are ignored (m): a left/right
+# swap of the forest must not drag a limb across the body.
+LABEL_GATE_M = 0.15
+# At most this many labelled limb pixels per frame (a fixed-lattice subsample), for speed;
+# each kept pixel is weighed for the ones it stands for, so the cap does not shift the
+# balance between the terms.
+MAX_LABEL_PIXELS = 300
 
 
 def capsule_offsets(
@@ -65,7 +73,7 @@ def label_rows(
     ``obs.labels``; no rows without it)."""
     labels = obs.labels if obs.labels is not None else torch.full_like(obs.depth, -1).long()
     use = obs.valid & (labels >= sk.FIRST_LIMB_SEGMENT)
-    idx, _, ratio = sample_pixels(use, cfg.max_label_pixels)
+    idx, _, ratio = sample_pixels(use, MAX_LABEL_PIXELS)
     b, v, u = idx.unbind(1)
     points, segment = obs.points[b, v, u], labels[b, v, u]
     rot, origin = geom.frames(kin)
@@ -75,6 +83,6 @@ def label_rows(
         points, rot[b, segment], origin[b, segment], geom.basis[segment], span, scale
     )
     surface = points - signed[:, None] * direction
-    keep = (signed.abs() < cfg.label_gate_m).to(points.dtype)
+    keep = (signed.abs() < LABEL_GATE_M).to(points.dtype)
     weight = keep * (ratio**0.5 / cfg.sigma_label_m)
     return Rows(b, surface, segment, direction, signed, weight)

@@ -36,6 +36,7 @@ from .regions import Regions, sample_pixels
 
 __all__ = [
     "LIMB_SEGMENTS",
+    "MAX_SURFACE_POINTS",
     "FitSignals",
     "FrameSignals",
     "frame_signals",
@@ -43,6 +44,10 @@ __all__ = [
     "overlap",
     "surface_error_quantile",
 ]
+
+# The surface-error quantile is taken over at most this many observed points (a strided
+# subsample), for speed: each point costs a distance to every capsule of every pose.
+MAX_SURFACE_POINTS = 600
 
 # The segments of each limb, in the order of ``limb_visibility``: left arm, right arm (upper
 # arm, forearm with hand), left leg, right leg (thigh, shank with foot).
@@ -130,14 +135,10 @@ def frame_signals(
         * 100.0
     )
     iou = overlap(render.mask, obs.silhouette)
-    if cfg.surface_error:
-        surf = surface_error_quantile(obs, render, body, cfg.max_surface_points)
-    else:
-        surf = torch.zeros_like(iou)
     return FrameSignals(
         depth_cm,
         iou,
-        surf,
+        surface_error_quantile(obs, render, body, MAX_SURFACE_POINTS),
         limb_visibility(render, obs.intr, body),
         joint_support_cm2(render, regions, obs.intr, obs.labels),
     )

@@ -22,7 +22,21 @@ from .gauss_newton import Rows
 from .observation import Observation
 from .regions import rendered_points, sample_pixels
 
-__all__ = ["silhouette_boundary", "silhouette_rows"]
+__all__ = [
+    "MAX_SILHOUETTE_PIXELS",
+    "SILHOUETTE_DEADZONE_PX",
+    "silhouette_boundary",
+    "silhouette_rows",
+]
+
+# At most this many rendered boundary pixels per iteration (a strided subsample), for speed;
+# each kept pixel is weighed for the ones it stands for, so the cap does not shift the
+# balance between the terms.
+MAX_SILHOUETTE_PIXELS = 600
+# The residual is the distance to the observed silhouette minus this (working pixels, >= 0):
+# pixel-centre distances overstate the distance to the boundary, which runs between pixels,
+# and an edge within half a pixel is as aligned as the image can tell.
+SILHOUETTE_DEADZONE_PX = 0.5
 
 
 def silhouette_boundary(mask: torch.Tensor) -> torch.Tensor:
@@ -35,7 +49,7 @@ def silhouette_boundary(mask: torch.Tensor) -> torch.Tensor:
 def silhouette_rows(render: BodyRender, obs: Observation, cfg: TrackerConfig) -> Rows:
     """Rows for the rendered boundary pixels that lie outside the observed silhouette."""
     outside = silhouette_boundary(render.mask) & (obs.distance > 0)
-    idx, _, ratio = sample_pixels(outside, cfg.max_silhouette_pixels)
+    idx, _, ratio = sample_pixels(outside, MAX_SILHOUETTE_PIXELS)
     points, segment = rendered_points(render, idx, obs.intr)
     b, v, u = idx.unbind(1)
     dist = obs.distance[b, v, u]
@@ -47,5 +61,5 @@ def silhouette_rows(render: BodyRender, obs: Observation, cfg: TrackerConfig) ->
     gu, gv = grad[:, 0] * fx * inv_z, grad[:, 1] * fy * inv_z
     direction = torch.stack([gu, gv, -(gu * x + gv * y) * inv_z], -1)
     weight = torch.full_like(dist, ratio**0.5 / cfg.sigma_silhouette_px)
-    residual = -(dist - cfg.silhouette_deadzone_px).clamp_min(0)
+    residual = -(dist - SILHOUETTE_DEADZONE_PX).clamp_min(0)
     return Rows(b, points, segment, direction, residual, weight)

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from runtime.raycast import render_body
-from runtime.tracker import Tracker, TrackerConfig, TrackerError
+from runtime.tracker import Tracker, TrackerConfig, TrackerConfigError
 from runtime.tracker.joint_support import JOINT_SUPPORT, joint_support_cm2, observed_joints
 from runtime.tracker.observation import observe
 from runtime.tracker.regions import Regions, classify, rendered_points
@@ -130,8 +130,8 @@ def test_tracker_step_reports_observed_joints_and_checks_the_threshold():
     never = Tracker(body, intr, TrackerConfig(observed_joint_area_cm2=1e9), dtype=torch.float64)
     assert not bool(never.step(depth, depth > 0, q[0]).observed.any())
     for bad in (-1.0, math.nan):
-        with pytest.raises(TrackerError, match="observed_joint_area_cm2"):
-            Tracker(body, intr, TrackerConfig(observed_joint_area_cm2=bad))
+        with pytest.raises(TrackerConfigError, match="observed_joint_area_cm2"):
+            TrackerConfig(observed_joint_area_cm2=bad)
 
 
 def test_forest_labels_on_another_body_group_do_not_confirm_a_joint():

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from runtime.raycast import render_body, segment_geometry
-from runtime.tracker import Tracker, TrackerConfig, TrackerError
+from runtime.tracker import Tracker, TrackerConfig, TrackerConfigError, TrackerError, label_term
 from runtime.tracker.gauss_newton import rows_jacobian
 from runtime.tracker.label_term import capsule_offsets, label_rows
 from runtime.tracker.observation import observe
@@ -70,14 +70,16 @@ def _labelled_observation(q_obs: torch.Tensor, body: BodyShape, factor: int = 1)
     return observe(depth, depth > 0, INTR, factor, 10.0, None, segments)
 
 
-def test_label_rows_jacobian_matches_autograd():
+def test_label_rows_jacobian_matches_autograd(monkeypatch):
     body = BodyShape.default(torch.float64)
     q = _pose()
     q_obs = q.clone()
     q_obs[0, D["l_humerus_abd"]] += 0.15  # the observed arm is 5-10 cm from the model's
     obs = _labelled_observation(q_obs, body)
     geom = segment_geometry(body, q)
-    cfg = TrackerConfig(max_label_pixels=60, label_gate_m=1.0)
+    monkeypatch.setattr(label_term, "MAX_LABEL_PIXELS", 60)
+    monkeypatch.setattr(label_term, "LABEL_GATE_M", 1.0)
+    cfg = TrackerConfig()
     rows = label_rows(forward_kinematics(q, body), geom, obs, cfg)
     assert len(rows) > 20 and set(rows.segment.tolist()) <= set(range(7, 15))
     analytic = rows_jacobian(forward_kinematics(q, body), rows)
@@ -96,14 +98,16 @@ def test_label_rows_jacobian_matches_autograd():
     torch.testing.assert_close(analytic, -numeric, atol=1e-6, rtol=1e-4)
 
 
-def test_label_rows_gate_and_missing_labels():
+def test_label_rows_gate_and_missing_labels(monkeypatch):
     body = BodyShape.default(torch.float64)
     q = _pose()
     geom, kin = segment_geometry(body, q), forward_kinematics(q, body)
     obs = _labelled_observation(q, body)
-    rows = label_rows(kin, geom, obs, TrackerConfig(max_label_pixels=100))
+    monkeypatch.setattr(label_term, "MAX_LABEL_PIXELS", 100)
+    rows = label_rows(kin, geom, obs, TrackerConfig())
     assert len(rows) > 0 and bool((rows.weight > 0).all())
     assert float(rows.residual.abs().max()) < 0.02  # the model is where its labels are
+    monkeypatch.undo()  # the default cap from here on
     # Far from every labelled limb: all gated out.
     moved = q.clone()
     moved[0, 0] += 0.5
@@ -156,8 +160,8 @@ def test_label_term_pulls_a_misplaced_arm_back():
             labelled.step(depth, depth > 0, q_start[0], labels=bad)
 
 
-@pytest.mark.parametrize("bad", [{"sigma_label_m": 0.0}, {"label_gate_m": -0.1},
+@pytest.mark.parametrize("bad", [{"sigma_label_m": 0.0}, {"sigma_prior_m": -0.1},
                                  {"sigma_depth_m": float("nan")}])  # fmt: skip
 def test_bad_noise_scales_are_rejected(bad):
-    with pytest.raises(TrackerError, match="positive and finite"):
-        Tracker(BodyShape.default(), INTR, TrackerConfig(**bad))
+    with pytest.raises(TrackerConfigError, match="positive and finite"):
+        TrackerConfig(**bad)

@@ -3,14 +3,14 @@ form pinned at the limits."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import pytest
 import torch
 
 from runtime.raycast import render_body
-from runtime.tracker import Tracker, TrackerConfig, track_sequence
+from runtime.tracker import Tracker, track_sequence
+from runtime.tracker import tracker as tracker_module
 from runtime.tracker.shoulder_branch import (
     SHOULDER_DOFS,
     align_branch,
@@ -78,7 +78,7 @@ def test_align_branch_writes_the_frame_before_like_the_frame_after():
     assert torch.equal(align_branch(before, before), before)
 
 
-def test_tracker_leaves_a_form_pinned_at_the_limits():
+def test_tracker_leaves_a_form_pinned_at_the_limits(monkeypatch):
     # Arms lowered sideways from overhead; the track starts in the other form, which leaves
     # the limits (flexion 180) as the arms come down, as the tracker found on rotateArms.
     frames = 10
@@ -92,8 +92,8 @@ def test_tracker_leaves_a_form_pinned_at_the_limits():
     start = clamp_to_limits(other_branch(truth[:1].double())).float()[0]
     errors = {}
     for turn in (0.0, 0.7):
-        cfg = dataclasses.replace(TrackerConfig(), shoulder_branch_turn_rad=turn)
-        q, _ = track_sequence(depth, depth > 0, start, Tracker(body, intr, cfg))
+        monkeypatch.setattr(tracker_module, "SHOULDER_BRANCH_TURN_RAD", turn)
+        q, _ = track_sequence(depth, depth > 0, start, Tracker(body, intr))
         a = named_joint_positions(forward_kinematics(q.double(), body.to(torch.float64)))
         b = named_joint_positions(forward_kinematics(truth.double(), body.to(torch.float64)))
         errors[turn] = float((a - b).norm(dim=-1)[-3:].max()) * 1e3

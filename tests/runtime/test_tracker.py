@@ -12,7 +12,17 @@ import torch
 
 from bench.scenes import camera_motion
 from runtime.raycast import render_body
-from runtime.tracker import Tracker, TrackerConfig, TrackerError, track_sequence
+from runtime.tracker import (
+    Tracker,
+    TrackerConfig,
+    TrackerConfigError,
+    TrackerError,
+    depth_term,
+    extra_depth_term,
+    silhouette_term,
+    track_sequence,
+)
+from runtime.tracker import tracker as tracker_module
 from runtime.tracker.depth_term import depth_rows
 from runtime.tracker.extra_depth_term import closest_points, extra_rows, observed_candidates
 from runtime.tracker.gauss_newton import (
@@ -110,11 +120,13 @@ def _frame(q: torch.Tensor, body: BodyShape, intr: Intrinsics = INTR):
     return observe(depth, depth > 0, intr, 2, 12.0)
 
 
-def test_depth_term_matches_finite_differences_of_the_rendering():
+def test_depth_term_matches_finite_differences_of_the_rendering(monkeypatch):
     body = BodyShape.default(torch.float64)
     q = _pose()
     obs = _frame(q, body)
-    cfg = TrackerConfig(max_depth_pixels=100000, min_cosine=0.5)
+    monkeypatch.setattr(depth_term, "MAX_DEPTH_PIXELS", 100000)
+    monkeypatch.setattr(depth_term, "MIN_COSINE", 0.5)
+    cfg = TrackerConfig()
     render = render_body(q, body, obs.intr)
     regions = classify(render, obs, 0.08, True)
     # Interior pixels: the same segment in the 5x5 neighbourhood (no edge within reach).
@@ -142,14 +154,15 @@ def test_depth_term_matches_finite_differences_of_the_rendering():
         assert torch.allclose(jac[:, dof] / cos, fd, atol=1e-4, rtol=1e-4), sk.DOF_NAMES[dof]
 
 
-def test_silhouette_rows_follow_the_projected_point():
+def test_silhouette_rows_follow_the_projected_point(monkeypatch):
     body = BodyShape.default(torch.float64)
     q = _pose()
     shifted = q.clone()
     shifted[0, 0] += 0.04  # observed person 4 cm to the right: the left edge spills over
     obs = _frame(shifted, body)
     render = render_body(q, body, obs.intr)
-    cfg = TrackerConfig(max_silhouette_pixels=100000)
+    monkeypatch.setattr(silhouette_term, "MAX_SILHOUETTE_PIXELS", 100000)
+    cfg = TrackerConfig()
     rows = silhouette_rows(render, obs, cfg)
     assert len(rows) > 20 and bool((rows.residual < 0).all())
     jac = rows_jacobian(render.kin, rows)
@@ -193,12 +206,12 @@ def test_extra_term_pulls_the_model_towards_the_observation():
     from runtime.tracker.gauss_newton import normal_equations
 
     hess, grad = normal_equations(render.kin, rows, 1)
-    dq = solve_step(hess + 1e-2 * torch.eye(34, dtype=torch.float64), grad, q, 1e-3, True)
+    dq = solve_step(hess + 1e-2 * torch.eye(34, dtype=torch.float64), grad, q, 1e-3)
     assert float(dq[0, D["l_humerus_abd"]]) < -0.05
     assert float(extra.error_sum[0] / extra.count[0]) > 0.01
 
 
-def test_extra_term_weighs_torso_and_limb_offsets_by_their_own_scales():
+def test_extra_term_weighs_torso_and_limb_offsets_by_their_own_scales(monkeypatch):
     body = BodyShape.default(torch.float64)
     truth = _pose()
     q = truth.clone()
@@ -208,11 +221,12 @@ def test_extra_term_weighs_torso_and_limb_offsets_by_their_own_scales():
     render = render_body(q, body, obs.intr)
     regions = classify(render, obs, 0.08, True)
     observed = observed_candidates(obs, 5000)
-    base = TrackerConfig(sigma_extra_m=0.005, sigma_extra_torso_m=0.005)
-    rows = extra_rows(render, obs, regions, observed, base, 1).rows
+    cfg = TrackerConfig(sigma_extra_m=0.005)
+    monkeypatch.setattr(extra_depth_term, "SIGMA_EXTRA_TORSO_M", 0.005)
+    rows = extra_rows(render, obs, regions, observed, cfg, 1).rows
     torso = rows.segment < sk.SEGMENT_NAMES.index("l_upper_arm")
     assert bool((torso & (rows.weight > 0)).any()) and bool((~torso & (rows.weight > 0)).any())
-    cfg = dataclasses.replace(base, sigma_extra_torso_m=0.04)
+    monkeypatch.setattr(extra_depth_term, "SIGMA_EXTRA_TORSO_M", 0.04)
     scaled = extra_rows(render, obs, regions, observed, cfg, 1).rows
     # Same correspondences; torso rows weigh 8 times less, limb rows the same.
     assert torch.equal(scaled.residual, rows.residual)
@@ -290,11 +304,12 @@ def test_observation_in_a_window_is_the_whole_image_cut(factor):
     assert cut.intr.cx == pytest.approx(full.intr.cx - j0) and cut.intr.fy == full.intr.fy
 
 
-def test_tracking_in_a_window_matches_the_whole_image():
+def test_tracking_in_a_window_matches_the_whole_image(monkeypatch):
     body, truth, depth, mask = _sequence("walk", 3)
     runs = []
     for margin in (0.25, -1.0):
-        tracker = Tracker(body, INTR, TrackerConfig(crop_margin=margin))
+        monkeypatch.setattr(tracker_module, "CROP_MARGIN", margin)
+        tracker = Tracker(body, INTR)
         runs.append(track_sequence(depth, mask, truth[0], tracker)[0])
     assert torch.allclose(runs[0], runs[1], atol=1e-4)
 
@@ -310,7 +325,7 @@ def test_prior_prediction_and_step():
     assert float(prior_residual(pred, pred).abs().max()) < 1e-9
     # The prior alone moves the pose onto the prediction (up to the damping).
     w2, rhs, _ = prior_system(q1, pred, 0.05, 0.02)
-    dq = solve_step(torch.diag_embed(w2), rhs, q1, 1e-6, True)
+    dq = solve_step(torch.diag_embed(w2), rhs, q1, 1e-6)
     moved = pose_update(q1, dq)
     assert float(prior_residual(moved, pred).abs().max()) < 1e-4
 
@@ -342,7 +357,7 @@ def test_limits_active_set_keeps_joints_inside():
     grad = torch.zeros(1, 34, dtype=torch.float64)
     grad[0, D["l_radius_flex"]] = -0.5  # wants hyper-extension
     grad[0, D["l_humerus_abd"]] = 0.1
-    dq = solve_step(hess, grad, q, 0.0, True)
+    dq = solve_step(hess, grad, q, 0.0)
     assert float(dq[0, D["l_radius_flex"]]) == pytest.approx(0.0, abs=1e-12)
     assert float(dq[0, D["l_humerus_abd"]]) == pytest.approx(0.1, rel=1e-6)
 
@@ -377,12 +392,12 @@ def test_predicted_decrease_is_the_quadratic_model_s():
     assert torch.allclose(predicted_decrease(hess[1:], step), drop)
 
 
-def test_energy_stop_ends_the_iterations_early():
+def test_energy_stop_ends_the_iterations_early(monkeypatch):
     body, truth, depth, mask = _sequence("walk", 6)
     runs = {}
     for stop in (0.0, 800.0, 1e12):
-        cfg = dataclasses.replace(TrackerConfig(), stop_decrease=stop)
-        q, results = track_sequence(depth, mask, truth[0], Tracker(body, INTR, cfg))
+        monkeypatch.setattr(tracker_module, "STOP_DECREASE", stop)
+        q, results = track_sequence(depth, mask, truth[0], Tracker(body, INTR))
         error = float(_joint_error_mm(q, truth, body).mean())
         runs[stop] = (sum(r.iterations for r in results), error)
         if stop == 1e12:  # at most two steps per frame: the energy test starts at the second
@@ -421,12 +436,11 @@ def _sequence(name: str, frames: int, dtype=torch.float32):
 
 @pytest.mark.parametrize("stop_decrease", [None, 0.0], ids=["preset", "update_stop_only"])
 @pytest.mark.parametrize("motion", ["walk", "wave"])
-def test_tracks_a_sequence_rendered_from_the_model(motion, stop_decrease):
+def test_tracks_a_sequence_rendered_from_the_model(motion, stop_decrease, monkeypatch):
     body, truth, depth, mask = _sequence(motion, 24)
-    cfg = TrackerConfig()
     if stop_decrease is not None:
-        cfg = dataclasses.replace(cfg, stop_decrease=stop_decrease)
-    q, results = track_sequence(depth, mask, truth[0], Tracker(body, INTR, cfg))
+        monkeypatch.setattr(tracker_module, "STOP_DECREASE", stop_decrease)
+    q, results = track_sequence(depth, mask, truth[0], Tracker(body, INTR))
     err = _joint_error_mm(q, truth, body)
     assert float(err.mean()) < 5.0, err.mean(1)
     assert all(r.overlap > 0.95 and r.depth_error_cm < 1.0 for r in results)
@@ -438,20 +452,28 @@ def test_tracks_a_sequence_rendered_from_the_model(motion, stop_decrease):
 
 
 @pytest.mark.parametrize(
-    "flags",
+    "flags, constants",
     [
-        {"use_depth": False},
-        {"use_extra_depth": False},
-        {"use_silhouette": False},
-        {"use_prior": False},
-        {"use_limits": False},
-        {"occlusion_handling": False},
-        {"init_from_prediction": True, "surface_error": False},
-        {"downsample": 0, "person_pixels": 900, "crop_margin": -1.0},
-        {"use_depth": False, "use_extra_depth": False, "use_silhouette": False, "use_prior": False},
+        ({"use_depth": False}, {}),
+        ({"use_extra_depth": False}, {}),
+        ({"use_silhouette": False}, {}),
+        ({"use_prior": False}, {}),
+        ({"occlusion_handling": False}, {}),
+        ({"downsample": 0, "person_pixels": 900}, {"CROP_MARGIN": -1.0}),
+        (
+            {
+                "use_depth": False,
+                "use_extra_depth": False,
+                "use_silhouette": False,
+                "use_prior": False,
+            },
+            {},
+        ),
     ],
 )
-def test_ablations_run(flags):
+def test_ablations_run(flags, constants, monkeypatch):
+    for name, value in constants.items():  # the tracker's constants (runtime.tracker.tracker)
+        monkeypatch.setattr(tracker_module, name, value)
     body, truth, depth, mask = _sequence("wave", 4)
     tracker = Tracker(body, INTR, dataclasses.replace(TrackerConfig(iterations=3), **flags))
     q, results = track_sequence(depth, mask, truth[0], tracker)
@@ -481,11 +503,13 @@ def test_bad_input_is_rejected_clearly():
             torch.zeros(100, 100), torch.zeros(100, 100, dtype=torch.bool), rest_pose(1)[0]
         )
     for bad in ({"downsample": -1}, {"person_pixels": 0}):
-        with pytest.raises(TrackerError, match="downsample must be >= 0"):
-            Tracker(BodyShape.default(), INTR, TrackerConfig(**bad))
+        with pytest.raises(TrackerConfigError, match="downsample must be >= 0"):
+            TrackerConfig(**bad)
     for bad in (0.0, -0.04, math.nan):
-        with pytest.raises(TrackerError, match="sigma_extra_torso_m"):
-            Tracker(BodyShape.default(), INTR, TrackerConfig(sigma_extra_torso_m=bad))
+        with pytest.raises(TrackerConfigError, match="sigma_extra_m"):
+            TrackerConfig(sigma_extra_m=bad)
+    with pytest.raises(TrackerConfigError, match="sigma_prior_rad"):  # replace checks too
+        dataclasses.replace(TrackerConfig(), sigma_prior_rad=-1.0)
     with pytest.raises(TrackerError, match="q_prev"):
         tracker.step(torch.zeros(240, 320), torch.zeros(240, 320, dtype=torch.bool), rest_pose(1))
 
