@@ -25,6 +25,7 @@ from shared.body import BodyShape
 from shared.recording import Recording, RecordingError
 
 from .calibration import CalibrationConfig, CalibrationError, ReferencePoseWatcher, calibrate_body
+from .cli_common import add_frame_range_args, add_source_args, report_error
 from .detector import (
     DetectorConfig,
     DetectorError,
@@ -34,7 +35,7 @@ from .detector import (
 from .detector.detect import detect_pose
 from .forest.inference import DEFAULT_CALIBRATION_MODEL, DEFAULT_MODEL
 from .segmentation import segment_person
-from .streams import FrameRange, StreamError, describe_sources, open_stream
+from .streams import FrameRange, StreamError, open_stream
 
 # The training population's average body (python -m train.bodies.template_body writes it).
 DEFAULT_TEMPLATE = Path(__file__).resolve().parents[1] / "configs" / "body_template.json"
@@ -52,8 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Calibrate the body model (bone lengths and radii) from depth frames of a "
         "person holding the reference pose (T-pose facing the camera); writes a body file.",
     )
-    p.add_argument("--input", "-i", required=True, help=f"depth source: {describe_sources()}")
-    p.add_argument("--output", "-o", required=True, type=Path, help="body file to write (JSON)")
+    add_source_args(p, "body file to write (JSON)")
     p.add_argument(
         "--model",
         type=Path,
@@ -92,8 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="consensus",
         help="one scale for all lengths (default) or Wei's per-bone lengths",
     )
-    p.add_argument("--start", type=int, default=0, help="first frame index")
-    p.add_argument("--stop", type=int, help="stop before this frame index")
+    add_frame_range_args(p)
     p.add_argument("--quiet", "-q", action="store_true", help="no progress messages")
     return p
 
@@ -173,14 +172,11 @@ def main(argv: list[str] | None = None) -> int:
         args.output.parent.mkdir(parents=True, exist_ok=True)
         body.save(args.output)
     except (CalibrateError, CalibrationError, StreamError, RecordingError, DetectorError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+        return report_error(err)
     except ValueError as err:  # the forest loader's ForestFormatError and similar bad input
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+        return report_error(err)
     except OSError as err:
-        print(f"error: cannot write {args.output}: {err}", file=sys.stderr)
-        return 2
+        return report_error(f"cannot write {args.output}: {err}")
     if not args.quiet:
         lengths = ", ".join(f"{x * 100:.1f}" for x in body.lengths.tolist())
         print(f"wrote {args.output} (lengths cm: {lengths})", file=sys.stderr)

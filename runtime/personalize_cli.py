@@ -31,6 +31,7 @@ from shared.camera import Intrinsics, depth_to_points
 from shared.config import ConfigError, add_cli_args, config_from_args
 from shared.recording import Recording, RecordingError
 
+from .cli_common import report_error
 from .personalize.fit import FitConfig, PersonalizeError
 
 __all__ = ["main", "load_view"]
@@ -143,8 +144,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         body = body_from_rest(model, result.rest)
     except (PersonalizeError, RecordingError, ConfigError, ValueError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+        return report_error(err)
     out = Path(args.output)
     out.parent.mkdir(parents=True, exist_ok=True)
     body.save(out)

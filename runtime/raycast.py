@@ -43,6 +43,7 @@ from shared import skeleton as sk
 from shared.body import FOOT_SEGMENTS, BodyShape, cross_section_axes
 from shared.camera import Intrinsics
 from shared.kinematics import Kinematics, forward_kinematics
+from shared.labels import segment_to_part
 
 __all__ = [
     "CAP_FRACTION",
@@ -51,6 +52,7 @@ __all__ = [
     "segment_geometry",
     "render_body",
     "render_body_depth",
+    "part_labels",
     "surface_normals",
     "surface_local_points",
     "surface_distance",
@@ -330,6 +332,16 @@ def render_body(
 def render_body_depth(q: torch.Tensor, body: BodyShape, intr: Intrinsics) -> torch.Tensor:
     """Depth image (B, H, W) of the cylinder model at poses ``q``, metres, 0 = background."""
     return render_body(q, body, intr).depth
+
+
+def part_labels(render: BodyRender, body: BodyShape) -> torch.Tensor:
+    """Exact part labels (B, H, W) int64 (:mod:`shared.labels`, 0 = background) of a render with
+    details of the unbatched ``body``: each pixel's segment, split at half its length where the
+    segment carries two parts."""
+    seg = render.segment
+    axis = torch.as_tensor(sk.SEGMENT_AXIS, dtype=render.local_points.dtype)[seg.clamp_min(0)]
+    frac = (render.local_points * axis).sum(-1) / body.lengths[seg.clamp_min(0)]
+    return torch.from_numpy(segment_to_part(seg.numpy(), frac.numpy()).astype(np.int64))
 
 
 def segment_distances(points: torch.Tensor, kin: Kinematics, body: BodyShape) -> torch.Tensor:

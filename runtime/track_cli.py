@@ -39,6 +39,7 @@ from shared.config import (
 )
 from shared.recording import RecordingError
 
+from .cli_common import add_frame_range_args, add_source_args, report_error
 from .estimator import MODES, MODES_NEEDING_MODEL, make_estimator
 from .forest.inference import DEFAULT_MODEL
 from .segmentation import SegmentationConfig
@@ -46,7 +47,6 @@ from .streams import (
     FrameRange,
     SensorDisconnected,
     StreamError,
-    describe_sources,
     open_stream,
 )
 from .track_loop import Progress, TrackStats, track
@@ -106,8 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Track full-body motion in a depth stream; writes poses.jsonl, motion.bvh "
         "and summary.json to --output.",
     )
-    p.add_argument("--input", "-i", required=True, help=f"depth source: {describe_sources()}")
-    p.add_argument("--output", "-o", required=True, type=Path, help="result directory")
+    add_source_args(p, "result directory")
     p.add_argument(
         "--model",
         type=Path,
@@ -131,8 +130,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--cy", type=float, help="principal point row (default: centre)")
     g.add_argument("--fps", type=float, help="frame rate of an image folder (default 30)")
     r = p.add_argument_group("frames and pacing")
-    r.add_argument("--start", type=int, default=0, help="first frame index")
-    r.add_argument("--stop", type=int, help="stop before this frame index")
+    add_frame_range_args(r)
     r.add_argument(
         "--realtime",
         action="store_true",
@@ -266,11 +264,6 @@ def _graceful_sigint(stop: threading.Event):
 # Entry point
 
 
-def _error(msg: str) -> int:
-    print(f"error: {msg}", file=sys.stderr)
-    return 2
-
-
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
@@ -321,7 +314,7 @@ def _run(args: argparse.Namespace) -> int:
         if stream is not None:
             stream.close()  # a camera must be released whatever went wrong
         if isinstance(err, bad_input):
-            return _error(str(err))
+            return report_error(err)
         raise
 
     stats = TrackStats()

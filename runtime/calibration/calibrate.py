@@ -33,7 +33,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
 import torch
 
 from shared import skeleton as sk
@@ -41,7 +40,7 @@ from shared.body import FOOT_SEGMENTS, BodyShape
 from shared.camera import Intrinsics, depth_to_points
 from shared.config import field_doc
 from shared.kinematics import rest_pose
-from shared.labels import PART_SEGMENT, segment_to_part
+from shared.labels import PART_SEGMENT
 
 from .cylinder_ransac import fit_cylinder
 
@@ -182,16 +181,12 @@ def measure_bones(
 
 
 def _template_measurement(template, intr, cfg, root_z, gen):
-    from runtime.raycast import render_body
+    from runtime.raycast import part_labels, render_body
 
     q = reference_pose(cfg, (0.0, 0.0, root_z), torch.float64)
     body = template.to(dtype=torch.float64)
     r = render_body(q[None], body, intr)
-    seg = r.segment[0]
-    axis = torch.as_tensor(sk.SEGMENT_AXIS, dtype=torch.float64)[seg.clamp_min(0)]
-    frac = (r.local_points[0] * axis).sum(-1) / body.lengths[seg.clamp_min(0)]
-    labels = torch.from_numpy(segment_to_part(seg.numpy(), frac.numpy()).astype(np.int64))
-    return measure_bones(r.depth[0], labels, intr, template, cfg, gen)
+    return measure_bones(r.depth[0], part_labels(r, body)[0], intr, template, cfg, gen)
 
 
 def _first_finite(*candidates: torch.Tensor) -> torch.Tensor:

@@ -44,7 +44,6 @@ placed behind the cloud's centroid.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 
@@ -57,35 +56,13 @@ from shared.camera import Intrinsics
 from shared.config import field_doc
 from shared.kinematics import clamp_to_limits, forward_kinematics, pose_update
 from shared.least_squares import damped_solve
-from shared.so3 import skew
 
+from .correspondences import closest_pairs, residual_jacobian, residuals, visible_vertices
+from .jacobian import linear_shape, pose_jacobian, posed_perturbed
+from .reference_pose import INITIAL_PHENOTYPE, initial_pose
 from .shape_model import PHENOTYPE_BOUNDS, RestShape, ShapeModel, vertex_normals
 
-__all__ = [
-    "CALIBRATION_POSE_DEG",
-    "INITIAL_PHENOTYPE",
-    "FitConfig",
-    "FitResult",
-    "PersonalizeError",
-    "calibration_pose",
-    "fit_shape",
-    "initial_pose",
-]
-
-# The reference pose the user is asked to hold for both views: arms lowered sideways (about
-# 40 degrees from the body, so that they stay apart from the trunk in depth) and feet slightly
-# apart; every other angle zero.
-CALIBRATION_POSE_DEG: dict[str, float] = {
-    "l_humerus_abd": 40.0,
-    "r_humerus_abd": 40.0,
-    "l_femur_abd": 6.0,
-    "r_femur_abd": 6.0,
-}
-# Start of the shape search: an average adult (anny age 0.8 is about 40 years, height 0.4
-# about 1.70 m), halfway between the male (0) and female (1) targets.
-INITIAL_PHENOTYPE = (0.5, 0.8, 0.5, 0.5, 0.4, 0.5)
-# Root rotation vectors: facing the camera upright, and turned by 180 degrees about the vertical.
-_FACING = {"front": (math.pi, 0.0, 0.0), "back": (0.0, 0.0, math.pi)}
+__all__ = ["FitConfig", "FitResult", "PersonalizeError", "fit_shape"]
 
 
 class PersonalizeError(ValueError):
@@ -150,205 +127,6 @@ class FitResult:
     iterations: int
     seconds: float
     history: list[float] = field(default_factory=list)
-
-
-def calibration_pose(view: str = "front", root_position=(0.0, 0.0, 2.5)) -> np.ndarray:
-    """The reference calibration pose (:data:`CALIBRATION_POSE_DEG`) for a view: (34,)."""
-    if view not in _FACING:
-        raise ValueError(f"view must be 'front' or 'back', got {view!r}")
-    q = np.zeros(sk.NUM_DOFS)
-    q[0:3] = root_position
-    q[3:6] = _FACING[view]
-    for name, deg in CALIBRATION_POSE_DEG.items():
-        q[sk.DOF_NAMES.index(name)] = math.radians(deg)
-    return q
-
-
-def initial_pose(points: torch.Tensor, view: str) -> torch.Tensor:
-    """Calibration pose with the hip centre behind the centroid of the view's points: (34,).
-
-    The visible surface lies about 10 cm in front of the body's axis; the hip centre sits
-    at about 52% of the cloud's height from its bottom (y down in the camera frame).
-    """
-    centre = points.mean(0)
-    lo, hi = points[:, 1].min(), points[:, 1].max()
-    root = torch.stack([centre[0], hi - 0.52 * (hi - lo), centre[2] + 0.1])
-    return torch.as_tensor(calibration_pose(view, root.tolist()), dtype=torch.float64)
-
-
-# ---------------------------------------------------------------------------------------------
-# Model evaluation helpers
-
-
-@dataclass
-class _LinearShape:
-    """Rest body linearised in s = (phenotype delta, local coefficients) at some vertices."""
-
-    active: torch.Tensor  # (N,) the vertex ids
-    vertices: torch.Tensor  # (N, 3) at s = 0 (current phenotype, no local change)
-    heads: torch.Tensor  # (nb, 3)
-    tails: torch.Tensor
-    basis_vertices: torch.Tensor  # (S, N, 3)
-    basis_heads: torch.Tensor  # (S, nb, 3)
-    basis_tails: torch.Tensor
-    hips: tuple[int, int]
-
-    def rest(self, s: torch.Tensor) -> RestShape:
-        """s (S,) -> hip-centred rest body with batch 1 (differentiable)."""
-
-        def lin(base, basis):
-            return base + torch.einsum("s,spi->pi", s, basis)
-
-        v, h, t = (lin(self.vertices, self.basis_vertices), lin(self.heads, self.basis_heads),
-                   lin(self.tails, self.basis_tails))  # fmt: skip
-        hip = h[list(self.hips)].mean(0)
-        return RestShape((v - hip)[None], (h - hip)[None], (t - hip)[None])
-
-
-def _linear_shape(model: ShapeModel, phen: torch.Tensor, index: torch.Tensor) -> _LinearShape:
-    """Linearise the phenotype part at ``phen`` (6,); local coefficients enter linearly, so
-    ``rest(s)`` with s = (dphen, local) reproduces the model to first order in dphen."""
-    # The map is piecewise linear: central differences are exact inside a piece and average
-    # the two slopes at a kink (6 batched evaluations instead of C reverse passes).
-    h = 1e-4
-    probes = torch.cat([phen[None], phen + h * torch.eye(6, dtype=phen.dtype),
-                        phen - h * torch.eye(6, dtype=phen.dtype)])  # fmt: skip
-    with torch.no_grad():
-        c = model.phenotype_coefficients(probes)
-    coeffs = c[0]  # (C,)
-    jac = ((c[1:7] - c[7:13]) / (2 * h)).T  # (C, 6)
-
-    def part(template, bs, local_bs):
-        base = template + torch.einsum("c,cpi->pi", coeffs, bs)
-        return base, torch.cat([torch.einsum("cd,cpi->dpi", jac, bs), local_bs], 0)
-
-    v, bv = part(model.template[index], model.blendshapes[:, index], model.local_vertices[:, index])
-    h, bh = part(model.template_heads, model.heads_blendshapes, model.local_heads)
-    t, bt = part(model.template_tails, model.tails_blendshapes, model.local_tails)
-    return _LinearShape(index, v, h, t, bv, bh, bt, model._hips)
-
-
-def _posed_perturbed(
-    model: ShapeModel,
-    lin: _LinearShape,
-    s: torch.Tensor,
-    omega: torch.Tensor,
-    shift: torch.Tensor,
-    seg_rot: torch.Tensor,
-    root: torch.Tensor,
-    corr: torch.Tensor,
-) -> torch.Tensor:
-    """Posed vertices (N, 3) of the linearised shape s with every segment rotation turned by
-    a small world rotation omega (15, 3) (first order) and the root moved by shift (3,).
-
-    Its derivatives at omega = shift = 0 give the pose Jacobian by the chain rule: a joint
-    angle turns every segment it affects about its world axis (:func:`_pose_jacobian`), so
-    forward kinematics runs once per iteration instead of once per derivative direction."""
-    rot = seg_rot + skew(omega) @ seg_rot
-    bone_rot = rot[model.bone_segment] @ corr[0]
-    verts, _ = model.pose(lin.rest(s), bone_rot[None], (root + shift)[None], lin.active)
-    return verts[0]
-
-
-def _pose_jacobian(
-    j_omega: torch.Tensor, j_shift: torch.Tensor, axes: torch.Tensor
-) -> torch.Tensor:
-    """d posed / d q (A, 3, 34) from the derivatives by segment rotations (A, 3, 15, 3) and
-    root shift (A, 3, 3); axes: (34, 3) world DoF axes (root rotation: left-multiplied, as
-    :func:`shared.kinematics.pose_update` applies it)."""
-    affects = torch.as_tensor(sk.DOF_AFFECTS_SEGMENT, dtype=j_omega.dtype)  # (15, 34)
-    j_q = torch.einsum("aiks,kd,ds->aid", j_omega, affects, axes)
-    return torch.cat([j_shift, j_q[..., 3:]], -1)
-
-
-def _visible(
-    verts: torch.Tensor, normals: torch.Tensor, intr: Intrinsics | None, margin: float
-) -> torch.Tensor:
-    """(V,) vertices facing the camera and not behind nearer vertices of the same mesh."""
-    facing = (normals * verts).sum(-1) < 0.0
-    if intr is None:
-        return facing
-    # Z-buffer at half resolution: model vertices are about 1-2 cm apart, so the splat is dense.
-    w, h = max(intr.width // 2, 1), max(intr.height // 2, 1)
-    z = verts[:, 2].clamp_min(1e-6)
-    u = ((intr.fx * verts[:, 0] / z + intr.cx) * w / intr.width).round().long()
-    v = ((intr.fy * verts[:, 1] / z + intr.cy) * h / intr.height).round().long()
-    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    pix = v.clamp(0, h - 1) * w + u.clamp(0, w - 1)
-    zbuf = torch.full((w * h,), math.inf, dtype=z.dtype).scatter_reduce(
-        0, pix[inside], z[inside], "amin"
-    )
-    return facing & (~inside | (z <= zbuf[pix] + margin))
-
-
-@dataclass
-class _Pairs:
-    """Correspondences of one view: model vertex, observed point, normal, plane/point, weight."""
-
-    vertex: torch.Tensor  # (P,) index into the view's active vertex list
-    target: torch.Tensor  # (P, 3)
-    normal: torch.Tensor  # (P, 3)
-    plane: torch.Tensor  # (P,) bool
-    weight: torch.Tensor  # (P,)
-
-
-def _pairs(
-    posed: torch.Tensor,
-    normals: torch.Tensor,
-    visible: torch.Tensor,
-    cloud: torch.Tensor,
-    count: int,
-    gate: float,
-    tau: float,
-    gen: torch.Generator,
-    observable: torch.Tensor,
-) -> tuple[torch.Tensor, _Pairs]:
-    """Closest-point pairs both ways; returns the active vertex ids (A,) and the pairs.
-
-    Model-to-data pairs start only at ``observable`` visible vertices (not in the floor band
-    that segmentation removed from the data); data-to-model pairs may end at any visible one.
-    """
-    vis = visible.nonzero()[:, 0]
-    sources = (visible & observable).nonzero()[:, 0]
-    m_pick = sources[torch.randperm(len(sources), generator=gen)[:count]]
-    d_pick = torch.randperm(len(cloud), generator=gen)[:count]
-    # model -> data
-    # (float32 distances: twice as fast, and mm-accurate is all the search needs)
-    p32, c32 = posed.float(), cloud.float()
-    _, j1 = torch.cdist(p32[m_pick], c32).min(1)
-    # data -> model (nearest visible vertex)
-    _, j2 = torch.cdist(c32[d_pick], p32[vis]).min(1)
-    d1 = (posed[m_pick] - cloud[j1]).norm(dim=-1)
-    d2 = (cloud[d_pick] - posed[vis[j2]]).norm(dim=-1)
-    verts = torch.cat([m_pick, vis[j2]])
-    targets = torch.cat([cloud[j1], cloud[d_pick]])
-    dist = torch.cat([d1, d2])
-    keep = dist < gate
-    n1, n2 = int((keep[: len(m_pick)]).sum()), int((keep[len(m_pick) :]).sum())
-    weight = torch.cat(
-        [torch.full_like(d1, 1.0 / max(n1, 1)), torch.full_like(d2, 1.0 / max(n2, 1))]
-    )
-    verts, targets, dist, weight = verts[keep], targets[keep], dist[keep], weight[keep]
-    active, local = torch.unique(verts, return_inverse=True)
-    return active, _Pairs(local, targets, normals[verts], dist <= tau, weight)
-
-
-def _residuals(posed: torch.Tensor, p: _Pairs) -> torch.Tensor:
-    """(P, 3) residual vectors: normal component within tau, full difference beyond."""
-    d = posed[p.vertex] - p.target
-    along = (d * p.normal).sum(-1, keepdim=True) * p.normal
-    return torch.where(p.plane[:, None], along, d)
-
-
-def _residual_jacobian(jac: torch.Tensor, p: _Pairs) -> torch.Tensor:
-    """d residual / d params: (P, 3, X) from d posed / d params (A, 3, X)."""
-    j = jac[p.vertex]
-    along = p.normal[:, :, None] * torch.einsum("pi,pix->px", p.normal, j)[:, None]
-    return torch.where(p.plane[:, None, None], along, j)
-
-
-# ---------------------------------------------------------------------------------------------
-# The fit
 
 
 def _check_clouds(clouds: list[torch.Tensor]) -> None:
@@ -455,15 +233,15 @@ def fit_shape(
             energy = 0.0
             setups = []
             for k in range(n_views):
-                vis = _visible(posed[k], normals[k], intrinsics, cfg.visibility_margin_m)
+                vis = visible_vertices(posed[k], normals[k], intrinsics, cfg.visibility_margin_m)
                 observable = torch.ones_like(vis)
                 if floors[k] is not None:
                     normal, point, band = floors[k]
                     observable = (posed[k] - point) @ normal > band + cfg.floor_margin_m
-                active, pairs = _pairs(
+                active, pairs = closest_pairs(
                     posed[k], normals[k], vis, clouds[k], count, gate, tau, gen, observable
                 )
-                lin = _linear_shape(model, phen, active)
+                lin = linear_shape(model, phen, active)
                 s0 = torch.cat([torch.zeros(6, dtype=torch.float64), local])
                 qk = q[k]
                 kin = forward_kinematics(qk[None], default_body)
@@ -471,13 +249,13 @@ def fit_shape(
                 zero_t = torch.zeros(3, dtype=torch.float64)
 
                 def f(s, w, t, lin=lin, seg_rot=kin.rotations[0], root=qk[0:3], corr=corr):
-                    return _posed_perturbed(model, lin, s, w, t, seg_rot, root, corr)
+                    return posed_perturbed(model, lin, s, w, t, seg_rot, root, corr)
 
                 js, jw, jt = torch.func.jacfwd(f, argnums=(0, 1, 2))(s0, zero_w, zero_t)
-                jq = _pose_jacobian(jw, jt, kin.dof_axes[0])  # (A, 3, 34)
+                jq = pose_jacobian(jw, jt, kin.dof_axes[0])  # (A, 3, 34)
                 verts = f(s0, zero_w, zero_t)
-                res = _residuals(verts, pairs)
-                jac = _residual_jacobian(torch.cat([js, jq], -1), pairs)  # (P, 3, S + 34)
+                res = residuals(verts, pairs)
+                jac = residual_jacobian(torch.cat([js, jq], -1), pairs)  # (P, 3, S + 34)
                 first = n_shape + k * sk.NUM_DOFS
                 cols = torch.cat([torch.arange(n_shape), first + torch.arange(sk.NUM_DOFS)])
                 jw = jac * pairs.weight[:, None, None]
@@ -536,7 +314,7 @@ def _trial_energy(model, setups, phen, local, q, corr) -> float:
             active = lin.active
             rot = model.bone_rotations(q[k : k + 1], corr)
             verts, _ = model.pose(rest_full, rot, q[k : k + 1, 0:3], active)
-            res = _residuals(verts[0], pairs)
+            res = residuals(verts[0], pairs)
             total += float((pairs.weight * (res**2).sum(-1)).sum())
     return total
 

@@ -18,12 +18,12 @@ from runtime.calibration import (
     is_reference_pose,
     reference_pose,
 )
-from runtime.raycast import render_body
+from runtime.raycast import part_labels, render_body
 from shared import skeleton as sk
 from shared.body import BodyShape
 from shared.camera import Intrinsics
 from shared.kinematics import rest_pose
-from shared.labels import PART_NAMES, segment_to_part
+from shared.labels import PART_NAMES
 from shared.recording import RecordingWriter
 
 INTR = Intrinsics.kinect_v1(320)
@@ -33,11 +33,7 @@ FAST = CalibrationConfig(samples=384, length_scale="per_bone")
 
 def render_labels(q: torch.Tensor, body: BodyShape):
     r = render_body(q[None], body, INTR)
-    seg = r.segment[0]
-    axis = torch.as_tensor(sk.SEGMENT_AXIS, dtype=q.dtype)[seg.clamp_min(0)]
-    frac = (r.local_points[0] * axis).sum(-1) / body.lengths[seg.clamp_min(0)]
-    labels = torch.from_numpy(segment_to_part(seg.numpy(), frac.numpy()).astype(np.int64))
-    return r.depth[0], labels
+    return r.depth[0], part_labels(r, body)[0]
 
 
 def subject() -> BodyShape:

@@ -21,14 +21,14 @@ from runtime.detector import (
 from runtime.detector.meanshift_baseline import propose_joints
 from runtime.estimator import estimate_frame, make_estimator
 from runtime.frame import Frame
-from runtime.raycast import render_body
+from runtime.raycast import part_labels, render_body
 from runtime.streams.base import DepthFrame
 from runtime.tracker import Tracker, TrackerConfig
 from shared import skeleton as sk
 from shared.body import BodyShape
 from shared.camera import Intrinsics
 from shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
-from shared.labels import NUM_CLASSES, PART_NAMES, segment_to_part
+from shared.labels import NUM_CLASSES, PART_NAMES
 
 INTR = Intrinsics.kinect_v1(320)
 BODY = BodyShape.default()
@@ -38,11 +38,7 @@ D = {n: i for i, n in enumerate(sk.DOF_NAMES)}
 def render_labels(q: torch.Tensor, body: BodyShape, intr: Intrinsics = INTR):
     """Depth (H, W), exact part labels (H, W) int64 and mask of the cylinder body at q (34,)."""
     r = render_body(q[None], body, intr)
-    seg = r.segment[0]
-    axis = torch.as_tensor(sk.SEGMENT_AXIS, dtype=q.dtype)[seg.clamp_min(0)]
-    frac = (r.local_points[0] * axis).sum(-1) / body.lengths[seg.clamp_min(0)]
-    labels = torch.from_numpy(segment_to_part(seg.numpy(), frac.numpy()).astype(np.int64))
-    return r.depth[0], labels, r.mask[0]
+    return r.depth[0], part_labels(r, body)[0], r.mask[0]
 
 
 def make_pose(name: str) -> torch.Tensor:
@@ -79,6 +75,19 @@ def refine_with(tracker: Tracker, depth, mask, labels=None):
     return lambda q: tracker.fit(obs, q)
 
 
+def detect_refined(depth, labels, mask, tracker: Tracker):
+    """The detector on one rendered frame, refined by the tracker as the estimators bind it."""
+    return detect_pose(
+        depth,
+        labels,
+        INTR,
+        BODY,
+        DetectorConfig(),
+        mask=mask,
+        refine=refine_with(tracker, depth, mask),
+    )
+
+
 def corrupt(
     labels: torch.Tensor, fraction: float, seed: int = 1
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -101,15 +110,7 @@ def corrupt(
 def test_detector_recovers_joints(name, refiner):
     q = make_pose(name)
     depth, labels, mask = render_labels(q, BODY)
-    res = detect_pose(
-        depth,
-        labels,
-        INTR,
-        BODY,
-        DetectorConfig(),
-        mask=mask,
-        refine=refine_with(refiner, depth, mask),
-    )
+    res = detect_refined(depth, labels, mask, refiner)
     assert res.found
     err = (res.joints - true_joints(q)).norm(dim=-1)
     assert float(err.mean()) < 0.05, err
@@ -122,15 +123,7 @@ def test_ransac_rejects_corrupted_labels(refiner):
     q = make_pose("arms_raised")
     depth, labels, mask = render_labels(q, BODY)
     bad_labels, wrong = corrupt(labels, 0.2)
-    res = detect_pose(
-        depth,
-        bad_labels,
-        INTR,
-        BODY,
-        DetectorConfig(),
-        mask=mask,
-        refine=refine_with(refiner, depth, mask),
-    )
+    res = detect_refined(depth, bad_labels, mask, refiner)
     err = (res.joints - true_joints(q)).norm(dim=-1)
     assert float(err.mean()) < 0.05
     # Most wrongly labelled pixels are dropped; most correct ones survive.
@@ -144,15 +137,7 @@ def test_missing_arm_does_not_break_it(refiner):
     depth, labels, mask = render_labels(q, BODY)
     for part in ("l_upper_arm", "l_forearm"):
         labels[labels == PART_NAMES.index(part)] = 0
-    res = detect_pose(
-        depth,
-        labels,
-        INTR,
-        BODY,
-        DetectorConfig(),
-        mask=mask,
-        refine=refine_with(refiner, depth, mask),
-    )
+    res = detect_refined(depth, labels, mask, refiner)
     assert res.found and bool(torch.isfinite(res.q).all())
     assert float(res.weights[PART_NAMES.index("l_forearm") - 1]) == 0.0
     err = (res.joints - true_joints(q)).norm(dim=-1)

@@ -26,7 +26,7 @@ from runtime.hybrid import (
 from runtime.hybrid import arm_search as arm_search_module
 from runtime.hybrid import hybrid_config as config_from_mapping
 from runtime.hybrid import policy as policy_module
-from runtime.raycast import render_body
+from runtime.raycast import part_labels, render_body
 from runtime.streams.base import DepthFrame
 from runtime.tracker import Tracker, TrackerConfig
 from runtime.tracker.signals import FitSignals
@@ -34,7 +34,7 @@ from shared import skeleton as sk
 from shared.body import BodyShape
 from shared.camera import Intrinsics
 from shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
-from shared.labels import PART_NAMES, segment_to_part
+from shared.labels import PART_NAMES
 
 INTR = Intrinsics.kinect_v1(160)
 BODY = BodyShape.default()
@@ -42,11 +42,7 @@ BODY = BodyShape.default()
 
 def render_labels(q: torch.Tensor):
     r = render_body(q[None], BODY, INTR)
-    seg = r.segment[0]
-    axis = torch.as_tensor(sk.SEGMENT_AXIS, dtype=q.dtype)[seg.clamp_min(0)]
-    frac = (r.local_points[0] * axis).sum(-1) / BODY.lengths[seg.clamp_min(0)]
-    labels = torch.from_numpy(segment_to_part(seg.numpy(), frac.numpy()).astype(np.int64))
-    return r.depth[0], labels, r.mask[0]
+    return r.depth[0], part_labels(r, BODY)[0], r.mask[0]
 
 
 def frame_of(depth: torch.Tensor, index: int, mask) -> Frame:

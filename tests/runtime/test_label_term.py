@@ -5,11 +5,10 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
 import torch
 
-from runtime.raycast import render_body, segment_geometry
+from runtime.raycast import part_labels, render_body, segment_geometry
 from runtime.tracker import Tracker, TrackerConfig, TrackerConfigError, TrackerError, label_term
 from runtime.tracker.gauss_newton import rows_jacobian
 from runtime.tracker.label_term import capsule_offsets, label_rows
@@ -18,7 +17,7 @@ from shared import skeleton as sk
 from shared.body import BodyShape
 from shared.camera import Intrinsics
 from shared.kinematics import forward_kinematics, named_joint_positions, pose_update, rest_pose
-from shared.labels import PART_SEGMENT, segment_to_part
+from shared.labels import PART_SEGMENT
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -36,11 +35,7 @@ def _pose(dtype=torch.float64) -> torch.Tensor:
 
 def _part_labels(q: torch.Tensor, body: BodyShape) -> torch.Tensor:
     """Exact forest-style part labels (H, W) of the rendered pose."""
-    r = render_body(q, body, INTR)
-    seg = r.segment[0]
-    axis = torch.as_tensor(sk.SEGMENT_AXIS, dtype=q.dtype)[seg.clamp_min(0)]
-    frac = (r.local_points[0] * axis).sum(-1) / body.lengths[seg.clamp_min(0)]
-    return torch.from_numpy(segment_to_part(seg.numpy(), frac.numpy()).astype(np.int64))
+    return part_labels(render_body(q, body, INTR), body)[0]
 
 
 def test_capsule_offsets_golden_values():

@@ -44,7 +44,7 @@ def _phen(d):
 
 
 def _views_q() -> np.ndarray:
-    from runtime.personalize.fit import calibration_pose
+    from runtime.personalize.reference_pose import calibration_pose
 
     q = np.stack(
         [calibration_pose("front", (0.05, 0.1, 2.7)), calibration_pose("back", (0.0, 0.1, 2.6))]
@@ -82,11 +82,11 @@ def test_local_basis_is_small_and_zero_means_no_change(model):
 
 
 def test_pose_jacobian_matches_finite_differences(model):
-    from runtime.personalize import fit as F
+    from runtime.personalize import jacobian as F
 
     phen = _phen(PHEN)[0]
     index = torch.arange(0, model.num_vertices, 97)
-    lin = F._linear_shape(model, phen, index)
+    lin = F.linear_shape(model, phen, index)
     s0 = torch.zeros(6 + model.num_local, dtype=torch.float64)
     rest = lin.rest(s0)
     corr = model.rest_corrections(rest.heads, rest.tails)
@@ -97,10 +97,10 @@ def test_pose_jacobian_matches_finite_differences(model):
     zw, zt = torch.zeros(15, 3, dtype=torch.float64), torch.zeros(3, dtype=torch.float64)
 
     def f(s, w, t):
-        return F._posed_perturbed(model, lin, s, w, t, kin.rotations[0], q[0, 0:3], corr)
+        return F.posed_perturbed(model, lin, s, w, t, kin.rotations[0], q[0, 0:3], corr)
 
     js, jw, jt = torch.func.jacfwd(f, argnums=(0, 1, 2))(s0, zw, zt)
-    jq = F._pose_jacobian(jw, jt, kin.dof_axes[0])
+    jq = F.pose_jacobian(jw, jt, kin.dof_axes[0])
 
     def posed(qq, s=s0):
         rot = model.bone_rotations(qq, corr)
@@ -132,14 +132,14 @@ def test_body_from_rest_matches_ground_truth_skeleton(model, gt_body):
 
 
 def _visible_points(model, q: np.ndarray) -> list[torch.Tensor]:
-    from runtime.personalize.fit import _visible
+    from runtime.personalize.correspondences import visible_vertices
     from runtime.personalize.shape_model import vertex_normals
     from train.bodies.anny_body import make_body
     from train.bodies.posing import pose_anny
 
     posed = torch.tensor(pose_anny(make_body(PHEN), q).vertices)
     normals = vertex_normals(posed, model.faces)
-    return [posed[k][_visible(posed[k], normals[k], INTR, 0.02)] for k in range(2)]
+    return [posed[k][visible_vertices(posed[k], normals[k], INTR, 0.02)] for k in range(2)]
 
 
 @pytest.mark.slow

@@ -47,8 +47,8 @@ from train.synth.viewpoints import Viewpoints, look_at
 __all__ = ["CalibrationViewConfig", "CALIBRATION_POSE_DEG", "calibration_world_pose",
            "render_calibration_views", "main"]  # fmt: skip
 
-# Same reference pose as runtime.personalize.fit.CALIBRATION_POSE_DEG (train may not import
-# runtime; keep the two in step).
+# Same reference pose as runtime.personalize.reference_pose.CALIBRATION_POSE_DEG (train may not
+# import runtime; keep the two in step).
 CALIBRATION_POSE_DEG: dict[str, float] = {
     "l_humerus_abd": 40.0,
     "r_humerus_abd": 40.0,

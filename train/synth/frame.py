@@ -28,8 +28,9 @@ from shared.sensor_noise import (
 from train.bodies.anny_body import AnnyBody, make_body, sample_phenotype
 from train.bodies.measurements import anatomical_joints
 from train.bodies.posing import pose_anny
+from train.mocap.clip import axis_rotation
 from train.synth.render import DepthLabelRenderer
-from train.synth.viewpoints import ViewpointConfig, Viewpoints, axis_rotations, transform_points
+from train.synth.viewpoints import ViewpointConfig, Viewpoints, transform_points
 
 __all__ = [
     "SceneConfig",
@@ -119,7 +120,7 @@ def face_forward(q: np.ndarray, frames: int | None = 10) -> np.ndarray:
     up = torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64).expand_as(left)
     forward = torch.linalg.cross(left, up)
     yaw = torch.atan2(forward[:, 0], forward[:, 2]).numpy()
-    rot = torch.as_tensor(axis_rotations(1, -yaw)).expand(qt.shape[0], 3, 3)
+    rot = torch.as_tensor(axis_rotation("y", -yaw)).expand(qt.shape[0], 3, 3)
     return transform_pose(qt, rot, torch.zeros(3, dtype=torch.float64)).numpy()
 
 

@@ -38,13 +38,13 @@ import torch
 
 from shared.camera import Intrinsics, points_to_pixels
 from shared.config import field_doc
+from train.mocap.clip import axis_rotation
 
 __all__ = [
     "ViewpointConfig",
     "Viewpoints",
     "sample_person_yaw",
     "look_at",
-    "axis_rotations",
     "sample_viewpoints",
     "transform_points",
     "fits_in_view",
@@ -180,20 +180,6 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -
     return out
 
 
-def axis_rotations(axis: int, angle: np.ndarray) -> np.ndarray:
-    """Rotations by ``angle`` (N,) radians about coordinate ``axis`` (0, 1, 2): (N, 3, 3)."""
-    angle = np.asarray(angle, dtype=np.float64)
-    c, s = np.cos(angle), np.sin(angle)
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]
-    out = np.zeros(angle.shape + (3, 3))
-    out[..., axis, axis] = 1.0
-    out[..., i, i] = c
-    out[..., j, j] = c
-    out[..., i, j] = -s
-    out[..., j, i] = s
-    return out
-
-
 def sample_viewpoints(
     rng: np.random.Generator,
     n: int,
@@ -227,7 +213,7 @@ def sample_viewpoints(
     cam_from_world = look_at(position, np.array([0.0, aim, 0.0]))
     # Jitter and roll act in the camera frame: turn about the camera's own y (yaw), then x
     # (pitch), then z (roll); the camera centre stays where it is.
-    turn = axis_rotations(2, roll) @ axis_rotations(0, aim_pitch) @ axis_rotations(1, aim_yaw)
+    turn = axis_rotation("z", roll) @ axis_rotation("x", aim_pitch) @ axis_rotation("y", aim_yaw)
     cam_from_world[:, :3, :] = turn @ cam_from_world[:, :3, :]
     return Viewpoints(cam_from_world, position, distance, height, yaw, roll)
 

@@ -21,7 +21,7 @@ from train.synth.calibration_views import (
 
 
 def test_calibration_pose_matches_the_runtime_reference():
-    from runtime.personalize.fit import CALIBRATION_POSE_DEG as RUNTIME_POSE
+    from runtime.personalize.reference_pose import CALIBRATION_POSE_DEG as RUNTIME_POSE
 
     assert CALIBRATION_POSE_DEG == RUNTIME_POSE
 

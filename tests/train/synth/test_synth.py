@@ -20,11 +20,12 @@ from shared.config import load_config
 from shared.kinematics import forward_kinematics, named_joint_positions
 from shared.recording import Recording
 from shared.sensor_noise import floor_depth, level_from_camera
+from train.mocap.clip import axis_rotation
 from train.mocap.motion_library import heading_normalized_joints
 from train.mocap.pose_selection import furthest_point_sample
 from train.synth.trainset import TrainSet, TrainSetError
 from train.synth.trainset_builder import SynthConfig, frame_plan, synthesize_set
-from train.synth.viewpoints import axis_rotations, look_at
+from train.synth.viewpoints import look_at
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 
@@ -179,7 +180,7 @@ def test_furthest_point_sampling_spacing():
 def test_heading_normalization_removes_position_and_heading():
     rng = np.random.default_rng(0)
     j = rng.normal(size=(1, 16, 3))
-    rot = axis_rotations(1, np.array([0.7]))[0]
+    rot = axis_rotation("y", np.array([0.7]))[0]
     moved = j @ rot.T + np.array([1.0, 0.0, -2.0])
     a, b = heading_normalized_joints(j), heading_normalized_joints(moved)
     assert np.allclose(a, b, atol=1e-9)
@@ -196,7 +197,7 @@ def test_level_frame_matches_pitch_only_floor():
     assert np.allclose(floor_depth(intr, 1.2, pitch), floor_depth(intr, 1.2, 0.0, rot))
     # With roll the floor line tilts: its depth differs between the left and right edges.
     rolled = cam.copy()
-    rolled[:3, :3] = axis_rotations(2, np.array([0.1]))[0] @ cam[:3, :3]
+    rolled[:3, :3] = axis_rotation("z", np.array([0.1]))[0] @ cam[:3, :3]
     d = floor_depth(intr, 1.2, 0.0, level_from_camera(rolled))
     assert abs(d[200, 10] - d[200, 310]) > 0.05
 

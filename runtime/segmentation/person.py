@@ -1,0 +1,118 @@
+"""The person mask: the steps of :mod:`runtime.segmentation` in order (numpy/OpenCV), and
+:func:`segment_person`, the torch-facing entry point."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from shared.camera import Intrinsics
+
+from .canvas import Canvas
+from .components import (
+    Components,
+    box_sizes,
+    boxes,
+    join_nearby_parts,
+    occluded_by_large,
+    plausible_size,
+)
+from .config import SegmentationConfig
+from .depth_range import valid_np
+from .floor import remove_floor
+
+__all__ = ["segment_person"]
+
+
+def _segment_np(depth: np.ndarray, intr: Intrinsics, cfg: SegmentationConfig) -> np.ndarray:
+    """:func:`segment_person` on (B, H, W) float32 metres in numpy/OpenCV -> (B, H, W) bool."""
+    import cv2
+
+    b, h, w = depth.shape
+    valid = valid_np(depth, cfg)
+    z_img = np.where(valid, depth, np.float32(0.0))
+    if cfg.remove_floor:
+        valid = remove_floor(z_img, valid, intr, cfg)
+
+    r = max(cfg.merge_radius_px, 0)
+    cv = Canvas(b, h, w, max(r, 1))
+    valid = cv.place(valid)
+    z = np.where(valid, cv.place(z_img), np.float32(0.0))
+    zf, width = z.reshape(-1), cv.shape[1]
+
+    # Cut the far side of depth discontinuities: a 4-neighbour nearer by more than the jump
+    # (the nearest neighbour is a cross-shaped erosion; where a neighbour is unusable the pixel
+    # stays: silhouettes against "no reading" are not cuts).
+    z2 = z * z
+    jump = cfg.edge_jump_m + cfg.edge_jump_per_m2 * z2
+    cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+    nearest = cv2.erode(np.where(valid, z, np.float32(np.inf)), cross)
+    cut = (z - nearest > jump) & valid
+    count, labels = cv2.connectedComponents(
+        (valid & ~cut).view(np.uint8), connectivity=4, ltype=cv2.CV_32S
+    )
+    labels = labels.astype(np.intp)  # bincount and fancy indexing want intp
+    lf = labels.reshape(-1)
+
+    # Per-component metric statistics; label 0 (background) is never chosen.
+    # Metric area each pixel sees, facing the camera: z^2 / (fx fy).
+    comp_pixels = np.bincount(lf, minlength=count)
+    comp_area = np.bincount(lf, z2.reshape(-1), minlength=count) / (intr.fx * intr.fy)
+    comp_depth = np.bincount(lf, zf, minlength=count) / np.maximum(comp_pixels, 1)
+    image_of = cv.image_of(labels, comp_pixels)
+    extent_box = boxes(z, labels, count, cv, intr)
+
+    # Cut pixels and their 4 neighbours: what is seen behind what, and where the person's
+    # own self-occlusion edges are.
+    cut_px = np.flatnonzero(cut)
+    nb = cut_px[:, None] + np.array([-width, width, -1, 1])  # (M, 4), never off the canvas
+    lab_nb, z_nb = lf[nb], zf[nb]
+    step = zf[cut_px, None] - z_nb
+    jump_c = jump.reshape(-1)[cut_px, None]
+
+    behind = occluded_by_large(lab_nb, step, jump_c, comp_area, count, cfg.occluder_min_area_m2)
+    plausible = (
+        ~behind & (comp_area >= cfg.min_area_m2) & plausible_size(box_sizes(extent_box), cfg)
+    )
+    plausible[0] = False
+    score = np.where(plausible, comp_area, -1.0)
+    per_image = np.where(image_of[None] == np.arange(b)[:, None], score[None], -1.0)  # (B, C)
+    best = per_image.argmax(1)
+    in_person = np.zeros(count, dtype=bool)
+    in_person[best[per_image[np.arange(b), best] > 0]] = True
+    comps = Components(labels, comp_pixels, comp_depth, comp_area, extent_box, image_of)
+    in_person = join_nearby_parts(in_person, comps, b, cfg, cv2)
+    mask = in_person[labels]
+
+    # Add back cut pixels that join the person at a smooth step (self-occlusion inside it).
+    smooth = (mask.reshape(-1)[nb] & (np.abs(step) <= jump_c)).any(1)
+    mask.reshape(-1)[cut_px[smooth]] = True
+    return cv.images(mask)
+
+
+def segment_person(
+    depth_m: torch.Tensor, intr: Intrinsics, cfg: SegmentationConfig | None = None
+) -> torch.Tensor:
+    """Mask of the person in depth frames (steps: :mod:`runtime.segmentation`).
+
+    Runs on the CPU in numpy/OpenCV whatever the input device (single frames are far too
+    small for a GPU to pay off); the mask comes back on the input's device.
+
+    Args:
+        depth_m: (H, W) or (B, H, W) metric depth; 0 or NaN where there is no reading.
+        intr: intrinsics of the H x W images.
+        cfg: settings (defaults when None).
+    Returns:
+        bool mask of the same shape as ``depth_m``; all False where no person is found.
+    """
+    cfg = cfg or SegmentationConfig()
+    single = depth_m.ndim == 2
+    depth = depth_m[None] if single else depth_m
+    if depth.ndim != 3 or depth.shape[-2:] != (intr.height, intr.width):
+        raise ValueError(
+            f"depth must be (H, W) or (B, H, W) with H x W = {intr.height}x{intr.width}, "
+            f"got {tuple(depth_m.shape)}"
+        )
+    depth_np = np.ascontiguousarray(depth.detach().to("cpu", torch.float32).numpy())
+    mask = torch.from_numpy(_segment_np(depth_np, intr, cfg).copy()).to(depth_m.device)
+    return mask[0] if single else mask
