@@ -22,6 +22,7 @@ __all__ = [
     "ConfigError",
     "field_doc",
     "config_from_dict",
+    "as_config",
     "config_to_dict",
     "load_config",
     "load_settings",
@@ -121,6 +122,24 @@ def config_from_dict(cls: type[C], data: dict, where: str = "config") -> C:
         )
     kwargs = {k: _check_value(hints[k], v, f"{where}.{k}") for k, v in data.items()}
     return cls(**kwargs)
+
+
+def as_config(
+    cls: type[C], config: Any, where: str = "config", error: type[Exception] = ConfigError
+) -> C:
+    """``config`` as a ``cls``: the defaults for None, itself for an instance, else a mapping
+    of its keys (:func:`config_from_dict`). A bad mapping raises ``error`` with the message
+    (an ``error`` raised by the config's own checks passes through as it is)."""
+    if config is None:
+        return cls()
+    if isinstance(config, cls):
+        return config
+    try:
+        return config_from_dict(cls, dict(config), where)
+    except error:
+        raise
+    except ConfigError as err:
+        raise error(str(err)) from None
 
 
 def config_to_dict(cfg: Any) -> dict:

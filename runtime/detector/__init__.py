@@ -17,7 +17,7 @@ import torch
 
 from shared.body import BodyShape
 from shared.camera import Intrinsics
-from shared.config import ConfigError, config_from_dict
+from shared.config import as_config
 
 from .bone_ransac import BoneFit, bone_reach, fit_bones
 from .centroids import ClassCentroids, class_centroids, part_markers
@@ -140,17 +140,6 @@ class DetectorEstimator:
         )
 
 
-def _config(cls, config: Mapping[str, Any] | Any | None, where: str):
-    if config is None:
-        return cls()
-    if isinstance(config, cls):
-        return config
-    try:
-        return config_from_dict(cls, dict(config), where)
-    except ConfigError as err:
-        raise DetectorError(str(err)) from None
-
-
 def create_estimator(
     *,
     model_path: Path | None,
@@ -160,7 +149,7 @@ def create_estimator(
     config: Mapping[str, Any] | DetectorConfig | None = None,
 ) -> DetectorEstimator:
     """Mode "detector" for ``make_estimator`` (``config``: DetectorConfig keys)."""
-    cfg = _config(DetectorConfig, config, "detector config")
+    cfg = as_config(DetectorConfig, config, "detector config", DetectorError)
     labeler = load_forest_labeler(
         model_path,
         device,

@@ -272,8 +272,10 @@ def create_estimator(
     config: Mapping[str, Any] | MeanShiftConfig | None = None,
 ) -> ShottonEstimator:
     """Mode "shotton" for ``make_estimator`` (``config``: MeanShiftConfig keys)."""
-    from . import _config, load_forest_labeler
+    from shared.config import as_config
 
-    cfg = _config(MeanShiftConfig, config, "shotton config")
+    from . import DetectorError, load_forest_labeler
+
+    cfg = as_config(MeanShiftConfig, config, "shotton config", DetectorError)
     labeler = load_forest_labeler(model_path, device, intrinsics, posteriors=True)
     return ShottonEstimator(labeler, body, intrinsics, cfg, device)

@@ -19,7 +19,7 @@ from runtime.detector import Detector, forest_label_source, load_forest_labeler
 from runtime.frame import LabelSource
 from shared.body import BodyShape
 from shared.camera import Intrinsics
-from shared.config import ConfigError, config_from_dict
+from shared.config import as_config
 
 from .config import (
     ArmSearchConfig,
@@ -59,16 +59,7 @@ def hybrid_config(config: Mapping[str, Any] | HybridConfig | None) -> HybridConf
     Raises:
         HybridError: unknown keys, wrong types or values out of range.
     """
-    if config is None:
-        return HybridConfig()
-    if isinstance(config, HybridConfig):
-        return config
-    try:
-        return config_from_dict(HybridConfig, dict(config), "hybrid config")
-    except HybridError:
-        raise
-    except ConfigError as err:
-        raise HybridError(str(err)) from None
+    return as_config(HybridConfig, config, "hybrid config", HybridError)
 
 
 def create_estimator(

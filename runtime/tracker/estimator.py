@@ -17,7 +17,7 @@ import torch
 
 from shared.body import BodyShape
 from shared.camera import Intrinsics
-from shared.config import ConfigError, config_from_dict
+from shared.config import as_config
 from shared.kinematics import forward_kinematics, named_joint_positions
 
 from .config import TrackerConfig
@@ -65,9 +65,6 @@ def create_estimator(
             "mode 'tracker' starts from ground truth: the input needs a first-frame pose "
             "(a recording with groundtruth.npz, or 'demo'); use --mode hybrid otherwise"
         )
-    try:
-        cfg = config_from_dict(TrackerConfig, config, "tracker config")
-    except ConfigError as err:
-        raise TrackerError(str(err)) from None
+    cfg = as_config(TrackerConfig, config, "tracker config", TrackerError)
     del model_path  # the tracker alone needs no forest
     return TrackerEstimator(Tracker(body, intrinsics, cfg, device=device), body, initial_q)
