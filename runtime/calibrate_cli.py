@@ -25,7 +25,7 @@ from shared.body import BodyShape
 from shared.recording import Recording, RecordingError
 
 from .calibration import CalibrationConfig, CalibrationError, ReferencePoseWatcher, calibrate_body
-from .cli_common import add_frame_range_args, add_source_args, report_error
+from .cli_common import add_frame_range_args, add_source_args, check_output_file, report_error
 from .detector import (
     DetectorConfig,
     DetectorError,
@@ -168,8 +168,8 @@ def run(args: argparse.Namespace) -> BodyShape:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
+        check_output_file(args.output)  # before a camera is opened
         body = run(args)
-        args.output.parent.mkdir(parents=True, exist_ok=True)
         body.save(args.output)
     except (CalibrateError, CalibrationError, StreamError, RecordingError, DetectorError) as err:
         return report_error(err)

@@ -31,7 +31,7 @@ from shared.camera import Intrinsics, depth_to_points
 from shared.config import ConfigError, add_cli_args, config_from_args
 from shared.recording import Recording, RecordingError
 
-from .cli_common import report_error
+from .cli_common import check_output_file, report_error
 from .personalize.fit import FitConfig, PersonalizeError
 
 __all__ = ["main", "load_view"]
@@ -122,6 +122,9 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(max(args.threads, 1))
     try:
         cfg = config_from_args(FitConfig, args)
+        out = check_output_file(args.output)  # before the fit: it takes a while
+        if args.mesh_out:
+            check_output_file(args.mesh_out)
         front, back = _view_paths(args)
         start = time.perf_counter()
         (pf, intr_f, floor_f), (pb, intr_b, floor_b) = (
@@ -145,9 +148,10 @@ def main(argv: list[str] | None = None) -> int:
         body = body_from_rest(model, result.rest)
     except (PersonalizeError, RecordingError, ConfigError, ValueError) as err:
         return report_error(err)
-    out = Path(args.output)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    body.save(out)
+    try:
+        body.save(out)
+    except OSError as err:
+        return report_error(f"{out}: cannot write ({err.strerror or err})")
     timings = {
         "read_segment_s": t_load - start,
         "model_load_s": t_fit - t_load,
@@ -155,17 +159,20 @@ def main(argv: list[str] | None = None) -> int:
         "total_s": time.perf_counter() - start,
     }
     if args.mesh_out:
-        np.savez_compressed(
-            args.mesh_out,
-            rest_vertices=result.rest.vertices[0].numpy().astype(np.float32),
-            faces=model.faces.numpy().astype(np.int32),
-            vertex_segment=model.vertex_segment.numpy().astype(np.int8),
-            phenotype=result.phenotype,
-            local=result.local,
-            q=result.q,
-            rms_m=result.rms_m,
-            timings=np.array(json.dumps(timings)),
-        )
+        try:
+            np.savez_compressed(
+                args.mesh_out,
+                rest_vertices=result.rest.vertices[0].numpy().astype(np.float32),
+                faces=model.faces.numpy().astype(np.int32),
+                vertex_segment=model.vertex_segment.numpy().astype(np.int8),
+                phenotype=result.phenotype,
+                local=result.local,
+                q=result.q,
+                rms_m=result.rms_m,
+                timings=np.array(json.dumps(timings)),
+            )
+        except OSError as err:
+            return report_error(f"{args.mesh_out}: cannot write ({err.strerror or err})")
     print(
         f"wrote {out}: stature {float(body.stature()):.3f} m, fit {result.seconds:.1f} s "
         f"({result.iterations} iterations), residual RMS "

@@ -18,10 +18,7 @@ Ctrl-C finishes the frame in flight and stops; a second Ctrl-C stops at once.
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -39,10 +36,16 @@ from shared.config import (
 )
 from shared.recording import RecordingError
 
-from .cli_common import add_frame_range_args, add_source_args, report_error
+from .cli_common import (
+    add_frame_range_args,
+    add_source_args,
+    check_plausible_intrinsics,
+    report_error,
+)
 from .estimator import MODES, MODES_NEEDING_MODEL, make_estimator
 from .forest.inference import DEFAULT_MODEL
 from .segmentation import SegmentationConfig
+from .stop_signals import StopRequest, graceful_stop, interrupt_on_signals
 from .streams import (
     FrameRange,
     SensorDisconnected,
@@ -121,6 +124,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="YAML of the mode's settings (e.g. configs/hybrid.yaml)",
     )
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto", help="torch device")
+    p.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch CPU threads. The poses depend on it (summation order), not on the "
+        "machine or OMP_NUM_THREADS; 1 was as fast as 2 or faster on a 2-core machine",
+    )
     g = p.add_argument_group("intrinsics (override the source's own)")
     g.add_argument("--width", type=int, help="image width, pixels")
     g.add_argument("--height", type=int, help="image height, pixels")
@@ -241,39 +251,30 @@ def check_model(path: Path, mode: str) -> None:
     load_forest(path, expected_classes=PART_NAMES)
 
 
-@contextmanager
-def _graceful_sigint(stop: threading.Event):
-    """First Ctrl-C sets ``stop`` (finish the frame in flight); a second one interrupts."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum, frame):
-        if stop.is_set():
-            raise KeyboardInterrupt
-        stop.set()
-
-    previous = signal.signal(signal.SIGINT, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
 # --------------------------------------------------------------------------------------------
 # Entry point
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.threads < 1:
+        return report_error(f"--threads must be >= 1, got {args.threads}")
+    torch.set_num_threads(args.threads)
+    stop = StopRequest()
     try:
-        return _run(args)
+        with interrupt_on_signals(stop):
+            ready = _set_up(args)
     except KeyboardInterrupt:  # during set-up, before any output was written
-        print("interrupted", file=sys.stderr)
-        return 130
+        print(stop.reason or "interrupted", file=sys.stderr)
+        return 143 if stop.reason == "terminated" else 130
+    if isinstance(ready, int):
+        return ready
+    return _run(args, *ready)
 
 
-def _run(args: argparse.Namespace) -> int:
+def _set_up(args: argparse.Namespace):
+    """Everything before the first frame: (stream, estimator, writer, view, settings), or
+    the exit status of bad input (reported)."""
     bad_input = _input_errors()
     stream = None
     try:
@@ -289,6 +290,10 @@ def _run(args: argparse.Namespace) -> int:
             frame_range=FrameRange(args.start, args.stop),
             fps=args.fps,
         )
+        try:
+            check_plausible_intrinsics(stream.intrinsics)
+        except ValueError as err:
+            raise TrackError(str(err)) from None
         try:
             mode_cfg = load_mode_config(args.config)
             if args.mode == "tracker":
@@ -316,49 +321,63 @@ def _run(args: argparse.Namespace) -> int:
         if isinstance(err, bad_input):
             return report_error(err)
         raise
+    return stream, estimator, writer, view, seg_cfg, device
 
+
+def _run(args, stream, estimator, writer, view, seg_cfg, device) -> int:
+    bad_input = _input_errors()
     stats = TrackStats()
-    stop = threading.Event()
+    stop = StopRequest()
     progress = Progress(stream.frame_count, quiet=args.quiet)
     code, note = 0, None
-    with stream, writer:
-        writer.extra.update(
-            {
-                "device": device,
-                "model": str(args.model) if args.mode in MODES_NEEDING_MODEL else None,
-                "segmentation": config_to_dict(seg_cfg),
-                "realtime": args.realtime,
-            }
-        )
-        try:
-            with _graceful_sigint(stop):
-                track(
-                    stream,
-                    estimator,
-                    writer,
-                    seg_cfg,
-                    device,
-                    realtime=args.realtime,
-                    overlay_dir=args.output / "overlays" if args.save_overlays else None,
-                    progress=progress,
-                    stop=stop,
-                    stats=stats,
-                    view=view,
-                )
-            if stop.is_set():
-                note = "interrupted"
-        except KeyboardInterrupt:
-            note = "interrupted"
-        except SensorDisconnected as err:
-            code, note = 1, f"camera disconnected: {err}"
-        except bad_input as err:
-            code, note = 2, f"error: {err}"
-        finally:
-            progress.close()
-            writer.extra.update({"dropped_frames": stats.dropped, "stopped": note})
-    last = "no frames" if stats.last_index is None else f"up to frame {stats.last_index}"
+    try:
+        with stream, writer:
+            writer.extra.update(
+                {
+                    "device": device,
+                    "model": str(args.model) if args.mode in MODES_NEEDING_MODEL else None,
+                    "segmentation": config_to_dict(seg_cfg),
+                    "realtime": args.realtime,
+                }
+            )
+            try:
+                with graceful_stop(stop):
+                    track(
+                        stream,
+                        estimator,
+                        writer,
+                        seg_cfg,
+                        device,
+                        realtime=args.realtime,
+                        overlay_dir=args.output / "overlays" if args.save_overlays else None,
+                        progress=progress,
+                        stop=stop,
+                        stats=stats,
+                        view=view,
+                    )
+                if stop.is_set():
+                    note = stop.reason
+            except KeyboardInterrupt:
+                note = stop.reason or "interrupted"
+            except SensorDisconnected as err:
+                code, note = 1, f"camera disconnected: {err}"
+            except bad_input as err:
+                code, note = 2, f"error: {err}"
+            finally:
+                progress.close()
+                writer.extra.update({"dropped_frames": stats.dropped, "stopped": note})
+    except bad_input as err:  # finishing the files failed (disk full, ...)
+        code, note = 2, f"error: {err}"
+    if code == 2:  # bad input: that one line, nothing else
+        print(note, file=sys.stderr)
+        return code
     if note is not None:
-        print(f"{note}; results {last} are in {args.output}", file=sys.stderr)
+        where = (
+            "no frame was written"
+            if stats.last_index is None
+            else f"results up to frame {stats.last_index} are in {args.output}"
+        )
+        print(f"{note}; {where}", file=sys.stderr)
     if not args.quiet or code:
         c = stats.status_counts
         print(

@@ -126,8 +126,6 @@ def track(
     t_stream0: float | None = None
     t_wall0 = t_begin
     frame_dt = 1.0 / stream.fps
-    if overlay_dir is not None:
-        overlay_dir.mkdir(parents=True, exist_ok=True)
     try:
         for frame in stream:
             if realtime and not stream.is_live:
@@ -157,6 +155,9 @@ def track(
 
                 from .export.overlay import draw_overlay
 
+                # Made now, not before the loop: the result directory appears at its first
+                # frame (runtime.export.results), and a new one holds no stale overlays.
+                overlay_dir.mkdir(parents=True, exist_ok=True)
                 cv2.imwrite(
                     str(overlay_dir / f"{frame.index:06d}.png"), draw_overlay(prepared, est)
                 )

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import os
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -33,6 +34,7 @@ __all__ = [
     "RECORDING_VERSION",
     "write_png16",
     "read_png",
+    "png_problem",
 ]
 
 RECORDING_FORMAT = "depthmocap-recording"
@@ -76,7 +78,14 @@ def read_png(path: Path, dtype: np.dtype) -> np.ndarray:
     cv2 = _cv2()
     if not path.is_file():
         raise RecordingError(f"{path}: missing frame file")
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    try:
+        data = path.read_bytes()
+    except OSError as err:
+        raise RecordingError(f"{path}: cannot be read ({err.strerror or err})") from None
+    problem = png_problem(data)
+    if problem is not None:  # say so ourselves: libpng would print its own line on stderr
+        raise RecordingError(f"{path}: not a readable PNG image ({problem})")
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise RecordingError(f"{path}: not a readable PNG image")
     if image.ndim != 2 or image.dtype != dtype:
@@ -85,6 +94,37 @@ def read_png(path: Path, dtype: np.dtype) -> np.ndarray:
             f"got {image.dtype.name} with shape {image.shape}"
         )
     return image
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def png_problem(data: bytes) -> str | None:
+    """What is wrong with the PNG file ``data`` at the chunk level (signature, truncation, a
+    chunk whose CRC does not match, no IHDR / IDAT / IEND), or None: the checks a decoder
+    would fail on, made before decoding so that corrupt frames give one clean error."""
+    if not data.startswith(_PNG_SIGNATURE):
+        return "no PNG signature"
+    pos, seen = len(_PNG_SIGNATURE), []
+    while pos + 12 <= len(data):
+        length = int.from_bytes(data[pos : pos + 4], "big")
+        kind = data[pos + 4 : pos + 8]
+        end = pos + 12 + length
+        if end > len(data):
+            return f"chunk {kind!r} is cut off"
+        crc = int.from_bytes(data[end - 4 : end], "big")
+        if zlib.crc32(data[pos + 4 : end - 4]) != crc:
+            return f"chunk {kind!r} is corrupt (CRC mismatch)"
+        seen.append(kind)
+        pos = end
+        if kind == b"IEND":
+            break
+    missing = [k.decode() for k in (b"IHDR", b"IDAT", b"IEND") if k not in seen]
+    if missing:
+        return f"no {', '.join(missing)} chunk (the file is cut off)"
+    if seen[0] != b"IHDR":
+        return "IHDR is not the first chunk"
+    return None
 
 
 def _atomic_write_json(path: Path, data: dict) -> None:
@@ -208,6 +248,9 @@ class Recording:
         if not self.path.is_dir():
             raise RecordingError(f"{self.path}: no such recording directory")
         meta_path = self.path / "meta.json"
+        if meta_path.is_symlink() and not meta_path.is_file():
+            raise RecordingError(f"{meta_path}: a symbolic link that leads to no file (broken, "
+                                 "or a loop)")  # fmt: skip
         if not meta_path.is_file():
             raise RecordingError(f"{self.path}: not a recording (no meta.json)")
         try:

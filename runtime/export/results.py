@@ -13,10 +13,14 @@ Every file is complete and readable up to the last finished frame at any moment,
 or a dropped camera loses nothing but the frame in flight; call :meth:`ResultWriter.close`
 (or use the writer as a context manager) to mark the summary complete.
 
-Output directory policy: created if missing; an existing directory may be empty or hold a
-previous result (any of the four files above), whose files are then overwritten (and a stale
-``evaluation.json`` / ``evaluation.png`` of it removed); any other non-empty directory is
-refused with :class:`ResultDirError`, so a typo cannot scribble into unrelated data.
+Output directory policy: the result is written into a fresh directory beside ``out_dir``
+(``.NAME.partial-*``) and moved into place once its first frame is written, so a run that
+fails before it has a frame leaves an existing result untouched, and a new result never mixes
+with an old one's files (overlays, evaluation). ``out_dir`` may be missing, empty or hold a
+previous result (any of the four files above), which is then replaced as a whole; a directory
+holding a recording (``meta.json`` or ``depth/``), or any other non-empty directory, is
+refused with :class:`ResultDirError`, so a typo cannot overwrite data. A file-system error
+(permission, read-only, disk full) is a :class:`ResultDirError` naming the path.
 
 BVH frames follow the stream: frame ``f`` of ``motion.bvh`` is stream frame ``first_index + f``
 at ``1 / fps`` seconds spacing. A frame without a pose (``q`` None, e.g. status ``lost``), and
@@ -28,6 +32,9 @@ truth (null pose, status) for every written frame.
 from __future__ import annotations
 
 import math
+import os
+import shutil
+import tempfile
 import time as _time
 from datetime import datetime, timezone
 from pathlib import Path
@@ -42,7 +49,7 @@ from shared.skeleton import JOINT_NAMES, NUM_DOFS
 from .bvh import BvhWriter
 from .summary import RESULT_FORMAT, RESULT_VERSION, write_summary
 
-__all__ = ["ResultWriter", "ResultDirError", "RESULT_FILES"]
+__all__ = ["ResultWriter", "ResultDirError", "RESULT_FILES", "check_result_dir"]
 
 RESULT_FILES = {
     "poses": "poses.jsonl",
@@ -50,7 +57,6 @@ RESULT_FILES = {
     "summary": "summary.json",
     "body": "body.json",
 }
-_STALE_DERIVED = ("evaluation.json", "evaluation.png")
 _MAX_GAP = 100_000  # frames; a larger jump in stream indices is a caller bug, not a drop
 
 
@@ -62,18 +68,54 @@ def _now_iso() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
-def _prepare_dir(out_dir: Path) -> None:
-    if out_dir.exists() and not out_dir.is_dir():
-        raise ResultDirError(f"{out_dir}: exists and is not a directory")
-    out_dir.mkdir(parents=True, exist_ok=True)
-    entries = {p.name for p in out_dir.iterdir()}
+def check_result_dir(out_dir: Path) -> None:
+    """Refuse an output that must not be replaced by a result (module docstring)."""
+    try:
+        if out_dir.exists() and not out_dir.is_dir():
+            raise ResultDirError(f"{out_dir}: exists and is not a directory")
+        if not out_dir.is_dir():
+            return
+        if (out_dir / "meta.json").exists() or (out_dir / "depth").is_dir():
+            raise ResultDirError(
+                f"{out_dir}: holds a recording (meta.json or depth/); a result would overwrite "
+                "it: choose another output directory"
+            )
+        entries = {p.name for p in out_dir.iterdir()}
+    except OSError as err:
+        raise ResultDirError(f"{out_dir}: cannot be read ({err.strerror or err})") from None
     if entries and not entries & set(RESULT_FILES.values()):
         raise ResultDirError(
             f"{out_dir}: directory is not empty and holds no tracking result; "
             "choose a new or empty output directory"
         )
-    for name in _STALE_DERIVED:
-        (out_dir / name).unlink(missing_ok=True)
+
+
+def _holds_result(out_dir: Path) -> bool:
+    return out_dir.is_dir() and any(out_dir.iterdir())
+
+
+def _make_staging(out_dir: Path) -> Path:
+    """A fresh directory beside ``out_dir`` (the same file system, so moving it is a rename)."""
+    parent = out_dir.absolute().parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        return Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.partial-", dir=parent))
+    except OSError as err:
+        raise ResultDirError(
+            f"{out_dir}: cannot create the result there ({err.strerror or err})"
+        ) from None
+
+
+def _replace_dir(staging: Path, out_dir: Path) -> None:
+    """Move ``staging`` to ``out_dir``, replacing a previous result there; the old one is
+    removed only once the new one is in place."""
+    old = None
+    if out_dir.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old-", dir=out_dir.absolute().parent))
+        os.replace(out_dir, old / out_dir.name)
+    os.replace(staging, out_dir)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
 
 
 class ResultWriter:
@@ -111,7 +153,7 @@ class ResultWriter:
             raise ValueError(f"fps must be positive, got {fps}")
         intrinsics.validate()
         self.out_dir = Path(out_dir)
-        _prepare_dir(self.out_dir)
+        check_result_dir(self.out_dir)
         self.fps = float(fps)
         self.intrinsics = intrinsics
         self.mode = mode
@@ -127,18 +169,40 @@ class ResultWriter:
         self._t_summary = -math.inf
         self._started = _now_iso()
         self._closed_summary: dict | None = None
-
-        body.save(self.out_dir / RESULT_FILES["body"])
         self._bvh_units = bvh_units
-        self._poses = PosesJsonlWriter(self.out_dir / RESULT_FILES["poses"], fsync=fsync)
+        self._dir = _make_staging(self.out_dir)
+        self._poses = self._bvh = None
         try:
+            body.save(self._dir / RESULT_FILES["body"])
+            self._poses = PosesJsonlWriter(self._dir / RESULT_FILES["poses"], fsync=fsync)
             self._bvh = BvhWriter(
-                self.out_dir / RESULT_FILES["bvh"], body, self.fps, bvh_units, fsync=fsync
+                self._dir / RESULT_FILES["bvh"], body, self.fps, bvh_units, fsync=fsync
             )
-        except BaseException:
-            self._poses.close()
+            self._write_summary(complete=False)
+        except BaseException as err:
+            self._discard()
+            if isinstance(err, OSError):
+                raise ResultDirError(f"{self.out_dir}: cannot write ({err})") from None
             raise
-        self._write_summary(complete=False)
+
+    @property
+    def directory(self) -> Path:
+        """Where the files are now: a staging directory until the first frame is written,
+        ``out_dir`` from then on."""
+        return self._dir
+
+    def _discard(self) -> None:
+        for f in (self._poses, self._bvh):
+            if f is not None:
+                f.close()
+        shutil.rmtree(self._dir, ignore_errors=True)
+
+    def _publish(self) -> None:
+        """Move the result into ``out_dir`` (once)."""
+        if self._dir == self.out_dir:
+            return
+        _replace_dir(self._dir, self.out_dir)
+        self._dir = self.out_dir
 
     @property
     def frames(self) -> int:
@@ -184,9 +248,13 @@ class ResultWriter:
         record = pose_record(index, time, status, joints, q, errors, JOINT_NAMES, observed)
         bvh_q = q if q is not None and np.isfinite(q).all() else None
 
-        self._poses.write(record)
-        self._bvh.write_pose(None, repeat=gap)
-        self._bvh.write_pose(bvh_q)
+        try:
+            self._poses.write(record)
+            self._bvh.write_pose(None, repeat=gap)
+            self._bvh.write_pose(bvh_q)
+            self._publish()
+        except OSError as err:
+            raise ResultDirError(f"{self.out_dir}: cannot write ({err})") from None
 
         now = _clock()
         if self._first_index is None:
@@ -194,7 +262,10 @@ class ResultWriter:
         self._last_index, self._t_last = index, now
         self._status_counts[status] += 1
         if now - self._t_summary >= self._summary_interval:
-            self._write_summary(complete=False)
+            try:
+                self._write_summary(complete=False)
+            except OSError as err:
+                raise ResultDirError(f"{self.out_dir}: cannot write ({err})") from None
 
     def _summary(self, complete: bool) -> dict:
         n = self.frames
@@ -231,16 +302,27 @@ class ResultWriter:
 
     def _write_summary(self, complete: bool) -> dict:
         summary = self._summary(complete)
-        write_summary(self.out_dir / RESULT_FILES["summary"], summary)
+        write_summary(self._dir / RESULT_FILES["summary"], summary)
         self._t_summary = _clock()
         return summary
 
     def close(self) -> dict:
-        """Finish the files, write the final ``summary.json`` and return it. Idempotent."""
+        """Finish the files, write the final ``summary.json`` and return it. Idempotent.
+
+        A run that wrote no frame leaves a previous result in ``out_dir`` as it was (and
+        creates ``out_dir`` with an empty result only where there was none)."""
         if self._closed_summary is None:
-            self._poses.close()
-            self._bvh.close()
-            self._closed_summary = self._write_summary(complete=True)
+            try:
+                self._poses.close()
+                self._bvh.close()
+                self._closed_summary = self._write_summary(complete=True)
+                if self.frames == 0 and _holds_result(self.out_dir):
+                    self._discard()
+                else:
+                    self._publish()
+            except OSError as err:
+                self._closed_summary = self._summary(complete=False)
+                raise ResultDirError(f"{self.out_dir}: cannot write ({err})") from None
         return self._closed_summary
 
     def __enter__(self) -> ResultWriter:

@@ -56,17 +56,12 @@ def _raw_size_guess(n_bytes: int) -> tuple[int, int] | None:
 
 
 def _read_png(path: Path) -> np.ndarray:
-    import cv2
+    from shared.recording import RecordingError, read_png
 
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise StreamError(f"{path}: not a readable PNG image")
-    if image.ndim != 2 or image.dtype != np.uint16:
-        raise StreamError(
-            f"{path}: expected a single-channel 16-bit PNG (millimetres), got "
-            f"{image.dtype} with shape {image.shape}"
-        )
-    return image
+    try:
+        return read_png(path, np.uint16)
+    except RecordingError as err:
+        raise StreamError(f"{err} (a single-channel 16-bit PNG in millimetres)") from None
 
 
 def _read_raw(path: Path, intrinsics: Intrinsics) -> np.ndarray:

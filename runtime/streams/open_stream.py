@@ -74,7 +74,8 @@ def open_stream(
             raise StreamError(f"{spec}: no such .oni file")
         return OpenNIStream(str(path), intrinsics, frame_range, timeout_s)
     if path.is_dir():
-        if (path / "meta.json").exists():
+        meta = path / "meta.json"
+        if meta.exists() or meta.is_symlink():  # a broken link: the recording says why
             from .recording import RecordingStream
 
             return RecordingStream(path, intrinsics, frame_range)

@@ -128,8 +128,39 @@ def format_failed_frames(frames: list[dict], limit: int | None = None) -> str:
     return ", ".join(shown) + (f" ... and {more} more" if more > 0 else "")
 
 
+def check_same_recording(summary: dict, rec: Recording, result_dir: str | Path) -> None:
+    """Refuse to score a result against another recording than the one it was tracked from:
+    its ``summary.json`` names the source, and the image size must match. (A recording moved
+    since cannot be told apart; then only the size is checked.)
+
+    Raises:
+        EvaluationError: naming both.
+    """
+    source = summary.get("source") if isinstance(summary, dict) else None
+    if isinstance(source, str) and source.startswith("recording:"):
+        tracked = Path(source.partition(":")[2])
+        if tracked.is_dir() and tracked.resolve() != rec.path.resolve():
+            raise EvaluationError(
+                f"{result_dir} was tracked from {tracked}, not {rec.path}: evaluate it against "
+                "the recording it came from"
+            )
+    intr = summary.get("intrinsics") if isinstance(summary, dict) else None
+    if isinstance(intr, dict):
+        size = (intr.get("width"), intr.get("height"))
+        if size != (rec.intrinsics.width, rec.intrinsics.height):
+            raise EvaluationError(
+                f"{result_dir} was tracked on {size[0]}x{size[1]} images, {rec.path} has "
+                f"{rec.intrinsics.width}x{rec.intrinsics.height}: not the same recording"
+            )
+
+
 def _match(result: TrackingResult, rec: Recording, gt: dict) -> tuple:
     gt_names = tuple(str(n) for n in gt["joint_names"])
+    if not result.joint_names and len(result.frame):
+        raise EvaluationError(
+            f"every one of the result's {len(result.frame)} frames is lost: there is no pose "
+            "to compare with the ground truth (system failure 100%)"
+        )
     names = tuple(n for n in gt_names if n in result.joint_names)
     if not names:
         raise EvaluationError(
@@ -157,6 +188,7 @@ def evaluate(
     rec = Recording(recording)
     gt = rec.groundtruth()
     result = load_result(result_dir)
+    check_same_recording(result.summary, rec, result_dir)
     names, ignored = _match(result, rec, gt)
     notes: list[str] = []
     if not len(result.frame):
