@@ -24,7 +24,7 @@ from runtime.streams.recording import RecordingStream
 from shared.camera import Intrinsics
 from shared.recording import RecordingError, RecordingWriter, write_png16
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 INTR = Intrinsics.kinect_v1(640).resized(32, 24)
 
 

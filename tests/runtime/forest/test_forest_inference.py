@@ -171,7 +171,7 @@ def test_default_model_path_points_into_models():
 
     assert (
         DEFAULT_MODEL.parent.name == "models"
-        and DEFAULT_MODEL.parent.parent == Path(__file__).resolve().parents[2]
+        and DEFAULT_MODEL.parent.parent == Path(__file__).resolve().parents[3]
     )
 
 

@@ -1,0 +1,60 @@
+"""The tracker's depth term (runtime.tracker.depth_term): its rows' Jacobian against finite
+differences of the rendered depth."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from runtime.raycast import render_body
+from runtime.tracker import TrackerConfig, depth_term
+from runtime.tracker.depth_term import depth_rows
+from runtime.tracker.gauss_newton import rows_jacobian
+from runtime.tracker.regions import classify, rendered_points
+from shared import skeleton as sk
+from shared.body import BodyShape
+from shared.kinematics import pose_update
+
+D = {n: i for i, n in enumerate(sk.DOF_NAMES)}
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+class TestDepthRows:
+    def test_jacobian_matches_finite_differences(self, monkeypatch, make_pose, render_frame):
+        """The rows match finite differences of the rendering at interior pixels."""
+        body = BodyShape.default(torch.float64)
+        q = make_pose()
+        obs = render_frame(q, body)
+        monkeypatch.setattr(depth_term, "MAX_DEPTH_PIXELS", 100000)
+        monkeypatch.setattr(depth_term, "MIN_COSINE", 0.5)
+        cfg = TrackerConfig()
+        render = render_body(q, body, obs.intr)
+        regions = classify(render, obs, 0.08, True)
+        # Interior pixels: the same segment in the 5x5 neighbourhood (no edge within reach).
+        seg = render.segment[0]
+        pad = torch.nn.functional.pad(seg, (2, 2, 2, 2), value=-1)
+        same = torch.stack(
+            [
+                pad[i : i + seg.shape[0], j : j + seg.shape[1]] == seg
+                for i in range(5)
+                for j in range(5)
+            ]
+        ).all(0)
+        regions.good = regions.good & same[None]
+        rows = depth_rows(render, obs, regions, cfg)
+        keep = rows.weight > 0
+        jac = rows_jacobian(render.kin, rows)[keep]
+        # Rows are d(depth)/dq scaled by |cos| (residual along the normal): undo the scaling.
+        idx = regions.good.nonzero()[keep]
+        pts, _ = rendered_points(render, idx, obs.intr)
+        normal = render.normals[idx[:, 0], idx[:, 1], idx[:, 2]]
+        cos = ((normal * pts).sum(-1) / pts.norm(dim=-1)).abs()
+        eps = 1e-6
+        for dof in (0, 2, 4, D["lower_back_y"], D["l_humerus_abd"], D["r_femur_flex"], D["head_y"]):
+            dq = torch.zeros(1, 34, dtype=torch.float64)
+            dq[0, dof] = eps
+            plus = render_body(pose_update(q, dq), body, obs.intr).depth
+            minus = render_body(pose_update(q, -dq), body, obs.intr).depth
+            fd = (plus - minus)[idx[:, 0], idx[:, 1], idx[:, 2]] / (2 * eps)
+            assert torch.allclose(jac[:, dof] / cos, fd, atol=1e-4, rtol=1e-4), sk.DOF_NAMES[dof]

@@ -1,0 +1,75 @@
+"""The tracker's extra depth term (runtime.tracker.extra_depth_term): it pulls the model towards
+the observation, weighs torso and limb offsets by their own scales, and its closest-point
+search respects the depth gate and the batch."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from runtime.raycast import render_body
+from runtime.tracker import TrackerConfig, extra_depth_term
+from runtime.tracker.extra_depth_term import closest_points, extra_rows, observed_candidates
+from runtime.tracker.gauss_newton import normal_equations, solve_step
+from runtime.tracker.regions import classify
+from shared import skeleton as sk
+from shared.body import BodyShape
+
+D = {n: i for i, n in enumerate(sk.DOF_NAMES)}
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+class TestExtraRows:
+    def test_pulls_the_model_towards_the_observation(self, make_pose, render_frame):
+        body = BodyShape.default(torch.float64)
+        truth = make_pose()
+        q = truth.clone()
+        q[0, D["l_humerus_abd"]] += 0.35  # arm 10 cm off: B1/B3 bands wider than the margin
+        obs = render_frame(truth, body)
+        render = render_body(q, body, obs.intr)
+        regions = classify(render, obs, 0.08, True)
+        cfg = TrackerConfig()
+        extra = extra_rows(render, obs, regions, observed_candidates(obs, 5000), cfg, 1)
+        rows = extra.rows
+        assert len(rows) > 0 and bool((rows.weight > 0).any())
+        # Solving the extra term alone (plus damping) lowers the arm.
+        hess, grad = normal_equations(render.kin, rows, 1)
+        dq = solve_step(hess + 1e-2 * torch.eye(34, dtype=torch.float64), grad, q, 1e-3)
+        assert float(dq[0, D["l_humerus_abd"]]) < -0.05
+        assert float(extra.error_sum[0] / extra.count[0]) > 0.01
+
+    def test_weighs_torso_and_limb_offsets_by_their_own_scales(
+        self, monkeypatch, make_pose, render_frame
+    ):
+        body = BodyShape.default(torch.float64)
+        truth = make_pose()
+        q = truth.clone()
+        q[0, D["l_humerus_abd"]] += 0.35  # the arm off
+        q[0, D["root_tx"]] += 0.04  # and the whole body: torso offsets too
+        obs = render_frame(truth, body)
+        render = render_body(q, body, obs.intr)
+        regions = classify(render, obs, 0.08, True)
+        observed = observed_candidates(obs, 5000)
+        cfg = TrackerConfig(sigma_extra_m=0.005)
+        monkeypatch.setattr(extra_depth_term, "SIGMA_EXTRA_TORSO_M", 0.005)
+        rows = extra_rows(render, obs, regions, observed, cfg, 1).rows
+        torso = rows.segment < sk.SEGMENT_NAMES.index("l_upper_arm")
+        assert bool((torso & (rows.weight > 0)).any()) and bool((~torso & (rows.weight > 0)).any())
+        monkeypatch.setattr(extra_depth_term, "SIGMA_EXTRA_TORSO_M", 0.04)
+        scaled = extra_rows(render, obs, regions, observed, cfg, 1).rows
+        # Same correspondences; torso rows weigh 8 times less, limb rows the same.
+        assert torch.equal(scaled.residual, rows.residual)
+        torch.testing.assert_close(scaled.weight[torso], rows.weight[torso] / 8)
+        torch.testing.assert_close(scaled.weight[~torso], rows.weight[~torso])
+
+
+class TestClosestPoints:
+    def test_golden(self):
+        """The closest points respect the depth gate and the batch."""
+        query = torch.tensor([[0.0, 0.0, 2.0], [0.0, 0.0, 2.0], [1.0, 0.0, 2.0]])
+        qb = torch.tensor([0, 1, 0])
+        cand = torch.tensor([[0.01, 0.0, 2.0], [0.0, 0.0, 2.05], [0.0, 0.0, 2.5], [1.0, 0.0, 2.2]])
+        cb = torch.tensor([0, 1, 0, 0])
+        idx, found = closest_points(query, qb, cand, cb, depth_gate=0.08, max_distance=0.3)
+        assert idx[:2].tolist() == [0, 1] and found.tolist() == [True, True, False]

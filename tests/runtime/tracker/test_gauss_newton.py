@@ -1,0 +1,88 @@
+"""Gauss-Newton helpers of the tracker (runtime.tracker.gauss_newton): the rows' Jacobian
+against autograd, the limits' active set, step limiting and the predicted decrease."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from runtime.tracker import gauss_newton
+from shared import skeleton as sk
+from shared.body import BodyShape
+from shared.kinematics import forward_kinematics, pose_update, segment_points_to_world
+
+D = {n: i for i, n in enumerate(sk.DOF_NAMES)}
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+class TestRowsJacobian:
+    def test_jacobian_matches_autograd(self, make_pose):
+        body = BodyShape.default(torch.float64)
+        q = make_pose()
+        g = torch.Generator().manual_seed(0)
+        seg = torch.randint(0, 15, (40,), generator=g)
+        local = torch.randn(1, 40, 3, generator=g, dtype=torch.float64) * 0.1
+        direction = torch.randn(40, 3, generator=g, dtype=torch.float64)
+        kin = forward_kinematics(q, body)
+        points = segment_points_to_world(kin, local, seg)[0]
+        rows = gauss_newton.Rows(
+            torch.zeros(40, dtype=torch.long),
+            points,
+            seg,
+            direction,
+            torch.zeros(40, dtype=torch.float64),
+            torch.ones(40, dtype=torch.float64),
+        )
+        analytic = gauss_newton.rows_jacobian(kin, rows)
+
+        def f(dq):
+            p = segment_points_to_world(
+                forward_kinematics(pose_update(q, dq[None]), body), local, seg
+            )
+            return (p[0] * direction).sum(-1)
+
+        numeric = torch.autograd.functional.jacobian(f, torch.zeros(34, dtype=torch.float64))
+        assert torch.allclose(analytic, numeric, atol=1e-9)
+
+
+class TestSolveStep:
+    def test_golden(self, make_pose):
+        """The limits' active set keeps joints inside: a hyper-extending elbow stays put."""
+        q = make_pose()
+        q[0, D["l_radius_flex"]] = 0.0
+        hess = torch.eye(34, dtype=torch.float64)[None]
+        grad = torch.zeros(1, 34, dtype=torch.float64)
+        grad[0, D["l_radius_flex"]] = -0.5  # wants hyper-extension
+        grad[0, D["l_humerus_abd"]] = 0.1
+        dq = gauss_newton.solve_step(hess, grad, q, 0.0)
+        assert float(dq[0, D["l_radius_flex"]]) == pytest.approx(0.0, abs=1e-12)
+        assert float(dq[0, D["l_humerus_abd"]]) == pytest.approx(0.1, rel=1e-6)
+
+
+class TestLimitStep:
+    def test_golden(self):
+        """Long steps are shortened along their direction; short ones are unchanged."""
+        dq = torch.zeros(2, 34, dtype=torch.float64)
+        dq[0, 0], dq[0, D["l_femur_twist"]], dq[0, D["head_x"]] = 0.3, 0.5, -0.1
+        dq[1, D["head_x"]] = 0.05
+        out = gauss_newton.limit_step(dq, 0.2)
+        assert torch.allclose(out[0], dq[0] * 0.4)  # 0.5 rad -> 0.2: the whole step x 0.4
+        assert torch.equal(out[1], dq[1])  # short enough: unchanged
+        assert torch.equal(gauss_newton.limit_step(dq, 0.0), dq)
+
+
+class TestPredictedDecrease:
+    def test_golden(self):
+        """The predicted decrease is the quadratic model's."""
+        hess = torch.diag(torch.tensor([4.0, 1.0], dtype=torch.float64))[None].repeat(2, 1, 1)
+        hess[1, 0, 1] = hess[1, 1, 0] = 1.0
+        dq = torch.tensor([[0.5, 2.0], [1.0, -1.0]])
+        # 4 * 0.25 + 4 = 5; 4 + 1 - 2 * 1 = 3
+        assert gauss_newton.predicted_decrease(hess, dq).tolist() == [5.0, 3.0]
+        # For the Gauss-Newton step dq = H^-1 g it is the drop of the quadratic model
+        # g.dq - dq'H dq/2 times two.
+        g = torch.tensor([[1.0, 2.0]], dtype=torch.float64)
+        step = torch.linalg.solve(hess[1:], g[..., None])[..., 0]
+        drop = 2 * (g * step).sum() - gauss_newton.predicted_decrease(hess[1:], step)
+        assert torch.allclose(gauss_newton.predicted_decrease(hess[1:], step), drop)
