@@ -368,8 +368,10 @@ def _run(args, stream, estimator, writer, view, seg_cfg, device) -> int:
                 writer.extra.update({"dropped_frames": stats.dropped, "stopped": note})
     except bad_input as err:  # finishing the files failed (disk full, ...)
         code, note = 2, f"error: {err}"
-    if code == 2:  # bad input: that one line, nothing else
+    if code == 2:  # bad input: that one line, and where the frames before it are
         print(note, file=sys.stderr)
+        if stats.last_index is not None:
+            print(f"results up to frame {stats.last_index} are in {args.output}", file=sys.stderr)
         return code
     if note is not None:
         where = (

@@ -298,28 +298,33 @@ def load_forest(path: str | Path, expected_classes: list[str] | tuple[str, ...] 
     missing = [k for k in _ARRAYS if k not in arrays]
     if missing:
         raise ForestFormatError(f"{path}: forest lacks arrays {missing}")
-    names = tuple(meta.get("class_names", ()))
-    if expected_classes is not None and tuple(expected_classes) != names:
-        want, have = list(expected_classes), list(names)
-        extra = sorted(set(have) - set(want))
-        lacking = sorted(set(want) - set(have))
-        detail = (
-            f"extra {extra}, missing {lacking}"
-            if extra or lacking
-            else "same names in another order"
+    try:
+        names = tuple(meta.get("class_names", ()))
+        if expected_classes is not None and tuple(expected_classes) != names:
+            want, have = list(expected_classes), list(names)
+            extra = sorted(set(have) - set(want))
+            lacking = sorted(set(want) - set(have))
+            detail = (
+                f"extra {extra}, missing {lacking}"
+                if extra or lacking
+                else "same names in another order"
+            )
+            raise ForestFormatError(
+                f"{path}: forest classes differ from the expected {len(want)} classes ({detail})"
+            )
+        onnx = arrays.get("onnx_graph")
+        forest = Forest(
+            **{k: arrays[k] for k in _ARRAYS},
+            class_names=names,
+            camera=dict(meta.get("camera", {})),
+            background_m=float(meta.get("background_m", DEFAULT_BACKGROUND_M)),
+            config=dict(meta.get("config", {})),
+            stats=dict(meta.get("stats", {})),
+            onnx_graph=None if onnx is None else onnx.tobytes(),
         )
-        raise ForestFormatError(
-            f"{path}: forest classes differ from the expected {len(want)} classes ({detail})"
-        )
-    onnx = arrays.get("onnx_graph")
-    forest = Forest(
-        **{k: arrays[k] for k in _ARRAYS},
-        class_names=names,
-        camera=dict(meta.get("camera", {})),
-        background_m=float(meta.get("background_m", DEFAULT_BACKGROUND_M)),
-        config=dict(meta.get("config", {})),
-        stats=dict(meta.get("stats", {})),
-        onnx_graph=None if onnx is None else onnx.tobytes(),
-    )
-    forest.validate(str(path))
-    return forest
+        forest.validate(str(path))
+        return forest
+    except ForestFormatError:
+        raise
+    except (TypeError, ValueError, AttributeError) as exc:  # fields of the wrong kind
+        raise ForestFormatError(f"{path}: malformed forest metadata ({exc})") from None

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
@@ -360,7 +361,7 @@ class Recording:
         try:
             with np.load(path, allow_pickle=False) as data:
                 gt = {k: data[k] for k in data.files}
-        except (OSError, ValueError) as err:
+        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as err:
             raise RecordingError(f"{path}: unreadable ({err})") from None
         if "joints" not in gt or "joint_names" not in gt:
             raise RecordingError(f"{path}: needs 'joints' and 'joint_names'")
