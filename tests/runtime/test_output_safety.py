@@ -10,11 +10,8 @@ from __future__ import annotations
 import errno
 import json
 import os
-import signal
 import subprocess
 import sys
-import textwrap
-import time
 from pathlib import Path
 
 import numpy as np
@@ -174,50 +171,7 @@ def test_personalize_checks_its_output_before_the_fit(tmp_path, capfd, monkeypat
 
 
 # 5 ------------------------------------------------------------------------------------------
-SLOW_TRACK = textwrap.dedent(
-    """
-    import sys, time
-    import numpy as np
-    import runtime.track_cli as cli
-    from runtime.estimator import PoseEstimate
-
-    class Slow:
-        def reset(self):
-            pass
-        def estimate(self, frame):
-            time.sleep(0.05)
-            q = np.zeros(34); q[2] = 2.5; q[3] = np.pi
-            return PoseEstimate(q, np.tile([0.0, 0.0, 2.5], (16, 1)), "tracked", {})
-
-    cli.make_estimator = lambda *a, **k: Slow()
-    sys.exit(cli.main(sys.argv[1:]))
-    """
-)
-
-
-@pytest.mark.parametrize(
-    "signum, said",
-    [(signal.SIGTERM, "terminated"), (signal.SIGHUP, "terminated"), (signal.SIGINT, "interrupted")],
-)
-def test_sigterm_and_sighup_stop_like_ctrl_c(tmp_path, signum, said):
-    rec = make_recording(tmp_path / "rec", 400)
-    out = tmp_path / "out"
-    proc = subprocess.Popen(
-        [sys.executable, "-c", SLOW_TRACK, "-i", str(rec), "-o", str(out), "--mode", "tracker"],
-        cwd=REPO, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
-    deadline = time.monotonic() + 60
-    while not (out / "poses.jsonl").is_file() or not (out / "poses.jsonl").read_text():
-        assert proc.poll() is None, proc.stderr.read()
-        assert time.monotonic() < deadline
-        time.sleep(0.05)
-    proc.send_signal(signum)
-    _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 0, err
-    assert "Traceback" not in err and f"{said}; results up to frame" in err, err
-    summary = json.loads((out / "summary.json").read_text())
-    assert summary["complete"] is True and summary["extra"]["stopped"] == said
-    assert 0 < summary["frames"] == len(poses(out)) < 400
+# SIGTERM and SIGHUP stop like Ctrl-C: test_track_cli.py::test_subprocess_stop_signals_leave_...
 
 
 # 6 ------------------------------------------------------------------------------------------

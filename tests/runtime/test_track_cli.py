@@ -431,7 +431,13 @@ _CHILD = """
 """
 
 
-def test_subprocess_ctrl_c_leaves_valid_outputs(tmp_path):
+@pytest.mark.parametrize(
+    "signum, said",
+    [(signal.SIGINT, "interrupted"), (signal.SIGTERM, "terminated"), (signal.SIGHUP, "terminated")],
+)
+def test_subprocess_stop_signals_leave_valid_outputs(tmp_path, signum, said):
+    """Ctrl-C, ``kill`` / ``timeout`` / ``docker stop`` (SIGTERM) and a closed terminal (SIGHUP)
+    all finish the frame in flight and leave a complete result saying why it stopped."""
     rec = tmp_path / "rec"
     with RecordingWriter(rec, INTR, fps=30.0) as w:
         for _ in range(300):
@@ -445,16 +451,16 @@ def test_subprocess_ctrl_c_leaves_valid_outputs(tmp_path):
             break
         time.sleep(0.05)
     assert p.poll() is None, p.communicate()
-    p.send_signal(signal.SIGINT)
+    p.send_signal(signum)
     _, err = p.communicate(timeout=60)
     assert p.returncode == 0, err
-    assert "interrupted; results up to frame" in err and "Traceback" not in err
+    assert f"{said}; results up to frame" in err and "Traceback" not in err
     records, summary, bvh_frames = read_result(out)
     assert 3 <= len(records) < 300
     # Real-time pacing may drop frames; the BVH still has one frame per stream frame.
     assert records[0]["frame"] == 0
     assert bvh_frames == records[-1]["frame"] + 1
-    assert summary["extra"]["stopped"] == "interrupted"
+    assert summary["extra"]["stopped"] == said
 
 
 def test_subprocess_openni_dummy_device(tmp_path):
