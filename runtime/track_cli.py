@@ -18,6 +18,7 @@ Ctrl-C finishes the frame in flight and stops; a second Ctrl-C stops at once.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -33,6 +34,7 @@ from shared.config import (
     config_to_dict,
     load_config,
     load_settings,
+    merged_settings,
 )
 from shared.recording import RecordingError
 
@@ -44,6 +46,7 @@ from .cli_common import (
 )
 from .estimator import MODES, MODES_NEEDING_MODEL, make_estimator
 from .forest.inference import DEFAULT_MODEL
+from .presets import DEFAULT_PRESET, PRESETS, preset_settings
 from .segmentation import SegmentationConfig
 from .stop_signals import StopRequest, graceful_stop, interrupt_on_signals
 from .streams import (
@@ -121,7 +124,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--config",
         type=Path,
-        help="YAML of the mode's settings (e.g. configs/hybrid.yaml)",
+        help="YAML of the mode's settings; for the hybrid, on top of --preset, key by key",
+    )
+    p.add_argument(
+        "--preset",
+        choices=sorted(PRESETS),
+        help="named hybrid settings: "
+        + "; ".join(f"{p.name}: {p.description}" for p in PRESETS.values())
+        + f" (default: {DEFAULT_PRESET})",
     )
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto", help="torch device")
     p.add_argument(
@@ -195,13 +205,15 @@ def intrinsics_from_args(args: argparse.Namespace) -> Intrinsics | None:
     return intr
 
 
-def load_mode_config(path: Path | None) -> dict:
-    """The mode's settings from ``--config`` (a YAML mapping, possibly extending another
-    preset: :func:`shared.config.load_settings`; checked by the mode itself)."""
-    if path is None:
-        return {}
+def load_mode_config(path: Path | None, preset: str | None = None, mode: str = "hybrid") -> dict:
+    """The mode's settings: for the hybrid, the ``preset`` (default: the shipped system)
+    with ``--config``'s YAML on top, key by key; for the other modes ``--config`` alone
+    (:func:`shared.config.load_settings`; the values are checked by the mode itself)."""
+    if preset is not None and mode != "hybrid":
+        raise TrackError(f"--preset names hybrid settings; mode '{mode}' takes --config only")
     try:
-        return load_settings(path)
+        base = preset_settings(preset or DEFAULT_PRESET) if mode == "hybrid" else {}
+        return merged_settings(base, load_settings(path)) if path is not None else base
     except ConfigError as err:
         raise TrackError(str(err)) from None
 
@@ -295,7 +307,7 @@ def _set_up(args: argparse.Namespace):
         except ValueError as err:
             raise TrackError(str(err)) from None
         try:
-            mode_cfg = load_mode_config(args.config)
+            mode_cfg = load_mode_config(args.config, args.preset, args.mode)
             if args.mode == "tracker":
                 mode_cfg["initial_q"] = initial_pose(stream, args.start)
             estimator = make_estimator(
@@ -332,8 +344,10 @@ def _run(args, stream, estimator, writer, view, seg_cfg, device) -> int:
     code, note = 0, None
     try:
         with stream, writer:
+            cfg = getattr(estimator, "cfg", None)
             writer.extra.update(
                 {
+                    "settings": config_to_dict(cfg) if dataclasses.is_dataclass(cfg) else None,
                     "device": device,
                     "model": str(args.model) if args.mode in MODES_NEEDING_MODEL else None,
                     "segmentation": config_to_dict(seg_cfg),

@@ -26,6 +26,7 @@ __all__ = [
     "config_to_dict",
     "load_config",
     "load_settings",
+    "merged_settings",
     "save_config",
     "add_cli_args",
     "config_from_args",
@@ -125,17 +126,27 @@ def config_from_dict(cls: type[C], data: dict, where: str = "config") -> C:
 
 
 def as_config(
-    cls: type[C], config: Any, where: str = "config", error: type[Exception] = ConfigError
+    cls: type[C],
+    config: Any,
+    where: str = "config",
+    error: type[Exception] = ConfigError,
+    over_defaults: bool = False,
 ) -> C:
     """``config`` as a ``cls``: the defaults for None, itself for an instance, else a mapping
-    of its keys (:func:`config_from_dict`). A bad mapping raises ``error`` with the message
-    (an ``error`` raised by the config's own checks passes through as it is)."""
+    of its keys (:func:`config_from_dict`). With ``over_defaults`` the mapping changes only
+    the keys it names, nested sections included, of ``cls()`` (whose sections' own defaults
+    may differ from the class's: a preset that sets one threshold keeps the others). A bad
+    mapping raises ``error`` with the message (an ``error`` raised by the config's own checks
+    passes through as it is)."""
     if config is None:
         return cls()
     if isinstance(config, cls):
         return config
     try:
-        return config_from_dict(cls, dict(config), where)
+        data = dict(config)
+        if over_defaults:
+            data = _merged(config_to_dict(cls()), data)
+        return config_from_dict(cls, data, where)
     except error:
         raise
     except ConfigError as err:
@@ -179,6 +190,12 @@ def load_settings(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict:
     if here in _seen:
         raise ConfigError(f"{path}: extends itself (through {' -> '.join(map(str, _seen))})")
     return _merged(load_settings(path.parent / base, (*_seen, here)), data)
+
+
+def merged_settings(base: dict, over: dict) -> dict:
+    """``over`` on top of ``base``, mappings merged key by key (``None`` replaces a mapping:
+    it switches a section off)."""
+    return _merged(base, over)
 
 
 def _merged(base: dict, over: dict) -> dict:

@@ -54,12 +54,13 @@ __all__ = [
 
 
 def hybrid_config(config: Mapping[str, Any] | HybridConfig | None) -> HybridConfig:
-    """``config`` (a preset's mapping, or a config) as a :class:`HybridConfig`.
+    """``config`` (a preset's mapping, or a config) as a :class:`HybridConfig`: the keys it
+    names change the shipped defaults, the others stay (``null`` switches a section off).
 
     Raises:
         HybridError: unknown keys, wrong types or values out of range.
     """
-    return as_config(HybridConfig, config, "hybrid config", HybridError)
+    return as_config(HybridConfig, config, "hybrid config", HybridError, over_defaults=True)
 
 
 def create_estimator(
