@@ -71,7 +71,8 @@ def recording(tmp_path_factory) -> Path:
 
 
 # name -> (mode, hybrid settings or None). The hybrid variants make it write every key:
-# failed tracks (tracker_*), keep_better, rechecks, arm searches, a detection finding nobody.
+# failed tracks (tracker_*), keep_better, rechecks, arm searches, a detection finding nobody
+# (without keep_better, which would keep the failed track instead).
 RUNS = {
     "tracker": ("tracker", None),
     "detector": ("detector", None),
@@ -85,7 +86,7 @@ RUNS = {
     "hybrid-recheck": ("hybrid", {"keep_better": {"recheck_badness": 0.001}}),
     "hybrid-recording-labels": (
         "hybrid",
-        {"labels_from_recording": "REC", "arm_search": {"badness": 0.001}},
+        {"labels_from_recording": "REC", "arm_search": {"badness": 0.001}, "keep_better": None},
     ),
 }
 
