@@ -65,7 +65,8 @@ class PoseEstimate:
         joints: (16, 3) named joints (shared.skeleton.JOINT_NAMES) in camera metres, or None.
         status: "tracked" (tracker from the previous pose), "detected" (detector result) or
             "lost" (no person, or no pose good enough).
-        errors: fit errors by name (e.g. mean depth error in metres, silhouette overlap).
+        errors: fit figures by name, each in the unit its name says (e.g.
+            ``depth_error_cm``, ``overlap`` 0-1, ``ik_rms_m``); docs/format.md lists them.
         labels: optional (H, W) uint8 body-part labels (shared.labels) the estimator computed;
             only used for overlay images.
         observed: optional (16,) bool, the named joints the depth image confirms; the

@@ -10,7 +10,7 @@ Ctrl-C, a dropped camera or a crash leaves every finished frame readable. A reco
      "joints": {"head": [x, y, z], ...} | null,     # metres, camera frame (x right, y down,
                                                     #   z forward), names = skeleton.JOINT_NAMES
      "q": [34 floats] | null,                       # pose, layout of shared.skeleton
-     "errors": {"depth_mm": 11.2, ...},             # fit errors; non-finite values -> null
+     "errors": {"depth_error_cm": 1.1, ...},        # fit figures; non-finite values -> null
      "observed": {"head": true, ...} | null}        # joints the depth image confirms
 
 ``status`` is ``tracked`` (the tracker's fit was accepted), ``detected`` (the detector
@@ -20,6 +20,9 @@ free space behind the visible surface (false, e.g. a far arm hidden behind the t
 :mod:`runtime.tracker.joint_support`); null where the estimator cannot tell. Older files
 have no ``observed`` key. Positions are rounded to micrometres and angles to 1e-7 rad: far
 below any sensor accuracy, and it keeps the file small.
+
+Every key, unit and ``errors`` name, and the JSON Schema of a line (``poses.schema.json``
+beside this module): docs/format.md.
 
 Reading: only the *last* line may be broken, and only if it has no newline (the writer was
 interrupted mid-line); it is dropped and reported as ``truncated``. Any other malformed line
