@@ -5,13 +5,14 @@ One OSC bundle per frame (sent immediately), in this order::
     /depthmocap/frame          (i)index (f)time (s)status
     /depthmocap/joint/<name>   (f)x (f)y (f)z (i)observed        per named joint
 
-``index`` and ``time`` are the stream's frame index and timestamp (seconds), ``status`` is
+``index`` and ``time`` are the stream's frame index and timestamp (seconds; like every value
+here rounded as in ``poses.jsonl``, to 1 microsecond / micrometre), ``status`` is
 ``tracked``, ``detected`` or ``lost``. Joints are :data:`shared.skeleton.JOINT_NAMES` (``head``,
 ``neck``, ``spine``, ``pelvis``, ``l_shoulder``, ... ``r_ankle``) in camera metres (x right,
-y down, z away from the camera), rounded to 1 micrometre like ``poses.jsonl`` and sent as
-float32. ``observed`` is 1 when the depth image confirms the joint, 0 when it is inferred,
--1 when the estimator does not say. A lost frame sends only ``/depthmocap/frame``; a joint
-without a finite position is left out.
+y down, z away from the camera), sent as float32: the ``poses.jsonl`` values, or with
+``--smooth`` their One-Euro filtered values. ``observed`` is 1 when the depth image confirms
+the joint, 0 when it is inferred, -1 when the estimator does not say. A lost frame sends only
+``/depthmocap/frame``; a joint without a finite position is left out.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ def osc_bundle(
     bundle = OscBundleBuilder(IMMEDIATELY)
     m = OscMessageBuilder(f"{OSC_PREFIX}/frame")
     m.add_arg(int(index), "i")
-    m.add_arg(float(time), "f")
+    m.add_arg(round(float(time), 6), "f")
     m.add_arg(str(status), "s")
     bundle.add_content(m.build())
     if joints is not None:

@@ -8,7 +8,7 @@ frame, in this order::
     /VMC/Ext/Root/Pos  (s)"root" (f)p.x (f)p.y (f)p.z (f)q.x (f)q.y (f)q.z (f)q.w
     /VMC/Ext/Bone/Pos  (s)name   (f)p.x (f)p.y (f)p.z (f)q.x (f)q.y (f)q.z (f)q.w   per bone
     /VMC/Ext/OK        (i)loaded                 1 for a tracked/detected pose, 0 when lost
-    /VMC/Ext/T         (f)time                   the stream timestamp, seconds
+    /VMC/Ext/T         (f)time                   the stream timestamp, seconds (to 1 us)
 
 A frame without a pose (lost) carries only ``OK 0`` and ``T``: receivers keep the last pose.
 
@@ -178,5 +178,5 @@ def vmc_bundle(time: float, q: np.ndarray | None, body: BodyShape):
         for name, p, r in vmc_bone_transforms(q, body):
             bundle.add_content(transform("/VMC/Ext/Bone/Pos", name, p, r))
     bundle.add_content(message("/VMC/Ext/OK", (1 if q is not None else 0, "i")))
-    bundle.add_content(message("/VMC/Ext/T", (float(time), "f")))
+    bundle.add_content(message("/VMC/Ext/T", (round(float(time), 6), "f")))
     return bundle.build()
