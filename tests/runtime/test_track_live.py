@@ -340,3 +340,23 @@ def test_smooth_vmc_sends_the_filtered_pose(moving, recording, tmp_path, server,
             assert root == []
         else:
             np.testing.assert_allclose(root[0][1:4], expected, rtol=0, atol=1e-6)
+
+
+def test_missing_python_osc_is_a_one_line_error(moving, recording, tmp_path, monkeypatch, capsys):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "pythonosc.udp_client", None)  # import fails
+    out = tmp_path / "out"
+    argv = ["--input", recording, "--output", out, "--mode", "tracker", "--vmc", "127.0.0.1:9"]
+    code = cli.main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("error: --vmc needs the python-osc package"), err
+    assert "depthmocap[stream]" in err and not out.exists()
+    # Smoothing alone needs no python-osc.
+    code, err, records, summary = track(recording, out, "--smooth", capsys=capsys)
+    assert code == 0 and len(records) == FRAMES, err
+    assert summary["extra"]["stream"] == {
+        "vmc": None,
+        "osc": None,
+        "smoothing": {"min_cutoff": 1.0, "beta": 1.0, "d_cutoff": 1.0},
+    }
