@@ -45,6 +45,7 @@ from .cli_common import (
     report_error,
 )
 from .estimator import MODES, MODES_NEEDING_MODEL, make_estimator
+from .export.live import add_live_args, live_output_from_args
 from .forest.inference import DEFAULT_MODEL
 from .presets import DEFAULT_PRESET, PRESETS, preset_settings
 from .segmentation import SegmentationConfig
@@ -82,6 +83,7 @@ def _forest_error_types() -> tuple[type[BaseException], ...]:
 def _input_errors() -> tuple[type[BaseException], ...]:
     """Exception types that mean bad input (exit 2, one line)."""
     from .estimator import EstimatorUnavailable
+    from .export.live import LiveOutputError
     from .live_view import LiveViewError
 
     try:
@@ -97,6 +99,7 @@ def _input_errors() -> tuple[type[BaseException], ...]:
         ConfigError,
         EstimatorUnavailable,
         LiveViewError,
+        LiveOutputError,
         *_forest_error_types(),
         *extra,
     )
@@ -171,6 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE.rrd",
         help="live 3D view in rerun (needs rerun-sdk); with a file name, save the .rrd instead",
     )
+    add_live_args(p)
     s = p.add_argument_group("person segmentation")
     s.add_argument("--segmentation-config", type=Path, help="YAML preset of the options below")
     add_cli_args(s, SegmentationConfig)
@@ -324,9 +328,12 @@ def _set_up(args: argparse.Namespace):
             from .live_view import LiveView
 
             view = LiveView(args.view or None)
+        live = live_output_from_args(args, body, stream.fps)  # --vmc, --osc, --smooth
         writer = ResultWriter(
             args.output, body, stream.fps, stream.intrinsics, args.mode, stream.source
         )
+        if live is not None:
+            writer = live.wrap(writer)
     except BaseException as err:
         if stream is not None:
             stream.close()  # a camera must be released whatever went wrong

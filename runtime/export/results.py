@@ -218,6 +218,7 @@ class ResultWriter:
         q: np.ndarray | None,
         errors: dict[str, float],
         observed: np.ndarray | None = None,
+        bvh_q=...,
     ) -> None:
         """Append one frame to ``poses.jsonl`` and ``motion.bvh``.
 
@@ -230,6 +231,8 @@ class ResultWriter:
             errors: per-frame fit errors by name (e.g. ``surface_error_q97_mm``).
             observed: (16,) bool, the joints the depth image confirms (the others are
                 inferred), or None if unknown.
+            bvh_q: the pose for ``motion.bvh`` when it is not ``q`` (a smoothed pose:
+                :mod:`runtime.export.live`); ``poses.jsonl`` always gets ``q``.
         """
         if self._closed_summary is not None:
             raise ValueError(f"{self.out_dir}: result writer is closed")
@@ -246,7 +249,14 @@ class ResultWriter:
             if q.shape != (NUM_DOFS,):
                 raise ValueError(f"q must have shape ({NUM_DOFS},), got {q.shape}")
         record = pose_record(index, time, status, joints, q, errors, JOINT_NAMES, observed)
-        bvh_q = q if q is not None and np.isfinite(q).all() else None
+        if bvh_q is ...:
+            bvh_q = q
+        elif bvh_q is not None:
+            bvh_q = np.asarray(bvh_q, dtype=np.float64)
+            if bvh_q.shape != (NUM_DOFS,):
+                raise ValueError(f"bvh_q must have shape ({NUM_DOFS},), got {bvh_q.shape}")
+        if bvh_q is not None and not np.isfinite(bvh_q).all():
+            bvh_q = None
 
         try:
             self._poses.write(record)
