@@ -4,25 +4,25 @@ PY := .venv/bin/python
 SETUP_STAMP := .venv/.setup-stamp
 export PYTHONUNBUFFERED := 1
 
-.PHONY: setup demo test lint format bench clean synth dev-recordings dev-recordings-all train-forest train-forest-eval \
+.PHONY: setup demo test lint format bench install-check clean synth dev-recordings dev-recordings-all train-forest train-forest-eval \
 	synth-calib train-forest-calib
 
 setup: ## create .venv, install system packages (root), torch and the project with all extras
 	@bash scripts/setup.sh
 
-$(SETUP_STAMP): pyproject.toml scripts/setup.sh
+$(SETUP_STAMP): pyproject.toml setup.py scripts/setup.sh
 	@bash scripts/setup.sh
 
 DEMO := out/demo
 demo: $(SETUP_STAMP) ## set up if needed; render a person, personalize their body, track, evaluate
-	$(PY) -m train.synth.cli --sequence --motion wave --frames 120 --seed 1 --overwrite \
+	$(PY) -m depthmocap.train.synth.cli --sequence --motion wave --frames 120 --seed 1 --overwrite \
 		--quiet --out $(DEMO)/recording
-	$(PY) -m train.synth.calibration_views --out $(DEMO)/views --phenotype-from $(DEMO)/recording \
+	$(PY) -m depthmocap.train.synth.calibration_views --out $(DEMO)/views --phenotype-from $(DEMO)/recording \
 		--seed 7 --overwrite
-	$(PY) -m runtime.personalize_cli --input $(DEMO)/views --output $(DEMO)/body.json
-	$(PY) -m runtime.track_cli --input $(DEMO)/recording --output $(DEMO)/result \
+	$(PY) -m depthmocap.runtime.personalize_cli --input $(DEMO)/views --output $(DEMO)/body.json
+	$(PY) -m depthmocap.runtime.track_cli --input $(DEMO)/recording --output $(DEMO)/result \
 		--mode hybrid --config configs/hybrid.yaml --body $(DEMO)/body.json --save-overlays
-	$(PY) -m train.evaluation.cli --recording $(DEMO)/recording --result $(DEMO)/result \
+	$(PY) -m depthmocap.train.evaluation.cli --recording $(DEMO)/recording --result $(DEMO)/result \
 		--json $(DEMO)/metrics.json
 	@echo "demo outputs: $(DEMO)/result (poses.jsonl, motion.bvh, summary.json, overlays/),"
 	@echo "  metrics $(DEMO)/metrics.json, plot $(DEMO)/result/evaluation.png"
@@ -40,31 +40,34 @@ format: $(SETUP_STAMP)
 	$(PY) -m ruff check --fix .
 
 synth: $(SETUP_STAMP) ## the ~20k-frame training set into data/synth (resumable)
-	$(PY) -m train.synth.cli --config configs/synth.yaml --out data/synth
+	$(PY) -m depthmocap.train.synth.cli --config configs/synth.yaml --out data/synth
 
 dev-recordings: $(SETUP_STAMP) ## evaluation recordings from the HDM05 dev clips into data/dev
-	$(PY) -m train.evaluation.dev_recordings --out data/dev
+	$(PY) -m depthmocap.train.evaluation.dev_recordings --out data/dev
 
 dev-recordings-all: $(SETUP_STAMP) ## every tracked dev take (39 clips, 2,433 frames) into data/dev_all, data/dev_all_calib
-	$(PY) -m train.evaluation.dev_recordings --all-clips --out data/dev_all
+	$(PY) -m depthmocap.train.evaluation.dev_recordings --all-clips --out data/dev_all
 
 train-forest: $(SETUP_STAMP) ## the body-part forest from data/synth into models/forest.npz
-	$(PY) -m train.forest.train_cli --data data/synth --out models/forest.npz --config configs/forest.yaml
+	$(PY) -m depthmocap.train.forest.train_cli --data data/synth --out models/forest.npz --config configs/forest.yaml
 
 synth-calib: $(SETUP_STAMP) ## the calibration-pose training set (T-pose only) into data/synth_calib
-	$(PY) -m train.synth.cli --config configs/synth_calib.yaml --out data/synth_calib
+	$(PY) -m depthmocap.train.synth.cli --config configs/synth_calib.yaml --out data/synth_calib
 
 train-forest-calib: $(SETUP_STAMP) ## the calibration forest from data/synth_calib into models/
-	$(PY) -m train.forest.train_cli --data data/synth_calib --out models/forest_calib.npz \
+	$(PY) -m depthmocap.train.forest.train_cli --data data/synth_calib --out models/forest_calib.npz \
 		--config configs/forest_calib.yaml
 
 train-forest-eval: $(SETUP_STAMP) ## accuracy of models/forest.npz on the dev recordings
-	$(PY) -m train.forest.eval_cli --model models/forest.npz --data data/dev --out out/forest_eval
+	$(PY) -m depthmocap.train.forest.eval_cli --model models/forest.npz --data data/dev --out out/forest_eval
 
 bench: $(SETUP_STAMP) ## speed figures, then the accuracy table on data/dev (printed, never asserted)
-	$(PY) -m bench $(if $(wildcard data/dev),--recordings data/dev,)
-	@if [ -d data/dev ]; then $(PY) -m train.evaluation.dev_benchmark --recordings data/dev; \
+	$(PY) -m depthmocap.bench $(if $(wildcard data/dev),--recordings data/dev,)
+	@if [ -d data/dev ]; then $(PY) -m depthmocap.train.evaluation.dev_benchmark --recordings data/dev; \
 	else echo "accuracy table skipped: no data/dev (run make dev-recordings)"; fi
+
+install-check: $(SETUP_STAMP) ## install the checkout into a fresh venv outside it and track the demo from elsewhere
+	$(PY) -m pytest -q tests/test_install.py
 
 clean:
 	rm -rf .venv .pytest_cache .ruff_cache

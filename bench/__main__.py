@@ -1,4 +1,4 @@
-"""``python -m bench``: the same as ``runtime-bench`` / ``make bench``'s speed half."""
+"""``python -m depthmocap.bench``: the same as ``runtime-bench`` / ``make bench``'s speed half."""
 
 from .cli import main
 

@@ -12,9 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
-from runtime.forest.inference import DEFAULT_MODEL, ForestClassifier
-from shared.forest_format import load_forest
+from depthmocap.runtime.forest.inference import DEFAULT_MODEL, ForestClassifier
+from depthmocap.shared.forest_format import load_forest
 
 from .scenes import person_frame
 from .timing import median_ms

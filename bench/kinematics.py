@@ -7,16 +7,15 @@ implementation would use, timed in the same run so that the ratio survives a noi
 from __future__ import annotations
 
 import torch
-
-from shared.body import BodyShape
-from shared.kinematics import (
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.kinematics import (
     forward_kinematics,
     named_joint_positions,
     point_jacobian,
     pose_update,
     rest_pose,
 )
-from shared.skeleton import DOF_LIMITS, JOINT_SEGMENT
+from depthmocap.shared.skeleton import DOF_LIMITS, JOINT_SEGMENT
 
 from .timing import median_ms
 

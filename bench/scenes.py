@@ -9,10 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-
-from shared.body import BodyShape
-from shared.kinematics import transform_pose
-from shared.procedural_motion import ground_poses, motion_poses
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.kinematics import transform_pose
+from depthmocap.shared.procedural_motion import ground_poses, motion_poses
 
 __all__ = ["camera_motion", "person_frame"]
 

@@ -11,10 +11,9 @@ import itertools
 
 import numpy as np
 import torch
-
-from runtime.segmentation import SegmentationConfig, segment_person
-from runtime.streams.base import FrameRange
-from runtime.streams.demo import open_demo_stream
+from depthmocap.runtime.segmentation import SegmentationConfig, segment_person
+from depthmocap.runtime.streams.base import FrameRange
+from depthmocap.runtime.streams.demo import open_demo_stream
 
 from .timing import median_ms, wall_ms
 

@@ -15,12 +15,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
-from runtime.raycast import render_body
-from runtime.tracker import Tracker, TrackerConfig, track_sequence
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.kinematics import forward_kinematics, named_joint_positions
+from depthmocap.runtime.raycast import render_body
+from depthmocap.runtime.tracker import Tracker, TrackerConfig, track_sequence
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
 
 from .scenes import camera_motion
 from .timing import median_ms, wall_ms
@@ -100,8 +99,8 @@ def benchmark_recording(
     ``iterations_mean``, ``working_pixels`` (frame 0) and ``frames`` (timed).
     Raises ``shared.recording.RecordingError`` for a recording without ground truth.
     """
-    from runtime.segmentation import segment_person
-    from shared.recording import Recording, RecordingError
+    from depthmocap.runtime.segmentation import segment_person
+    from depthmocap.shared.recording import Recording, RecordingError
 
     rec = Recording(path)
     if not rec.has_groundtruth or not (Path(path) / "body.json").is_file():

@@ -6,8 +6,8 @@ addition says little; a ratio against the step it belongs to, measured alongside
 
 from __future__ import annotations
 
-from shared.body import BodyShape
-from shared.kinematics import rest_pose
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.kinematics import rest_pose
 
 from .timing import median_ms
 from .tracker import benchmark_tracker
@@ -19,7 +19,7 @@ def collision_cost(device: str, rounds: int = 2, frames: int = 60) -> tuple[str,
     """The tracker step with the collision term (the hybrid preset's) against without it, on
     the walk at 2.5 m, alternated ``rounds`` times (this host's speed drifts): (what, ms,
     note with the ratio)."""
-    from runtime.tracker import TrackerConfig
+    from depthmocap.runtime.tracker import TrackerConfig
 
     cfg = TrackerConfig(use_collision=True)
     with_term, without = [], []
@@ -38,13 +38,13 @@ def joint_support_cost(device: str, repeats: int = 20) -> tuple[str, float, str]
     """The observed-joint flags (:func:`runtime.tracker.joint_support.joint_support_cm2`, with
     labels) on a 320x240 frame of the default body at 3 m, against a tracker step on the same
     frame, timed in the same run: (what, ms, note with the ratio)."""
-    from runtime.raycast import render_body
-    from runtime.tracker import Tracker
-    from runtime.tracker.joint_support import joint_support_cm2
-    from runtime.tracker.observation import observe
-    from runtime.tracker.regions import classify
-    from runtime.tracker.tracker import SILHOUETTE_MAX_PX
-    from shared.camera import Intrinsics
+    from depthmocap.runtime.raycast import render_body
+    from depthmocap.runtime.tracker import Tracker
+    from depthmocap.runtime.tracker.joint_support import joint_support_cm2
+    from depthmocap.runtime.tracker.observation import observe
+    from depthmocap.runtime.tracker.regions import classify
+    from depthmocap.runtime.tracker.tracker import SILHOUETTE_MAX_PX
+    from depthmocap.shared.camera import Intrinsics
 
     intr, body = Intrinsics.kinect_v1(320), BodyShape.default().to(device=device)
     q = rest_pose(1, root_position=(0.0, 0.1, 3.0)).to(device)

@@ -19,10 +19,10 @@ import sys
 from pathlib import Path
 
 import torch
-
-from runtime.frame import depth_mm_to_metres
-from shared.body import BodyShape
-from shared.recording import Recording, RecordingError
+from depthmocap.runtime.frame import depth_mm_to_metres
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.recording import Recording, RecordingError
+from depthmocap.shared.resources import CONFIGS_DIR
 
 from .calibration import CalibrationConfig, CalibrationError, ReferencePoseWatcher, calibrate_body
 from .cli_common import add_frame_range_args, add_source_args, check_output_file, report_error
@@ -37,8 +37,9 @@ from .forest.inference import DEFAULT_CALIBRATION_MODEL, DEFAULT_MODEL
 from .segmentation import segment_person
 from .streams import FrameRange, StreamError, open_stream
 
-# The training population's average body (python -m train.bodies.template_body writes it).
-DEFAULT_TEMPLATE = Path(__file__).resolve().parents[1] / "configs" / "body_template.json"
+# The training population's average body (written by
+# python -m depthmocap.train.bodies.template_body).
+DEFAULT_TEMPLATE = CONFIGS_DIR / "body_template.json"
 
 __all__ = ["main", "build_parser", "CalibrateError"]
 
@@ -80,7 +81,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         default=DEFAULT_TEMPLATE,
         help="template body file whose proportions the measurements scale (default: the "
-        "training population's average, python -m train.bodies.template_body; the built-in average "
+        "training population's average, python -m depthmocap.train.bodies.template_body; "
+        "the built-in average "
         "adult when that file is missing)",
     )
     p.add_argument(

@@ -22,8 +22,7 @@ pairs' count is the one host sync.
 from __future__ import annotations
 
 import torch
-
-from shared.camera import Intrinsics
+from depthmocap.shared.camera import Intrinsics
 
 __all__ = ["NEAR", "capsule_ends", "segment_boxes", "segment_row_spans", "span_pairs"]
 

@@ -8,7 +8,7 @@ import math
 import sys
 from pathlib import Path
 
-from shared.camera import Intrinsics
+from depthmocap.shared.camera import Intrinsics
 
 from .streams import describe_sources
 

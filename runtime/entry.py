@@ -36,14 +36,14 @@ def run_tool(module: str, argv: list[str] | None = None) -> int:
 
 def track() -> None:
     """``runtime-track``."""
-    sys.exit(run_tool("runtime.track_cli"))
+    sys.exit(run_tool("depthmocap.runtime.track_cli"))
 
 
 def calibrate() -> None:
     """``runtime-calibrate``."""
-    sys.exit(run_tool("runtime.calibrate_cli"))
+    sys.exit(run_tool("depthmocap.runtime.calibrate_cli"))
 
 
 def personalize() -> None:
     """``runtime-personalize``."""
-    sys.exit(run_tool("runtime.personalize_cli"))
+    sys.exit(run_tool("depthmocap.runtime.personalize_cli"))

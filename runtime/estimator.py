@@ -18,13 +18,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
-
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.poses_format import STATUSES
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.poses_format import STATUSES
 
 if TYPE_CHECKING:
-    from runtime.frame import Frame
+    from depthmocap.runtime.frame import Frame
 
 __all__ = [
     "PoseEstimate",
@@ -42,10 +41,10 @@ __all__ = [
 
 Status = Literal["tracked", "detected", "lost"]
 MODE_MODULES = {
-    "hybrid": "runtime.hybrid",
-    "tracker": "runtime.tracker",
-    "detector": "runtime.detector",
-    "shotton": "runtime.detector.meanshift_baseline",
+    "hybrid": "depthmocap.runtime.hybrid",
+    "tracker": "depthmocap.runtime.tracker",
+    "detector": "depthmocap.runtime.detector",
+    "shotton": "depthmocap.runtime.detector.meanshift_baseline",
 }
 MODES: tuple[str, ...] = tuple(MODE_MODULES)
 # The tracker alone starts from a default pose; the others run the forest every frame.

@@ -22,13 +22,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
-
-from shared.camera import Intrinsics
+from depthmocap.shared.camera import Intrinsics
 
 if TYPE_CHECKING:
-    from runtime.streams.base import DepthFrame
-    from runtime.tracker.observation import Observation
-    from runtime.tracker.tracker import Tracker
+    from depthmocap.runtime.streams.base import DepthFrame
+    from depthmocap.runtime.tracker.observation import Observation
+    from depthmocap.runtime.tracker.tracker import Tracker
 
 __all__ = ["Frame", "FrameError", "LabelSource", "depth_mm_to_metres"]
 

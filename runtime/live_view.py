@@ -12,10 +12,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-
-from shared import skeleton as sk
-from shared.camera import depth_to_points
-from shared.labels import PART_COLORS
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.camera import depth_to_points
+from depthmocap.shared.labels import PART_COLORS
 
 __all__ = ["LiveViewError", "LiveView", "BONES"]
 

@@ -26,10 +26,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
-from shared.camera import Intrinsics, depth_to_points
-from shared.config import ConfigError, add_cli_args, config_from_args
-from shared.recording import Recording, RecordingError
+from depthmocap.shared.camera import Intrinsics, depth_to_points
+from depthmocap.shared.config import ConfigError, add_cli_args, config_from_args
+from depthmocap.shared.recording import Recording, RecordingError
 
 from .cli_common import check_output_file, report_error
 from .personalize.fit import FitConfig, PersonalizeError

@@ -12,7 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from shared.config import ConfigError, load_settings
+from depthmocap.shared.config import ConfigError, load_settings
+from depthmocap.shared.resources import CONFIGS_DIR
 
 __all__ = ["DEFAULT_PRESET", "PRESETS", "Preset", "PresetError", "configs_dir", "preset_settings"]
 
@@ -42,7 +43,7 @@ DEFAULT_PRESET = "shipped"
 
 def configs_dir() -> Path:
     """The folder of the shipped presets and body template."""
-    return Path(__file__).resolve().parents[1] / "configs"
+    return CONFIGS_DIR
 
 
 def preset_settings(name: str) -> dict:

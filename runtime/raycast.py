@@ -36,14 +36,18 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-
-from runtime.capsule_pixels import NEAR as _NEAR
-from runtime.capsule_pixels import capsule_ends, segment_boxes, segment_row_spans, span_pairs
-from shared import skeleton as sk
-from shared.body import FOOT_SEGMENTS, BodyShape, cross_section_axes
-from shared.camera import Intrinsics
-from shared.kinematics import Kinematics, forward_kinematics
-from shared.labels import segment_to_part
+from depthmocap.runtime.capsule_pixels import NEAR as _NEAR
+from depthmocap.runtime.capsule_pixels import (
+    capsule_ends,
+    segment_boxes,
+    segment_row_spans,
+    span_pairs,
+)
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import FOOT_SEGMENTS, BodyShape, cross_section_axes
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import Kinematics, forward_kinematics
+from depthmocap.shared.labels import segment_to_part
 
 __all__ = [
     "CAP_FRACTION",

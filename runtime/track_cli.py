@@ -24,10 +24,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.config import (
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.config import (
     ConfigError,
     add_cli_args,
     config_from_args,
@@ -36,7 +35,7 @@ from shared.config import (
     load_settings,
     merged_settings,
 )
-from shared.recording import RecordingError
+from depthmocap.shared.recording import RecordingError
 
 from .cli_common import (
     add_frame_range_args,
@@ -74,7 +73,7 @@ class TrackError(ValueError):
 
 def _forest_error_types() -> tuple[type[BaseException], ...]:
     try:
-        from shared.forest_format import ForestFormatError
+        from depthmocap.shared.forest_format import ForestFormatError
     except ImportError:  # a build without the forest format: nothing extra to catch
         return ()
     return (ForestFormatError,)
@@ -260,8 +259,8 @@ def check_model(path: Path, mode: str) -> None:
             f"model file not found: {path} (train one with `make train-forest` or pass --model)"
         )
     try:
-        from shared.forest_format import load_forest
-        from shared.labels import PART_NAMES
+        from depthmocap.shared.forest_format import load_forest
+        from depthmocap.shared.labels import PART_NAMES
     except ImportError:  # the estimator's own loader will check it
         return
     load_forest(path, expected_classes=PART_NAMES)
@@ -355,6 +354,8 @@ def _run(args, stream, estimator, writer, view, seg_cfg, device) -> int:
             writer.extra.update(
                 {
                     "settings": config_to_dict(cfg) if dataclasses.is_dataclass(cfg) else None,
+                    "preset": (args.preset or DEFAULT_PRESET) if args.mode == "hybrid" else None,
+                    "config": str(args.config) if args.config is not None else None,
                     "device": device,
                     "model": str(args.model) if args.mode in MODES_NEEDING_MODEL else None,
                     "segmentation": config_to_dict(seg_cfg),

@@ -15,7 +15,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a plain checkout too
 
-from train.bodies.anny_body import DEFAULT_TOPOLOGY, default_cache_dir, load_anny_model  # noqa: E402
+from depthmocap.train.bodies.anny_body import DEFAULT_TOPOLOGY, default_cache_dir, load_anny_model  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:

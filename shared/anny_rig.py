@@ -40,6 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .resources import cache_root
+
 __all__ = [
     "ANNY_TO_BODY",
     "BONE_SEGMENT",
@@ -56,7 +58,6 @@ __all__ = [
     "is_forbidden_topology",
 ]
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
 # The rig whose bone names the tables below use.
 DEFAULT_RIG = "cmu_mb"
 # The native MakeHuman mesh (13,718 vertices, 27,420 triangles).
@@ -150,9 +151,10 @@ def is_forbidden_topology(topology: str) -> bool:
 
 
 def default_cache_dir() -> Path:
-    """Where anny caches its built model data: ``$ANNY_CACHE_DIR`` or ``<repo>/.cache/anny``."""
+    """Where anny caches its built model data: ``$ANNY_CACHE_DIR`` or ``<cache root>/anny``
+    (:func:`depthmocap.shared.resources.cache_root`)."""
     env = os.environ.get("ANNY_CACHE_DIR")
-    return Path(env) if env else REPO_ROOT / ".cache" / "anny"
+    return Path(env) if env else cache_root() / "anny"
 
 
 def export_cache_dir(cache_dir: str | Path | None = None) -> Path:

@@ -15,10 +15,9 @@ from collections.abc import Callable
 
 import numpy as np
 import torch
-
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.kinematics import forward_kinematics, named_joint_positions
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
 
 __all__ = ["MOTIONS", "motion_poses", "random_poses", "ground_poses", "procedural_sequences"]
 

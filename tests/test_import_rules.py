@@ -18,15 +18,23 @@ FORBIDDEN = {
 RUNTIME_TOP_LEVEL_FORBIDDEN = {"pyrender", "trimesh", "anny"}
 
 
-def imports(path: Path, top_level_only: bool = False):
+def _package(module: str) -> str:
+    """The project package a module path names (``depthmocap.runtime.x`` -> ``runtime``), or
+    its top-level name for anything else."""
+    parts = module.split(".")
+    return parts[1] if parts[0] == "depthmocap" and len(parts) > 1 else parts[0]
+
+
+def imports(path: Path, top_level_only: bool = False, raw: bool = False):
     tree = ast.parse(path.read_text(), filename=str(path))
     nodes = tree.body if top_level_only else ast.walk(tree)
+    name = (lambda m: m.split(".")[0]) if raw else _package
     for node in nodes:
         if isinstance(node, ast.Import):
             for alias in node.names:
-                yield alias.name.split(".")[0], node.lineno
+                yield name(alias.name), node.lineno
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            yield node.module.split(".")[0], node.lineno
+            yield name(node.module), node.lineno
 
 
 @pytest.mark.parametrize("package", sorted(FORBIDDEN))
@@ -52,8 +60,27 @@ def test_runtime_has_no_heavy_top_level_imports():
     assert not bad, "\n".join(bad)
 
 
+def test_no_bare_package_imports():
+    """The packages are installed as depthmocap.*: a bare ``import runtime`` works only inside a
+    checkout and fails for every user who installed the wheel."""
+    files = [
+        p for d in (*FORBIDDEN, "tests", "depthmocap") for p in sorted((REPO / d).rglob("*.py"))
+    ]
+    bad = [
+        f"{f.relative_to(REPO)}:{line} imports {mod}"
+        for f in files
+        for mod, line in imports(f, raw=True)
+        if mod in FORBIDDEN
+    ]
+    assert not bad, "\n".join(bad)
+
+
 def test_detects_violations(tmp_path):
     # The scanner itself must see both import forms, or the rules above could never fail.
     f = tmp_path / "m.py"
-    f.write_text("import train.x\nfrom runtime import y\nfrom . import z\nimport bench.cli\n")
+    f.write_text(
+        "import depthmocap.train.x\nfrom depthmocap.runtime import y\nfrom . import z\n"
+        "import depthmocap.bench.cli\nimport runtime.tracker\n"
+    )
     assert {m for m, _ in imports(f)} == {"train", "runtime", "bench"}
+    assert {m for m, _ in imports(f, raw=True)} == {"depthmocap", "runtime"}

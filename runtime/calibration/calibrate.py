@@ -34,13 +34,12 @@ import math
 from dataclasses import dataclass
 
 import torch
-
-from shared import skeleton as sk
-from shared.body import FOOT_SEGMENTS, BodyShape
-from shared.camera import Intrinsics, depth_to_points
-from shared.config import field_doc
-from shared.kinematics import rest_pose
-from shared.labels import PART_SEGMENT
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import FOOT_SEGMENTS, BodyShape
+from depthmocap.shared.camera import Intrinsics, depth_to_points
+from depthmocap.shared.config import field_doc
+from depthmocap.shared.kinematics import rest_pose
+from depthmocap.shared.labels import PART_SEGMENT
 
 from .cylinder_ransac import fit_cylinder
 
@@ -181,7 +180,7 @@ def measure_bones(
 
 
 def _template_measurement(template, intr, cfg, root_z, gen):
-    from runtime.raycast import part_labels, render_body
+    from depthmocap.runtime.raycast import part_labels, render_body
 
     q = reference_pose(cfg, (0.0, 0.0, root_z), torch.float64)
     body = template.to(dtype=torch.float64)
@@ -270,7 +269,7 @@ def calibrate_body(
 
 def is_reference_pose(q: torch.Tensor, cfg: CalibrationConfig | None = None) -> bool:
     """Whether pose q (34,) is the reference pose: arm / leg angles and facing the camera."""
-    from shared.so3 import rotvec_to_matrix
+    from depthmocap.shared.so3 import rotvec_to_matrix
 
     cfg = cfg or CalibrationConfig()
     ref = reference_pose(cfg, dtype=torch.float64)

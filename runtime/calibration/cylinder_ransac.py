@@ -27,8 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-
-from shared.camera import Intrinsics, depth_to_points
+from depthmocap.shared.camera import Intrinsics, depth_to_points
 
 __all__ = ["CylinderFit", "fit_cylinder"]
 

@@ -14,10 +14,9 @@ from typing import Any
 
 import numpy as np
 import torch
-
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.config import as_config
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.config import as_config
 
 from .bone_ransac import BoneFit, bone_reach, fit_bones
 from .centroids import ClassCentroids, class_centroids, part_markers
@@ -71,12 +70,12 @@ def load_forest_labeler(
     """
     if model_path is None:
         raise DetectorError("this mode needs a forest model (--model forest.npz)")
-    from shared.forest_format import load_forest
-    from shared.labels import PART_NAMES
+    from depthmocap.shared.forest_format import load_forest
+    from depthmocap.shared.labels import PART_NAMES
 
     forest = load_forest(model_path, expected_classes=PART_NAMES)
     try:
-        from runtime.forest.inference import ForestClassifier
+        from depthmocap.runtime.forest.inference import ForestClassifier
     except ImportError as err:
         raise DetectorError(f"forest inference is not available in this build ({err})") from None
     try:
@@ -113,7 +112,7 @@ class DetectorEstimator:
         """Nothing to forget: every frame is detected from scratch."""
 
     def estimate(self, frame):
-        from runtime.estimator import PoseEstimate, lost, observed_of
+        from depthmocap.runtime.estimator import PoseEstimate, lost, observed_of
 
         labels = frame.labels(self.labels)
         refine = None
@@ -156,7 +155,7 @@ def create_estimator(
         intrinsics,
         smooth_window=cfg.label_smoothing_window,
     )
-    from runtime.tracker import Tracker
+    from depthmocap.runtime.tracker import Tracker
 
     tracker = Tracker(body, intrinsics, device=device) if cfg.refine_iterations > 0 else None
     return DetectorEstimator(labeler, Detector(body, intrinsics, cfg, device=device), tracker)

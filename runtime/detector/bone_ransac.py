@@ -30,10 +30,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.labels import PART_SEGMENT
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.labels import PART_SEGMENT
 
 __all__ = ["BoneFit", "bone_reach", "fit_bones"]
 

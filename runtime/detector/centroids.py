@@ -26,10 +26,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-
-from shared.body import BodyShape
-from shared.ik import Markers
-from shared.labels import NUM_CLASSES, PART_NAMES, PART_SEGMENT
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.ik import Markers
+from depthmocap.shared.labels import NUM_CLASSES, PART_NAMES, PART_SEGMENT
 
 __all__ = ["ClassCentroids", "part_markers", "class_centroids"]
 

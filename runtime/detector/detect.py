@@ -22,21 +22,20 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
-
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics, depth_to_points
-from shared.ik import fit_pose
-from shared.kinematics import forward_kinematics, named_joint_positions
-from shared.labels import NUM_CLASSES, PART_NAMES
-from shared.so3 import matrix_to_rotvec
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics, depth_to_points
+from depthmocap.shared.ik import fit_pose
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
+from depthmocap.shared.labels import NUM_CLASSES, PART_NAMES
+from depthmocap.shared.so3 import matrix_to_rotvec
 
 from .bone_ransac import fit_bones
 from .centroids import class_centroids, part_markers
 from .config import DetectorConfig
 
 if TYPE_CHECKING:
-    from runtime.tracker import TrackResult
+    from depthmocap.runtime.tracker import TrackResult
 
 # The detector's fixed choices (formerly DetectorConfig fields; values unchanged).
 # RANSAC (Wei 4.2): of the pairs that pass the length test, at most this many are scored by

@@ -35,11 +35,10 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
-
-from shared.body import BodyShape
-from shared.camera import Intrinsics, depth_to_points
-from shared.labels import NUM_CLASSES, PART_NAMES
-from shared.skeleton import JOINT_NAMES, JOINT_SEGMENT
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics, depth_to_points
+from depthmocap.shared.labels import NUM_CLASSES, PART_NAMES
+from depthmocap.shared.skeleton import JOINT_NAMES, JOINT_SEGMENT
 
 from .centroids import part_markers
 from .config import MeanShiftConfig
@@ -246,7 +245,7 @@ class ShottonEstimator:
         """Nothing to forget."""
 
     def estimate(self, frame):
-        from runtime.estimator import PoseEstimate, lost
+        from depthmocap.runtime.estimator import PoseEstimate, lost
 
         depth, m = frame.depth_m, frame.mask
         post = self.labeler(depth, m)
@@ -272,7 +271,7 @@ def create_estimator(
     config: Mapping[str, Any] | MeanShiftConfig | None = None,
 ) -> ShottonEstimator:
     """Mode "shotton" for ``make_estimator`` (``config``: MeanShiftConfig keys)."""
-    from shared.config import as_config
+    from depthmocap.shared.config import as_config
 
     from . import DetectorError, load_forest_labeler
 

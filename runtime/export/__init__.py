@@ -5,7 +5,12 @@
 :mod:`shared.poses_format` (the evaluation reads it); its writer is re-exported here.
 """
 
-from shared.poses_format import PosesData, PosesFileError, PosesJsonlWriter, read_poses_jsonl
+from depthmocap.shared.poses_format import (
+    PosesData,
+    PosesFileError,
+    PosesJsonlWriter,
+    read_poses_jsonl,
+)
 
 from .bvh import BvhWriter, write_bvh
 from .results import RESULT_FILES, ResultDirError, ResultWriter

@@ -41,10 +41,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.kinematics import rest_pose
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.kinematics import rest_pose
 
 __all__ = [
     "CAMERA_TO_WORLD",

@@ -28,9 +28,8 @@ import socket
 import sys
 
 import numpy as np
-
-from shared.body import BodyShape
-from shared.config import config_to_dict
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.config import config_to_dict
 
 from .one_euro import PoseSmoother, SmoothingConfig
 

@@ -32,8 +32,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-
-from shared.config import field_doc
+from depthmocap.shared.config import field_doc
 
 from .rotations import matrix_to_rotvec, rotvec_to_matrix
 

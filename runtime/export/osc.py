@@ -18,8 +18,7 @@ the joint, 0 when it is inferred, -1 when the estimator does not say. A lost fra
 from __future__ import annotations
 
 import numpy as np
-
-from shared.skeleton import JOINT_NAMES
+from depthmocap.shared.skeleton import JOINT_NAMES
 
 __all__ = ["OSC_PREFIX", "osc_bundle"]
 

@@ -5,12 +5,11 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-
-from shared.skeleton import JOINT_NAMES
+from depthmocap.shared.skeleton import JOINT_NAMES
 
 if TYPE_CHECKING:
-    from runtime.estimator import PoseEstimate
-    from runtime.frame import Frame
+    from depthmocap.runtime.estimator import PoseEstimate
+    from depthmocap.runtime.frame import Frame
 
 __all__ = ["draw_overlay"]
 
@@ -38,8 +37,7 @@ def draw_overlay(frame: Frame, est: PoseEstimate) -> np.ndarray:
     """BGR image of ``frame``: depth in grey, the part labels (or the person mask) tinted,
     the skeleton with inferred joints as red rings."""
     import cv2
-
-    from shared.labels import PART_COLORS
+    from depthmocap.shared.labels import PART_COLORS
 
     depth = frame.depth_m.detach().cpu().numpy()
     valid = depth > 0

@@ -40,11 +40,10 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
-
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.poses_format import STATUSES, PosesJsonlWriter, pose_record
-from shared.skeleton import JOINT_NAMES, NUM_DOFS
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.poses_format import STATUSES, PosesJsonlWriter, pose_record
+from depthmocap.shared.skeleton import JOINT_NAMES, NUM_DOFS
 
 from .bvh import BvhWriter
 from .summary import RESULT_FORMAT, RESULT_VERSION, write_summary

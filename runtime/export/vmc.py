@@ -53,9 +53,8 @@ tracked body's joint offsets (``body.json``), in the same frames.
 from __future__ import annotations
 
 import numpy as np
-
-from shared import skeleton as sk
-from shared.body import BodyShape
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
 
 from .bvh import CAMERA_TO_WORLD, _segment_offsets, joint_rotations
 from .rotations import matrix_to_quat

@@ -30,11 +30,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
-from shared.camera import Intrinsics
-from shared.forest_format import Forest, load_forest, traversal_table
-from shared.forest_walk import traverse, walk_posteriors
-from shared.posterior_smoothing import check_smoothing, smooth_posteriors
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.forest_format import Forest, load_forest, traversal_table
+from depthmocap.shared.forest_walk import traverse, walk_posteriors
+from depthmocap.shared.posterior_smoothing import check_smoothing, smooth_posteriors
+from depthmocap.shared.resources import MODELS_DIR
 
 __all__ = [
     "DEFAULT_MODEL",
@@ -45,7 +45,7 @@ __all__ = [
 ]
 
 # The forest shipped in the repository (models/README.md), used when no --model is given.
-DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "forest.npz"
+DEFAULT_MODEL = MODELS_DIR / "forest.npz"
 # Trained on the calibration T-pose only (Wei section 6): labels that pose more accurately.
 DEFAULT_CALIBRATION_MODEL = DEFAULT_MODEL.with_name("forest_calib.npz")
 

@@ -14,12 +14,11 @@ from typing import Any
 
 import numpy as np
 import torch
-
-from runtime.detector import Detector, forest_label_source, load_forest_labeler
-from runtime.frame import LabelSource
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.config import as_config
+from depthmocap.runtime.detector import Detector, forest_label_source, load_forest_labeler
+from depthmocap.runtime.frame import LabelSource
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.config import as_config
 
 from .config import (
     ArmSearchConfig,
@@ -73,7 +72,7 @@ def create_estimator(
 ) -> HybridEstimator:
     """Mode "hybrid" for ``runtime.estimator.make_estimator`` (``config``: HybridConfig keys)."""
     cfg = hybrid_config(config)
-    from runtime.tracker import Tracker, TrackerError
+    from depthmocap.runtime.tracker import Tracker, TrackerError
 
     if cfg.labels_from_recording:
         labels = recording_labels(Path(cfg.labels_from_recording))
@@ -101,7 +100,7 @@ def recording_labels(path: Path) -> LabelSource:
         HybridError: not a readable recording, no labels/, or (when called) a frame the
             recording does not have or cannot read.
     """
-    from shared.recording import Recording
+    from depthmocap.shared.recording import Recording
 
     try:
         rec = Recording(path)

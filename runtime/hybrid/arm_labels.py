@@ -18,13 +18,12 @@ from __future__ import annotations
 import math
 
 import torch
-
-from runtime.raycast import segment_distances
-from runtime.tracker.signals import LIMB_SEGMENTS
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.kinematics import Kinematics, clamp_to_limits
-from shared.labels import PART_NAMES
+from depthmocap.runtime.raycast import segment_distances
+from depthmocap.runtime.tracker.signals import LIMB_SEGMENTS
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.kinematics import Kinematics, clamp_to_limits
+from depthmocap.shared.labels import PART_NAMES
 
 __all__ = [
     "AGREEMENT_MARGIN_M",

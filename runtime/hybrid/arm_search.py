@@ -20,14 +20,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
-
-from runtime.frame import Frame
-from runtime.raycast import segment_distances
-from runtime.tracker.signals import FitSignals
-from runtime.tracker.tracker import TrackResult
-from shared.body import BodyShape
-from shared.camera import depth_to_points
-from shared.kinematics import Kinematics, forward_kinematics
+from depthmocap.runtime.frame import Frame
+from depthmocap.runtime.raycast import segment_distances
+from depthmocap.runtime.tracker.signals import FitSignals
+from depthmocap.runtime.tracker.tracker import TrackResult
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import depth_to_points
+from depthmocap.shared.kinematics import Kinematics, forward_kinematics
 
 from .arm_labels import (
     AGREEMENT_MARGIN_M,

@@ -13,10 +13,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from runtime.detector.config import DetectorConfig
-from runtime.tracker.config import TrackerConfig
-from runtime.tracker.signals import FitSignals
-from shared.config import ConfigError, field_doc
+from depthmocap.runtime.detector.config import DetectorConfig
+from depthmocap.runtime.tracker.config import TrackerConfig
+from depthmocap.runtime.tracker.signals import FitSignals
+from depthmocap.shared.config import ConfigError, field_doc
 
 __all__ = [
     "ArmSearchConfig",
@@ -95,7 +95,7 @@ class KeepBetterConfig:
         "a detection whose root turns more than this from the track is not taken (rad): a "
         "person does not turn round in one frame, but a profile fits facing either way; "
         "unless the failing track has been turned round for "
-        "runtime.hybrid.policy.MAX_TURN_FRAMES frames in a row (None: any turn)",
+        "depthmocap.runtime.hybrid.policy.MAX_TURN_FRAMES frames in a row (None: any turn)",
     )
     recheck_badness: float | None = field_doc(
         None,

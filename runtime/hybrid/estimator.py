@@ -24,13 +24,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-
-from runtime.detector import DetectionResult, Detector
-from runtime.estimator import PoseEstimate, lost, observed_of
-from runtime.frame import Frame, LabelSource
-from runtime.tracker.tracker import Tracker, TrackResult
-from shared.kinematics import forward_kinematics, named_joint_positions
-from shared.so3 import rotvec_to_matrix
+from depthmocap.runtime.detector import DetectionResult, Detector
+from depthmocap.runtime.estimator import PoseEstimate, lost, observed_of
+from depthmocap.runtime.frame import Frame, LabelSource
+from depthmocap.runtime.tracker.tracker import Tracker, TrackResult
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
+from depthmocap.shared.so3 import rotvec_to_matrix
 
 from .arm_search import ArmSearch
 from .config import HybridConfig

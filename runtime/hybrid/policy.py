@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from runtime.tracker.signals import FitSignals
+from depthmocap.runtime.tracker.signals import FitSignals
 
 from .config import FailureThresholds, KeepBetterConfig
 

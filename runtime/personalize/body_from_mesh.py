@@ -13,11 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-
-from shared import skeleton as sk
-from shared.anny_rig import JOINT_RECIPES
-from shared.body import BodyShape
-from shared.body_from_mesh import body_from_mesh
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.anny_rig import JOINT_RECIPES
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.body_from_mesh import body_from_mesh
 
 from .shape_model import RestShape, ShapeModel
 

@@ -8,8 +8,7 @@ import math
 from dataclasses import dataclass
 
 import torch
-
-from shared.camera import Intrinsics
+from depthmocap.shared.camera import Intrinsics
 
 __all__ = ["Pairs", "closest_pairs", "residual_jacobian", "residuals", "visible_vertices"]
 

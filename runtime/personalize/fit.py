@@ -49,13 +49,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.config import field_doc
-from shared.kinematics import clamp_to_limits, forward_kinematics, pose_update
-from shared.least_squares import damped_solve
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.config import field_doc
+from depthmocap.shared.kinematics import clamp_to_limits, forward_kinematics, pose_update
+from depthmocap.shared.least_squares import damped_solve
 
 from .correspondences import closest_pairs, residual_jacobian, residuals, visible_vertices
 from .jacobian import linear_shape, pose_jacobian, posed_perturbed

@@ -7,9 +7,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-
-from shared import skeleton as sk
-from shared.so3 import skew
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.so3 import skew
 
 from .shape_model import RestShape, ShapeModel
 

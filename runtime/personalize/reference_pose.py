@@ -7,8 +7,7 @@ import math
 
 import numpy as np
 import torch
-
-from shared import skeleton as sk
+from depthmocap.shared import skeleton as sk
 
 __all__ = ["CALIBRATION_POSE_DEG", "INITIAL_PHENOTYPE", "calibration_pose", "initial_pose"]
 

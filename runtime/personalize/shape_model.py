@@ -26,16 +26,14 @@ Only this module touches ``anny`` (imported lazily: it is the optional ``persona
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-
-from shared import skeleton as sk
-from shared.anny_rig import (
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.anny_rig import (
     ANNY_TO_BODY,
     DEFAULT_RIG,
     HIP_BONES,
@@ -45,8 +43,9 @@ from shared.anny_rig import (
     export_cache_dir,
     is_forbidden_topology,
 )
-from shared.body import BodyShape
-from shared.kinematics import forward_kinematics
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.kinematics import forward_kinematics
+from depthmocap.shared.resources import cache_root
 
 __all__ = [
     "ANNY_TO_BODY",
@@ -62,7 +61,6 @@ __all__ = [
     "vertex_normals",
 ]
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
 # Search box of the fit: adults (anny age 2/3 = young adult, 1 = old) and the heights whose
 # knee stays on the mesh.
 PHENOTYPE_BOUNDS = np.array(
@@ -99,7 +97,7 @@ class RestShape:
 
 def default_basis_path(topology: str = "anny") -> Path:
     """``<$DEPTHMOCAP_CACHE or <repo>/.cache>/personalize/local_basis_<topology>.npz``."""
-    root = Path(os.environ.get("DEPTHMOCAP_CACHE", REPO_ROOT / ".cache"))
+    root = cache_root()
     return root / "personalize" / f"local_basis_{topology}.npz"
 
 

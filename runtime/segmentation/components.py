@@ -6,8 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
-from shared.camera import Intrinsics
+from depthmocap.shared.camera import Intrinsics
 
 from .canvas import Canvas
 from .config import SegmentationConfig

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from shared.config import field_doc
+from depthmocap.shared.config import field_doc
 
 __all__ = ["SegmentationConfig"]
 

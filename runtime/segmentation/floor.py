@@ -7,8 +7,7 @@ import math
 
 import numpy as np
 import torch
-
-from shared.camera import Intrinsics
+from depthmocap.shared.camera import Intrinsics
 
 from .config import SegmentationConfig
 

@@ -5,8 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-
-from shared.camera import Intrinsics
+from depthmocap.shared.camera import Intrinsics
 
 from .canvas import Canvas
 from .components import (

@@ -20,8 +20,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
-
-from shared.camera import Intrinsics
+from depthmocap.shared.camera import Intrinsics
 
 __all__ = [
     "DepthFrame",

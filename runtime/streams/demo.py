@@ -16,13 +16,12 @@ from collections.abc import Iterator
 
 import numpy as np
 import torch
-
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.kinematics import forward_kinematics, named_joint_positions, transform_pose
-from shared.procedural_motion import ground_poses, motion_poses
-from shared.sensor_noise import (
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions, transform_pose
+from depthmocap.shared.procedural_motion import ground_poses, motion_poses
+from depthmocap.shared.sensor_noise import (
     BackgroundConfig,
     BackgroundScene,
     KinectNoiseConfig,
@@ -106,7 +105,7 @@ class DemoStream(DepthStream):
         return len(self._range)
 
     def __iter__(self) -> Iterator[DepthFrame]:
-        from runtime.raycast import render_body_depth
+        from depthmocap.runtime.raycast import render_body_depth
 
         rng = np.random.default_rng(self._seed)
         sensor = KinectNoiseConfig()

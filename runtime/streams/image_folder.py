@@ -15,8 +15,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-
-from shared.camera import Intrinsics
+from depthmocap.shared.camera import Intrinsics
 
 from .base import ALL_FRAMES, DepthFrame, DepthStream, FrameRange, StreamError, check_frame_shape
 
@@ -56,7 +55,7 @@ def _raw_size_guess(n_bytes: int) -> tuple[int, int] | None:
 
 
 def _read_png(path: Path) -> np.ndarray:
-    from shared.recording import RecordingError, read_png
+    from depthmocap.shared.recording import RecordingError, read_png
 
     try:
         return read_png(path, np.uint16)

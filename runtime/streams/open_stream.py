@@ -16,7 +16,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from shared.camera import Intrinsics
+from depthmocap.shared.camera import Intrinsics
 
 from .base import ALL_FRAMES, DepthStream, FrameRange, StreamError
 

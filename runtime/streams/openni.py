@@ -40,8 +40,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-
-from shared.camera import Intrinsics
+from depthmocap.shared.camera import Intrinsics
 
 from .base import ALL_FRAMES, DepthFrame, DepthStream, FrameRange, SensorDisconnected, StreamError
 

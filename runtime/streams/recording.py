@@ -5,8 +5,8 @@ from __future__ import annotations
 from collections.abc import Iterator
 from pathlib import Path
 
-from shared.camera import Intrinsics
-from shared.recording import Recording
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.recording import Recording
 
 from .base import ALL_FRAMES, DepthFrame, DepthStream, FrameRange, StreamError
 

@@ -22,10 +22,9 @@ abdomen and chest, the lower back) turn both together, and their Jacobian column
 from __future__ import annotations
 
 import torch
-
-from runtime.raycast import SegmentGeometry
-from shared import skeleton as sk
-from shared.kinematics import Kinematics, segment_axis_points
+from depthmocap.runtime.raycast import SegmentGeometry
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.kinematics import Kinematics, segment_axis_points
 
 from .gauss_newton import Rows
 from .label_term import capsule_offsets

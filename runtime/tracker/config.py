@@ -45,7 +45,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
-from shared.config import ConfigError, field_doc
+from depthmocap.shared.config import ConfigError, field_doc
 
 __all__ = ["TrackerConfig", "TrackerConfigError"]
 

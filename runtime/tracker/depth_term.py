@@ -16,8 +16,7 @@ large depth difference and sensor depth is least reliable, pixels weigh less; pi
 from __future__ import annotations
 
 import torch
-
-from runtime.raycast import BodyRender, surface_normals
+from depthmocap.runtime.raycast import BodyRender, surface_normals
 
 from .config import TrackerConfig
 from .gauss_newton import Rows

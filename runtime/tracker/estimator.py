@@ -14,11 +14,10 @@ from typing import Any
 
 import numpy as np
 import torch
-
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.config import as_config
-from shared.kinematics import forward_kinematics, named_joint_positions
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.config import as_config
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
 
 from .config import TrackerConfig
 from .tracker import Tracker, TrackerError
@@ -38,7 +37,7 @@ class TrackerEstimator:
         """Nothing to forget: with no detector the tracker resumes from its last pose."""
 
     def estimate(self, frame):
-        from runtime.estimator import PoseEstimate, observed_of
+        from depthmocap.runtime.estimator import PoseEstimate, observed_of
 
         q_prev, q_prev2 = self._prev
         res = self.tracker.fit(frame.observation(self.tracker), q_prev, q_prev2)

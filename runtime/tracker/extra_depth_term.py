@@ -29,9 +29,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-
-from runtime.raycast import BodyRender
-from shared import skeleton as sk
+from depthmocap.runtime.raycast import BodyRender
+from depthmocap.shared import skeleton as sk
 
 from .config import TrackerConfig
 from .gauss_newton import Rows

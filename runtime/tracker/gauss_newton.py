@@ -18,10 +18,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-
-from shared import skeleton as sk
-from shared.kinematics import Kinematics, clamp_to_limits, pose_update
-from shared.least_squares import damped, solve, solve_with_fixed
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.kinematics import Kinematics, clamp_to_limits, pose_update
+from depthmocap.shared.least_squares import damped, solve, solve_with_fixed
 
 __all__ = [
     "Rows",

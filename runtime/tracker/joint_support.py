@@ -17,7 +17,8 @@ leg is rendered in front, at the depth the camera measures there, and would coun
 Where the forest's part labels are at hand (the hybrid computes them every frame), a pixel
 counts only when the forest puts it on the same body group as the model's segment: the
 torso with head and neck, or one of the four limbs (an arm with its clavicle). On the 39 dev
-takes (``python -m train.evaluation.dev_benchmark --recordings data/dev_all``, 0.2 rad) that
+takes (``python -m depthmocap.train.evaluation.dev_benchmark --recordings data/dev_all``,
+0.2 rad) that
 took the failed frames counting only the joints called observed from 5.6% to 1.9%, while the flags
 still cover 95% of the joints the camera sees (98.5% without the labels); the group, not the
 segment, because the forest confuses the upper arm and forearm near the elbow.
@@ -30,12 +31,11 @@ the trunk's joints, whose centres lie well inside the body.
 from __future__ import annotations
 
 import torch
-
-from runtime.raycast import BodyRender
-from shared import skeleton as sk
-from shared.camera import Intrinsics
-from shared.kinematics import named_joint_positions
-from shared.labels import JOINT_PARTS, PART_NAMES, PART_SEGMENT
+from depthmocap.runtime.raycast import BodyRender
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import named_joint_positions
+from depthmocap.shared.labels import JOINT_PARTS, PART_NAMES, PART_SEGMENT
 
 from .regions import Regions, rendered_points
 

@@ -16,10 +16,9 @@ most ``MAX_LABEL_PIXELS`` of them are used, weighted like the other terms' sampl
 from __future__ import annotations
 
 import torch
-
-from runtime.raycast import SegmentGeometry, capsule_signed_distance
-from shared import skeleton as sk
-from shared.kinematics import Kinematics
+from depthmocap.runtime.raycast import SegmentGeometry, capsule_signed_distance
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.kinematics import Kinematics
 
 from .config import TrackerConfig
 from .gauss_newton import Rows

@@ -12,8 +12,7 @@ import math
 from dataclasses import dataclass
 
 import torch
-
-from shared.camera import Intrinsics, depth_to_points
+from depthmocap.shared.camera import Intrinsics, depth_to_points
 
 __all__ = [
     "Observation",

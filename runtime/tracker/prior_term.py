@@ -8,9 +8,8 @@ because q mixes radians and metres.
 from __future__ import annotations
 
 import torch
-
-from shared.kinematics import clamp_to_limits
-from shared.so3 import matrix_to_rotvec, rotvec_to_matrix
+from depthmocap.shared.kinematics import clamp_to_limits
+from depthmocap.shared.so3 import matrix_to_rotvec, rotvec_to_matrix
 
 __all__ = ["predict_pose", "prior_residual", "prior_system"]
 

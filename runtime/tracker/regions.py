@@ -12,9 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-
-from runtime.raycast import BodyRender
-from shared.camera import Intrinsics
+from depthmocap.runtime.raycast import BodyRender
+from depthmocap.shared.camera import Intrinsics
 
 from .observation import Observation
 

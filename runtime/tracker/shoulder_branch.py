@@ -19,10 +19,9 @@ from __future__ import annotations
 import math
 
 import torch
-
-from shared import skeleton as sk
-from shared.kinematics import clamp_to_limits
-from shared.so3 import rotvec_to_matrix
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.kinematics import clamp_to_limits
+from depthmocap.shared.so3 import rotvec_to_matrix
 
 __all__ = [
     "SHOULDER_DOFS",

@@ -21,11 +21,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-
-from runtime.raycast import BodyRender, surface_distance
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics
+from depthmocap.runtime.raycast import BodyRender, surface_distance
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
 
 from .config import TrackerConfig
 from .depth_term import depth_error_sum

@@ -14,8 +14,7 @@ depth term's type 2.
 from __future__ import annotations
 
 import torch
-
-from runtime.raycast import BodyRender
+from depthmocap.runtime.raycast import BodyRender
 
 from .config import TrackerConfig
 from .gauss_newton import Rows

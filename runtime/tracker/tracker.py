@@ -23,12 +23,11 @@ import dataclasses
 from dataclasses import dataclass
 
 import torch
-
-from runtime.raycast import render_body, segment_geometry
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.labels import PART_SEGMENT
+from depthmocap.runtime.raycast import render_body, segment_geometry
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.labels import PART_SEGMENT
 
 from .collision_term import collision_rows
 from .config import TrackerConfig

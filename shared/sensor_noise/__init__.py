@@ -10,7 +10,7 @@ Numpy only and vectorized; it lives in ``shared`` so that the runtime's demo str
 same kind of depth as the recordings it is evaluated on.
 """
 
-from shared.sensor_noise.background import (
+from depthmocap.shared.sensor_noise.background import (
     BackgroundBox,
     BackgroundConfig,
     BackgroundScene,
@@ -21,15 +21,15 @@ from shared.sensor_noise.background import (
     random_background_scene,
     wall_depth,
 )
-from shared.sensor_noise.disparity import add_disparity_noise, quantize_depth
-from shared.sensor_noise.dropout import (
+from depthmocap.shared.sensor_noise.disparity import add_disparity_noise, quantize_depth
+from depthmocap.shared.sensor_noise.dropout import (
     edge_erosion_mask,
     grazing_dropout_mask,
     incidence_angle,
     projector_shadow_mask,
     random_holes_mask,
 )
-from shared.sensor_noise.kinect import KinectNoiseConfig, apply_kinect_noise
+from depthmocap.shared.sensor_noise.kinect import KinectNoiseConfig, apply_kinect_noise
 
 __all__ = [
     "level_from_camera",

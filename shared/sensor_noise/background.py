@@ -15,10 +15,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-
-from shared.camera import Intrinsics
-from shared.config import field_doc
-from shared.sensor_noise.kinect import check_depth_image
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.config import field_doc
+from depthmocap.shared.sensor_noise.kinect import check_depth_image
 
 __all__ = [
     "BackgroundBox",

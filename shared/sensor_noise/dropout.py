@@ -11,8 +11,7 @@ import math
 from typing import Literal
 
 import numpy as np
-
-from shared.camera import Intrinsics
+from depthmocap.shared.camera import Intrinsics
 
 __all__ = [
     "edge_erosion_mask",

@@ -45,11 +45,10 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-
-from shared.camera import Intrinsics
-from shared.config import field_doc
-from shared.sensor_noise.disparity import add_disparity_noise, quantize_depth
-from shared.sensor_noise.dropout import (
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.config import field_doc
+from depthmocap.shared.sensor_noise.disparity import add_disparity_noise, quantize_depth
+from depthmocap.shared.sensor_noise.dropout import (
     edge_erosion_mask,
     grazing_dropout_mask,
     projector_shadow_mask,

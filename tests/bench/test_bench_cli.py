@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import pytest
-
-from bench.cli import main
+from depthmocap.bench.cli import main
 
 
 def test_bench_refuses_a_missing_recordings_folder(tmp_path, capsys):

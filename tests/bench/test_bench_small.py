@@ -6,12 +6,11 @@ from __future__ import annotations
 import math
 
 import torch
-
-from bench.kinematics import kinematics_rows, random_poses
-from bench.scenes import person_frame
-from bench.segmentation import benchmark_segmentation
-from bench.timing import median_ms, wall_ms
-from shared import skeleton as sk
+from depthmocap.bench.kinematics import kinematics_rows, random_poses
+from depthmocap.bench.scenes import person_frame
+from depthmocap.bench.segmentation import benchmark_segmentation
+from depthmocap.bench.timing import median_ms, wall_ms
+from depthmocap.shared import skeleton as sk
 
 
 def test_median_ms_warms_up_then_takes_the_median():

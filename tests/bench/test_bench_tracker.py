@@ -5,16 +5,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from bench.scenes import camera_motion
-from bench.tracker import benchmark_recording, benchmark_tracker, recording_rows
-from bench.tracker_terms import collision_cost, joint_support_cost
-from runtime.raycast import render_body
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.kinematics import forward_kinematics, named_joint_positions
-from shared.recording import RecordingError, RecordingWriter
+from depthmocap.bench.scenes import camera_motion
+from depthmocap.bench.tracker import benchmark_recording, benchmark_tracker, recording_rows
+from depthmocap.bench.tracker_terms import collision_cost, joint_support_cost
+from depthmocap.runtime.raycast import render_body
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
+from depthmocap.shared.recording import RecordingError, RecordingWriter
 
 INTR = Intrinsics.kinect_v1(320)
 

@@ -7,14 +7,18 @@ import math
 import numpy as np
 import pytest
 import torch
-
-from runtime.capsule_pixels import capsule_ends, segment_boxes, segment_row_spans, span_pairs
-from runtime.raycast import _cast, render_body, segment_geometry
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.kinematics import forward_kinematics, rest_pose
-from shared.procedural_motion import random_poses
+from depthmocap.runtime.capsule_pixels import (
+    capsule_ends,
+    segment_boxes,
+    segment_row_spans,
+    span_pairs,
+)
+from depthmocap.runtime.raycast import _cast, render_body, segment_geometry
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import forward_kinematics, rest_pose
+from depthmocap.shared.procedural_motion import random_poses
 
 INTR = Intrinsics(160, 120, 143.95, 143.95, 79.5, 59.5)
 

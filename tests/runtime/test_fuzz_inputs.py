@@ -12,15 +12,14 @@ import random
 import shutil
 from pathlib import Path
 
+import depthmocap.runtime.track_cli as cli
 import numpy as np
 import pytest
-
-import runtime.track_cli as cli
-from shared.camera import Intrinsics
-from shared.forest_format import Forest, save_forest
-from shared.labels import PART_NAMES
-from shared.recording import RecordingWriter
-from shared.skeleton import JOINT_NAMES, NUM_DOFS
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.forest_format import Forest, save_forest
+from depthmocap.shared.labels import PART_NAMES
+from depthmocap.shared.recording import RecordingWriter
+from depthmocap.shared.skeleton import JOINT_NAMES, NUM_DOFS
 
 INTR = Intrinsics.kinect_v1(80)  # 80 x 60: a run takes a few tens of milliseconds
 CASES = 200
@@ -132,7 +131,7 @@ def forest_meta(rng, rec, forest):
     meta[key] = rng.choice([99, "other", [], {}, None, -1])
     arrays["meta"] = np.array(json.dumps(meta))
     if rng.random() < 0.5:  # a forger who also fixes the checksum
-        from shared.forest_format import forest_checksum
+        from depthmocap.shared.forest_format import forest_checksum
 
         rest = {k: v for k, v in arrays.items() if k not in ("meta", "checksum")}
         arrays["checksum"] = np.array(forest_checksum(rest, str(arrays["meta"])))
@@ -144,7 +143,7 @@ def forest_array(rng, rec, forest):
         arrays = {k: z[k] for k in z.files}
     key = rng.choice(["u", "left", "right", "leaf", "leaf_dist", "roots", "threshold"])
     arrays[key] = rng.choice([arrays[key][:1], arrays[key] * -7, np.zeros((0,), np.int32)])
-    from shared.forest_format import forest_checksum
+    from depthmocap.shared.forest_format import forest_checksum
 
     rest = {k: v for k, v in arrays.items() if k not in ("meta", "checksum")}
     arrays["checksum"] = np.array(forest_checksum(rest, str(arrays["meta"])))

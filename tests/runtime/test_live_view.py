@@ -5,8 +5,7 @@ from __future__ import annotations
 import sys
 
 import pytest
-
-from runtime.track_cli import main
+from depthmocap.runtime.track_cli import main
 
 
 def test_view_without_rerun_is_a_clear_error(tmp_path, capsys, monkeypatch):
@@ -30,12 +29,11 @@ def test_inferred_joints_are_logged_grey(monkeypatch):
     import types
 
     import numpy as np
-
-    from runtime.estimator import PoseEstimate
-    from runtime.frame import Frame
-    from runtime.live_view import LiveView
-    from runtime.streams.base import DepthFrame
-    from shared.camera import Intrinsics
+    from depthmocap.runtime.estimator import PoseEstimate
+    from depthmocap.runtime.frame import Frame
+    from depthmocap.runtime.live_view import LiveView
+    from depthmocap.runtime.streams.base import DepthFrame
+    from depthmocap.shared.camera import Intrinsics
 
     logged = {}
     fake = types.SimpleNamespace(

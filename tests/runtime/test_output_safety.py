@@ -14,13 +14,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import depthmocap.runtime.track_cli as cli
 import numpy as np
 import pytest
-
-import runtime.track_cli as cli
-from runtime.estimator import PoseEstimate
-from shared.camera import Intrinsics
-from shared.recording import RecordingWriter, write_png16
+from depthmocap.runtime.estimator import PoseEstimate
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.recording import RecordingWriter, write_png16
 
 REPO = Path(__file__).resolve().parents[2]
 INTR = Intrinsics.kinect_v1(160)
@@ -59,7 +58,7 @@ def make_recording(path: Path, frames: int, with_truth: bool = False) -> Path:
         if with_truth:
             joints = np.zeros((frames, 16, 3))
             joints[..., 2] = 2.5
-            from shared.skeleton import JOINT_NAMES
+            from depthmocap.shared.skeleton import JOINT_NAMES
 
             w.write_groundtruth(joints, list(JOINT_NAMES))
     return path
@@ -130,7 +129,7 @@ def test_an_unwritable_output_is_one_error_line(standstill, tmp_path, capfd, mon
 
 
 def test_a_disk_that_fills_up_mid_run_is_one_error_line(standstill, tmp_path, capfd, monkeypatch):
-    from shared.poses_format import PosesJsonlWriter
+    from depthmocap.shared.poses_format import PosesJsonlWriter
 
     write = PosesJsonlWriter.write
 
@@ -158,7 +157,7 @@ def test_an_output_that_is_a_file_is_one_error_line(standstill, tmp_path, capfd)
 
 # 4 ------------------------------------------------------------------------------------------
 def test_personalize_checks_its_output_before_the_fit(tmp_path, capfd, monkeypatch):
-    import runtime.personalize_cli as personalize
+    import depthmocap.runtime.personalize_cli as personalize
 
     def no_fit(*a, **k):
         raise AssertionError("the fit ran before the output was checked")
@@ -186,7 +185,7 @@ def test_a_new_result_holds_no_stale_overlays(standstill, tmp_path, capfd):
 
 # 7 ------------------------------------------------------------------------------------------
 def test_train_eval_refuses_another_recording(standstill, tmp_path, capfd):
-    from train.evaluation.cli import main as evaluate
+    from depthmocap.train.evaluation.cli import main as evaluate
 
     first = make_recording(tmp_path / "first", 3, with_truth=True)
     other = make_recording(tmp_path / "other", 3, with_truth=True)
@@ -226,7 +225,7 @@ def test_a_corrupt_frame_is_one_line_without_libpng_noise(standstill, tmp_path, 
 
 
 def test_train_eval_says_when_every_frame_is_lost(tmp_path, capfd, monkeypatch):
-    from train.evaluation.cli import main as evaluate
+    from depthmocap.train.evaluation.cli import main as evaluate
 
     class Nobody(StandStill):
         def estimate(self, frame):
@@ -251,13 +250,13 @@ def test_a_meta_json_link_loop_is_named(standstill, tmp_path, capfd):
 def test_ctrl_c_while_importing_is_one_line(monkeypatch, capfd):
     import importlib
 
-    from runtime import entry
+    from depthmocap.runtime import entry
 
     def interrupted(name):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(importlib, "import_module", interrupted)
-    assert entry.run_tool("runtime.track_cli") == 130
+    assert entry.run_tool("depthmocap.runtime.track_cli") == 130
     err = capfd.readouterr().err
     assert err.strip() == "interrupted"
 
@@ -271,7 +270,8 @@ def test_the_poses_do_not_depend_on_the_machine_s_thread_count(tmp_path):
         out = tmp_path / f"t{threads}"
         env = dict(os.environ, OMP_NUM_THREADS=str(threads))
         done = subprocess.run(
-            [sys.executable, "-m", "runtime.track_cli", "-i", "demo", "-o", str(out), "--stop",
+            [sys.executable, "-m", "depthmocap.runtime.track_cli", "-i", "demo", "-o", str(out),
+             "--stop",
              "12", "--config", "configs/hybrid.yaml", "-q"],
             cwd=REPO, env=env, capture_output=True, text=True, timeout=300,
         )  # fmt: skip

@@ -4,15 +4,14 @@ from __future__ import annotations
 
 import json
 
+import depthmocap.runtime.track_cli as cli
 import numpy as np
 import pytest
-
-import runtime.track_cli as cli
-from runtime.estimator import PoseEstimate
-from runtime.hybrid import FailureThresholds, HybridConfig, hybrid_config
-from runtime.presets import DEFAULT_PRESET, PRESETS, PresetError, preset_settings
-from shared.camera import Intrinsics
-from shared.recording import RecordingWriter
+from depthmocap.runtime.estimator import PoseEstimate
+from depthmocap.runtime.hybrid import FailureThresholds, HybridConfig, hybrid_config
+from depthmocap.runtime.presets import DEFAULT_PRESET, PRESETS, PresetError, preset_settings
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.recording import RecordingWriter
 
 
 def test_the_default_preset_is_what_hybrid_config_defaults_to():

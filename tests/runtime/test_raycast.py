@@ -6,18 +6,17 @@ import math
 
 import pytest
 import torch
-
-from runtime.raycast import (
+from depthmocap.runtime.raycast import (
     render_body,
     render_body_depth,
     segment_geometry,
     surface_distance,
     surface_normals,
 )
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics, depth_to_points
-from shared.kinematics import forward_kinematics, rest_pose, segment_points_to_world
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics, depth_to_points
+from depthmocap.shared.kinematics import forward_kinematics, rest_pose, segment_points_to_world
 
 # Principal point on a pixel centre so the centre pixel's ray is the optical axis.
 INTR = Intrinsics(320, 240, 287.9, 287.9, 160.0, 120.0)

@@ -12,23 +12,22 @@ import textwrap
 import time
 from pathlib import Path
 
+import depthmocap.runtime.track_cli as cli
 import numpy as np
 import pytest
 import torch
-
-import runtime.track_cli as cli
-from runtime.estimator import (
+from depthmocap.runtime.estimator import (
     EstimatorUnavailable,
     PoseEstimate,
     PoseEstimator,
     make_estimator,
 )
-from runtime.frame import Frame, depth_mm_to_metres
-from runtime.streams import DepthFrame, DepthStream, SensorDisconnected, StreamError
-from shared import forest_format as ff
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.recording import RecordingWriter, write_png16
+from depthmocap.runtime.frame import Frame, depth_mm_to_metres
+from depthmocap.runtime.streams import DepthFrame, DepthStream, SensorDisconnected, StreamError
+from depthmocap.shared import forest_format as ff
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.recording import RecordingWriter, write_png16
 
 REPO = Path(__file__).resolve().parents[2]
 INTR = Intrinsics.kinect_v1(160)
@@ -287,7 +286,7 @@ def test_frame_size_contradicting_intrinsics(fake, tmp_path, capsys):
 
 def test_no_camera_attached(fake, tmp_path, capsys):
     pytest.importorskip("openni", reason="the 'openni' package is not installed")
-    from runtime.streams.openni import load_openni2
+    from depthmocap.runtime.streams.openni import load_openni2
 
     try:
         openni2 = load_openni2()
@@ -343,15 +342,17 @@ def test_body_file_is_used(fake, recording, tmp_path, capsys):
 def test_registry_unknown_missing_and_factory(monkeypatch):
     import types
 
-    import runtime.estimator as reg
+    import depthmocap.runtime.estimator as reg
 
     args = (None, BodyShape.default(), INTR)
     with pytest.raises(EstimatorUnavailable, match="unknown mode"):
         make_estimator("magic", *args)
-    monkeypatch.setitem(reg.MODE_MODULES, "hybrid", "runtime.no_such_module")
+    monkeypatch.setitem(reg.MODE_MODULES, "hybrid", "depthmocap.runtime.no_such_module")
     with pytest.raises(EstimatorUnavailable, match="not available in this build"):
         make_estimator("hybrid", *args)
-    monkeypatch.setitem(reg.MODE_MODULES, "hybrid", "runtime.raycast")  # no create_estimator
+    monkeypatch.setitem(
+        reg.MODE_MODULES, "hybrid", "depthmocap.runtime.raycast"
+    )  # no create_estimator
     with pytest.raises(EstimatorUnavailable, match="has no create_estimator"):
         make_estimator("hybrid", *args)
     module = types.ModuleType("fake_mode")
@@ -393,7 +394,7 @@ def test_subprocess_bad_input_has_no_traceback(tmp_path):
         [
             sys.executable,
             "-m",
-            "runtime.track_cli",
+            "depthmocap.runtime.track_cli",
             "-i",
             str(tmp_path / "nothing"),
             "-o",
@@ -415,8 +416,8 @@ def test_subprocess_bad_input_has_no_traceback(tmp_path):
 # the tool's plumbing.
 _CHILD = """
     import sys, time, numpy as np
-    import runtime.track_cli as cli
-    from runtime.estimator import PoseEstimate
+    import depthmocap.runtime.track_cli as cli
+    from depthmocap.runtime.estimator import PoseEstimate
 
     class Slow:
         def reset(self):

@@ -10,16 +10,15 @@ import threading
 import time
 from pathlib import Path
 
+import depthmocap.runtime.track_cli as cli
 import numpy as np
 import pytest
-
-import runtime.track_cli as cli
-from runtime.estimator import PoseEstimate
-from runtime.export.vmc import VMC_BONE_NAMES, vmc_bone_transforms
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.recording import RecordingWriter
+from depthmocap.runtime.estimator import PoseEstimate
+from depthmocap.runtime.export.vmc import VMC_BONE_NAMES, vmc_bone_transforms
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.recording import RecordingWriter
 
 pytest.importorskip("pythonosc")
 from pythonosc.dispatcher import Dispatcher  # noqa: E402
@@ -318,7 +317,7 @@ def test_smooth_leaves_poses_jsonl_raw_and_smooths_the_bvh(moving, recording, tm
 
 
 def test_smooth_vmc_sends_the_filtered_pose(moving, recording, tmp_path, server, capsys):
-    from runtime.export.one_euro import PoseSmoother, SmoothingConfig
+    from depthmocap.runtime.export.one_euro import PoseSmoother, SmoothingConfig
 
     code, err, records, _ = track(
         recording, tmp_path / "out", "--vmc", f"127.0.0.1:{server.port}", "--smooth",

@@ -1,4 +1,4 @@
-"""shared.anny_rig: the anny facts shared by synthesis and personalization are consistent."""
+"""depthmocap.shared.anny_rig: the anny facts shared by synthesis and personalization agree."""
 
 from __future__ import annotations
 
@@ -6,9 +6,8 @@ import os
 
 import numpy as np
 import pytest
-
-from shared import anny_rig as rig
-from shared.skeleton import JOINT_NAMES, SEGMENT_NAMES
+from depthmocap.shared import anny_rig as rig
+from depthmocap.shared.skeleton import JOINT_NAMES, SEGMENT_NAMES
 
 
 def test_anny_to_body_is_a_proper_rotation_onto_our_axes():
@@ -45,7 +44,8 @@ def test_forbidden_topologies():
 
 def test_cache_dir_from_environment(monkeypatch, tmp_path):
     monkeypatch.delenv("ANNY_CACHE_DIR", raising=False)
-    assert rig.default_cache_dir() == rig.REPO_ROOT / ".cache" / "anny"
+    monkeypatch.setenv("DEPTHMOCAP_CACHE", str(tmp_path / "cache"))
+    assert rig.default_cache_dir() == tmp_path / "cache" / "anny"
     assert rig.export_cache_dir(tmp_path) == tmp_path
     assert os.environ["ANNY_CACHE_DIR"] == str(tmp_path)  # published for anny's import
     assert rig.default_cache_dir() == tmp_path

@@ -3,8 +3,7 @@ import json
 import numpy as np
 import pytest
 import torch
-
-from shared.body import BodyShape
+from depthmocap.shared.body import BodyShape
 
 
 def test_default_stature_is_adult():

@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-
-from shared import skeleton as sk
-from shared.body import BodyShape, cross_section_axes
-from shared.body_from_mesh import body_from_mesh, vertex_areas
-from shared.kinematics import forward_kinematics, named_joint_positions
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape, cross_section_axes
+from depthmocap.shared.body_from_mesh import body_from_mesh, vertex_areas
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
 
 RADII = np.array([0.15, 0.1])
 OFFSETS = np.array([0.0, 0.04])  # 4 cm forward of the joint axis

@@ -1,7 +1,6 @@
 import pytest
 import torch
-
-from shared.camera import Intrinsics, depth_to_points, pixel_grid, points_to_pixels
+from depthmocap.shared.camera import Intrinsics, depth_to_points, pixel_grid, points_to_pixels
 
 
 def test_kinect_defaults():

@@ -3,8 +3,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import pytest
-
-from shared.config import (
+from depthmocap.shared.config import (
     ConfigError,
     add_cli_args,
     config_from_args,

@@ -5,8 +5,7 @@ import zipfile
 
 import numpy as np
 import pytest
-
-from shared.forest_format import (
+from depthmocap.shared.forest_format import (
     FOREST_VERSION,
     Forest,
     ForestFormatError,

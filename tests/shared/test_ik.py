@@ -1,9 +1,8 @@
 import torch
-
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.ik import NAMED_JOINT_MARKERS, Markers, fit_pose, marker_positions
-from shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.ik import NAMED_JOINT_MARKERS, Markers, fit_pose, marker_positions
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
 
 
 def poses(batch, scale=0.4, seed=0):

@@ -3,10 +3,9 @@ import math
 import numpy as np
 import pytest
 import torch
-
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.kinematics import (
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.kinematics import (
     clamp_to_limits,
     forward_kinematics,
     named_joint_positions,
@@ -15,7 +14,7 @@ from shared.kinematics import (
     rest_pose,
     segment_points_to_world,
 )
-from shared.so3 import rotvec_to_matrix
+from depthmocap.shared.so3 import rotvec_to_matrix
 
 J = {n: i for i, n in enumerate(sk.JOINT_NAMES)}
 
@@ -256,7 +255,7 @@ def test_clamp_to_limits():
 
 
 def test_transform_pose_moves_every_joint_rigidly():
-    from shared.kinematics import transform_pose
+    from depthmocap.shared.kinematics import transform_pose
 
     q = random_poses(5, torch.float64, "cpu")
     rot = rotvec_to_matrix(torch.tensor([0.3, -1.2, 2.0], dtype=torch.float64))

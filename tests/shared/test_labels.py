@@ -1,7 +1,12 @@
 import numpy as np
-
-from shared.labels import NUM_CLASSES, PART_COLORS, PART_NAMES, PART_SEGMENT, segment_to_part
-from shared.skeleton import NUM_SEGMENTS, SEGMENT_NAMES
+from depthmocap.shared.labels import (
+    NUM_CLASSES,
+    PART_COLORS,
+    PART_NAMES,
+    PART_SEGMENT,
+    segment_to_part,
+)
+from depthmocap.shared.skeleton import NUM_SEGMENTS, SEGMENT_NAMES
 
 
 def test_nineteen_parts_plus_background():

@@ -5,8 +5,7 @@ held contribution on the right-hand side."""
 from __future__ import annotations
 
 import torch
-
-from shared.least_squares import damped, damped_solve, solve, solve_with_fixed
+from depthmocap.shared.least_squares import damped, damped_solve, solve, solve_with_fixed
 
 
 def _system(batch: int = 3, n: int = 6, seed: int = 0):

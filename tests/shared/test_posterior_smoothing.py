@@ -5,8 +5,7 @@ from __future__ import annotations
 
 import pytest
 import torch
-
-from shared.posterior_smoothing import smooth_posteriors
+from depthmocap.shared.posterior_smoothing import smooth_posteriors
 
 
 def _grid(depth: torch.Tensor, probs_hw: torch.Tensor, mask: torch.Tensor | None = None):

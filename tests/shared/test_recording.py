@@ -2,9 +2,8 @@ import json
 
 import numpy as np
 import pytest
-
-from shared.camera import Intrinsics
-from shared.recording import Recording, RecordingError, RecordingWriter
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.recording import Recording, RecordingError, RecordingWriter
 
 
 def make_recording(path, frames=3, labels=True, gt=True):

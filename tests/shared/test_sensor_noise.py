@@ -8,10 +8,9 @@ import math
 
 import numpy as np
 import pytest
-
-from shared.camera import Intrinsics
-from shared.config import config_from_dict, config_to_dict
-from shared.sensor_noise import (
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.config import config_from_dict, config_to_dict
+from depthmocap.shared.sensor_noise import (
     BackgroundBox,
     BackgroundConfig,
     BackgroundScene,

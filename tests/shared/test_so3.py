@@ -1,8 +1,7 @@
 import math
 
 import torch
-
-from shared.so3 import matrix_to_rotvec, rotvec_to_matrix, skew
+from depthmocap.shared.so3 import matrix_to_rotvec, rotvec_to_matrix, skew
 
 
 def test_skew_is_cross_product():

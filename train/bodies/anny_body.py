@@ -14,8 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-
-from shared.anny_rig import (
+from depthmocap.shared.anny_rig import (
     ANNY_TO_BODY,
     BONE_SEGMENT,
     DEFAULT_RIG,
@@ -27,8 +26,8 @@ from shared.anny_rig import (
     export_cache_dir,
     is_forbidden_topology,
 )
-from shared.labels import segment_to_part
-from shared.skeleton import SEGMENT_NAMES
+from depthmocap.shared.labels import segment_to_part
+from depthmocap.shared.skeleton import SEGMENT_NAMES
 
 if TYPE_CHECKING:  # anny imports torch and builds large data: import it lazily.
     import anny

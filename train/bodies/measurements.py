@@ -8,11 +8,10 @@ cylinder model's defaults can be compared term by term.
 from __future__ import annotations
 
 import numpy as np
-
-from shared.anny_rig import JOINT_RECIPES
-from shared.skeleton import JOINT_NAMES, SEGMENT_NAMES
-from train.bodies.anny_body import AnnyBody
-from train.bodies.skinning import PosedBody
+from depthmocap.shared.anny_rig import JOINT_RECIPES
+from depthmocap.shared.skeleton import JOINT_NAMES, SEGMENT_NAMES
+from depthmocap.train.bodies.anny_body import AnnyBody
+from depthmocap.train.bodies.skinning import PosedBody
 
 __all__ = ["anatomical_joints", "body_measurements", "segment_lengths"]
 

@@ -13,12 +13,11 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-
-from shared import skeleton as sk
-from shared.kinematics import forward_kinematics
-from train.bodies.anny_body import AnnyBody, bone_segments
-from train.bodies.measurements import anatomical_joints
-from train.bodies.skinning import PosedBody, pose_body
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.kinematics import forward_kinematics
+from depthmocap.train.bodies.anny_body import AnnyBody, bone_segments
+from depthmocap.train.bodies.measurements import anatomical_joints
+from depthmocap.train.bodies.skinning import PosedBody, pose_body
 
 __all__ = ["rest_corrections", "pose_anny", "skeleton_body_of"]
 
@@ -67,7 +66,7 @@ def pose_anny(body: AnnyBody, q: np.ndarray) -> PosedBody:
     """
     qt = torch.as_tensor(np.asarray(q), dtype=torch.float64)
     # Segment rotations do not depend on lengths; the default body is enough here.
-    from shared.body import BodyShape
+    from depthmocap.shared.body import BodyShape
 
     kin = forward_kinematics(qt, BodyShape.default(torch.float64))
     seg_rot = kin.rotations.numpy()  # (B, 15, 3, 3)
@@ -82,7 +81,7 @@ def skeleton_body_of(body: AnnyBody):
     between its anatomical joints, section radii, centre offsets and extents from its vertices,
     clavicles from the shoulders as :func:`pose_anny` puts them at q = 0
     (:func:`shared.body_from_mesh.body_from_mesh`)."""
-    from shared.body_from_mesh import body_from_mesh
+    from depthmocap.shared.body_from_mesh import body_from_mesh
 
     at_zero = anatomical_joints(body, pose_anny(body, np.zeros((1, sk.NUM_DOFS))))[0]
     shoulders = at_zero[[sk.JOINT_NAMES.index("l_shoulder"), sk.JOINT_NAMES.index("r_shoulder")]]

@@ -22,9 +22,8 @@ import dataclasses
 import functools
 
 import numpy as np
-
-from shared.skeleton import NUM_SEGMENTS
-from train.bodies.anny_body import AnnyBody, bone_segments
+from depthmocap.shared.skeleton import NUM_SEGMENTS
+from depthmocap.train.bodies.anny_body import AnnyBody, bone_segments
 
 __all__ = ["PosedBody", "pose_body", "segment_to_bone_rotations"]
 

@@ -1,4 +1,5 @@
-"""``python -m train.bodies.template_body``: the calibration template, the average body of the
+"""``python -m depthmocap.train.bodies.template_body``: the calibration template, the average body
+of the
 training population measured on its meshes like every ground-truth body.
 
 Skeleton calibration (``runtime-calibrate``, Wei section 6) scales a template's proportions
@@ -19,12 +20,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
-from shared.body import BodyShape
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.resources import CONFIGS_DIR
 
 __all__ = ["average_body", "population_template", "main"]
 
-DEFAULT_OUT = Path(__file__).resolve().parents[2] / "configs" / "body_template.json"
+DEFAULT_OUT = CONFIGS_DIR / "body_template.json"
 
 
 def average_body(bodies: list[BodyShape]) -> BodyShape:
@@ -39,8 +40,8 @@ def average_body(bodies: list[BodyShape]) -> BodyShape:
 
 def population_template(count: int, seed: int) -> BodyShape:
     """Average measured skeleton body of ``count`` random anny bodies."""
-    from train.bodies.anny_body import make_body, sample_phenotype
-    from train.bodies.posing import skeleton_body_of
+    from depthmocap.train.bodies.anny_body import make_body, sample_phenotype
+    from depthmocap.train.bodies.posing import skeleton_body_of
 
     rng = np.random.default_rng([seed, 4409])
     return average_body(

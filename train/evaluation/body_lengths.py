@@ -14,9 +14,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-
-from shared import skeleton as sk
-from shared.body import BodyShape
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
 
 __all__ = ["bone_length_errors", "format_bone_length_errors"]
 

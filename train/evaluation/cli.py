@@ -17,17 +17,17 @@ import json
 import sys
 from pathlib import Path
 
-from shared.config import ConfigError, add_cli_args, config_from_args
-from shared.recording import RecordingError
-from train.evaluation.evaluate import (
+from depthmocap.shared.config import ConfigError, add_cli_args, config_from_args
+from depthmocap.shared.recording import RecordingError
+from depthmocap.train.evaluation.evaluate import (
     EvalConfig,
     Evaluation,
     EvaluationError,
     evaluate,
     format_failed_frames,
 )
-from train.evaluation.plot import render_plot, save_plot
-from train.evaluation.result_io import ResultFileError
+from depthmocap.train.evaluation.plot import render_plot, save_plot
+from depthmocap.train.evaluation.result_io import ResultFileError
 
 __all__ = ["main", "format_table"]
 

@@ -1,4 +1,4 @@
-"""``python -m train.evaluation.dev_benchmark``: the accuracy table on the dev recordings
+"""``python -m depthmocap.train.evaluation.dev_benchmark``: the accuracy table on the dev recordings
 (``make bench``).
 
 For every recording under ``--recordings`` (``make dev-recordings``) and every requested
@@ -31,10 +31,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-from shared.config import load_settings
-from train.evaluation.body_lengths import bone_length_errors, format_bone_length_errors
-from train.evaluation.evaluate import evaluate, format_failed_frames
+from depthmocap.shared.config import load_settings
+from depthmocap.train.evaluation.body_lengths import bone_length_errors, format_bone_length_errors
+from depthmocap.train.evaluation.evaluate import evaluate, format_failed_frames
 
 # name -> (mode, body, settings overriding the mode's config). Bodies: "gt" (the rendered
 # body's skeleton), "default" (average adult), "personalized" (runtime-personalize on the same
@@ -91,9 +90,10 @@ def body_file(kind: str, rec: Path, bodies: Path, model: str) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     py = sys.executable
     if kind == "personalized":
-        _run([py, "-m", "train.synth.calibration_views", "--out", str(out / "views"), "--seed", "7",
+        _run([py, "-m", "depthmocap.train.synth.calibration_views", "--out", str(out / "views"),
+              "--seed", "7",
               "--phenotype-from", str(rec), "--overwrite"])  # fmt: skip
-        _run([py, "-m", "runtime.personalize_cli", "--input", str(out / "views"),
+        _run([py, "-m", "depthmocap.runtime.personalize_cli", "--input", str(out / "views"),
               "--output", str(path)])  # fmt: skip
     elif kind == "calibrated":
         # Beside the recordings' folder: data/dev -> data/dev_calib, data/dev_all ->
@@ -103,7 +103,8 @@ def body_file(kind: str, rec: Path, bodies: Path, model: str) -> Path:
             raise RuntimeError(f"{calib}: no calibration recording (run make dev-recordings)")
         # The recording is known to hold the pose: skip the automatic pose check. Labels come
         # from runtime-calibrate's default, the calibration-pose forest.
-        _run([py, "-m", "runtime.calibrate_cli", "--input", str(calib), "--output", str(path),
+        _run([py, "-m", "depthmocap.runtime.calibrate_cli", "--input", str(calib),
+              "--output", str(path),
               "--no-pose-check", "-q"])  # fmt: skip
     else:
         raise ValueError(f"unknown body kind {kind}")
@@ -131,7 +132,7 @@ def run_config(
         base = load_settings(mode_config) if mode_config else {}
         overrides = {**overrides, "tracker": {**base.get("tracker", {}), **tracker}}
     out.mkdir(parents=True, exist_ok=True)
-    cmd = [sys.executable, "-m", "runtime.track_cli", "--input", str(rec), "-q",
+    cmd = [sys.executable, "-m", "depthmocap.runtime.track_cli", "--input", str(rec), "-q",
            "--output", str(out / "result"), "--mode", mode, "--model", model,
            "--device", device]  # fmt: skip
     if body != "default":

@@ -1,4 +1,5 @@
-"""``python -m train.evaluation.dev_recordings``: render the dev evaluation recordings (one per
+"""``python -m depthmocap.train.evaluation.dev_recordings``: render the dev evaluation recordings
+(one per
 motion class of the HDM05 dev actor) with ``train-synth --sequence``; skips recordings already
 there.
 
@@ -19,7 +20,7 @@ import os
 import sys
 from pathlib import Path
 
-from train.synth.sequence import OutOfRangeError, render_sequence
+from depthmocap.train.synth.sequence import OutOfRangeError, render_sequence
 
 # One clip per HDM05 motion class (lying down is outside what the tracker is for).
 DEV_CLIPS = (

@@ -16,12 +16,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.config import field_doc
-from shared.kinematics import forward_kinematics
-from shared.recording import Recording
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.config import field_doc
+from depthmocap.shared.kinematics import forward_kinematics
+from depthmocap.shared.recording import Recording
 
 from . import metrics as m
 from .result_io import STATUSES, ResultFileError, TrackingResult, load_result

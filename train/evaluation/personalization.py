@@ -1,6 +1,7 @@
 """Evaluation of personalization like Helten et al. 2013, Figure 3.
 
-    python -m train.evaluation.personalization --subjects 6 --out DIR [--threads 2] [--seed 0]
+    python -m depthmocap.train.evaluation.personalization --subjects 6 --out DIR \
+        [--threads 2] [--seed 0]
 
 Renders the two calibration views of subjects of different gender and size
 (:mod:`train.synth.calibration_views`; alternately male and female, heights spread over anny's adult
@@ -69,14 +70,17 @@ def vertex_errors(fit_vertices: np.ndarray, gt_vertices: np.ndarray, keep: np.nd
 def _run_subject(
     root: Path, index: int, phenotype: dict, seed: int, threads: int, clean: bool, fit_args: list
 ) -> dict:
-    from train.synth.calibration_views import CalibrationViewConfig, render_calibration_views
+    from depthmocap.train.synth.calibration_views import (
+        CalibrationViewConfig,
+        render_calibration_views,
+    )
 
     subject = root / f"subject{index}"
     cfg = CalibrationViewConfig(noise=not clean)
     render_calibration_views(subject, seed=seed + index, phenotype=phenotype, cfg=cfg,
                              overwrite=True)  # fmt: skip
     cmd = [
-        sys.executable, "-m", "runtime.personalize_cli", "--input", str(subject),
+        sys.executable, "-m", "depthmocap.runtime.personalize_cli", "--input", str(subject),
         "--output", str(subject / "body.json"), "--mesh-out", str(subject / "fit.npz"),
         "--threads", str(threads), *fit_args,
     ]  # fmt: skip
@@ -122,7 +126,8 @@ def format_table(rows: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
-        prog="python -m train.evaluation.personalization", description=__doc__.splitlines()[0]
+        prog="python -m depthmocap.train.evaluation.personalization",
+        description=__doc__.splitlines()[0],
     )
     p.add_argument("--subjects", type=int, default=6, help="number of synthetic subjects")
     p.add_argument("--out", required=True, help="output directory")

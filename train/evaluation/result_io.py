@@ -12,9 +12,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-from shared.body import BodyShape
-from shared.poses_format import STATUSES, PosesFileError, poses_to_arrays, read_poses_jsonl
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.poses_format import (
+    STATUSES,
+    PosesFileError,
+    poses_to_arrays,
+    read_poses_jsonl,
+)
 
 __all__ = ["ResultFileError", "TrackingResult", "load_result", "STATUSES"]
 

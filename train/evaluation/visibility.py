@@ -16,9 +16,8 @@ spine lies some 5 cm behind the middle of a trunk 25 cm deep).
 from __future__ import annotations
 
 import numpy as np
-
-from shared.camera import Intrinsics
-from shared.labels import JOINT_PARTS, PART_NAMES
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.labels import JOINT_PARTS, PART_NAMES
 
 __all__ = ["JOINT_PARTS", "visible_joints", "recording_joint_visibility"]
 

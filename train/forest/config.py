@@ -5,8 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from shared.config import field_doc
-from shared.forest_format import DEFAULT_BACKGROUND_M
+from depthmocap.shared.config import field_doc
+from depthmocap.shared.forest_format import DEFAULT_BACKGROUND_M
 
 __all__ = ["ForestConfig"]
 

@@ -16,8 +16,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from shared.forest_format import ForestFormatError, load_forest
-from shared.recording import RecordingError
+from depthmocap.shared.forest_format import ForestFormatError, load_forest
+from depthmocap.shared.recording import RecordingError
 
 from .evaluate import evaluate_forest, save_confusion_png, save_metrics
 

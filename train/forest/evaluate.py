@@ -21,11 +21,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
-from shared.camera import Intrinsics
-from shared.forest_format import Forest
-from shared.posterior_smoothing import smooth_posteriors
-from shared.recording import Recording
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.forest_format import Forest
+from depthmocap.shared.posterior_smoothing import smooth_posteriors
+from depthmocap.shared.recording import Recording
 
 from .predict import predict_posteriors
 
@@ -52,7 +51,7 @@ def labelled_batches(
     """Batches of (depth (B, H, W) uint16 mm, labels (B, H, W) uint8, intrinsics)."""
     path = Path(path)
     if (path / "manifest.json").is_file():
-        from train.synth.trainset import TrainSet
+        from depthmocap.train.synth.trainset import TrainSet
 
         ts = TrainSet(path)
 

@@ -23,7 +23,7 @@ with the tables as inputs, a few kilobytes, which ``train-forest`` stores in ``f
 that the runtime's onnxruntime backend needs neither the ``onnx`` package nor a second file.
 The feature computation is inside the graph: callers feed raw depth and the mask.
 
-``python -m train.forest.onnx_export forest.npz forest.onnx`` writes the standalone file.
+``python -m depthmocap.train.forest.onnx_export forest.npz forest.onnx`` writes the standalone file.
 """
 
 from __future__ import annotations
@@ -33,8 +33,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-
-from shared.forest_format import Forest, ForestFormatError, load_forest, traversal_table
+from depthmocap.shared.forest_format import Forest, ForestFormatError, load_forest, traversal_table
 
 __all__ = ["OPSET", "build_model", "export_onnx", "embedded_graph", "main"]
 

@@ -4,9 +4,8 @@
 from __future__ import annotations
 
 import torch
-
-from shared.forest_format import Forest, traversal_table
-from shared.forest_walk import walk_posteriors
+from depthmocap.shared.forest_format import Forest, traversal_table
+from depthmocap.shared.forest_walk import walk_posteriors
 
 __all__ = ["predict_posteriors"]
 

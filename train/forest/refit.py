@@ -19,9 +19,8 @@ from dataclasses import replace
 
 import numpy as np
 import torch
-
-from shared.forest_format import Forest, traversal_table
-from shared.forest_walk import walk_leaf_rows
+from depthmocap.shared.forest_format import Forest, traversal_table
+from depthmocap.shared.forest_walk import walk_leaf_rows
 
 from .features import sample_candidates
 

@@ -20,14 +20,21 @@ import sys
 import time
 from pathlib import Path
 
-from shared.config import ConfigError, add_cli_args, config_from_args, load_config, save_config
-from shared.forest_format import ForestFormatError, save_forest
+from depthmocap.shared.config import (
+    ConfigError,
+    add_cli_args,
+    config_from_args,
+    load_config,
+    save_config,
+)
+from depthmocap.shared.forest_format import ForestFormatError, save_forest
+from depthmocap.shared.resources import CONFIGS_DIR
 
 from .config import ForestConfig
 
 PRESETS = {
-    "full": Path(__file__).resolve().parents[2] / "configs" / "forest.yaml",
-    "tiny": Path(__file__).resolve().parents[2] / "configs" / "forest_tiny.yaml",
+    "full": CONFIGS_DIR / "forest.yaml",
+    "tiny": CONFIGS_DIR / "forest_tiny.yaml",
 }
 
 
@@ -55,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
         preset = PRESETS[args.preset] if args.preset else args.config
         cfg = config_from_args(ForestConfig, args, load_config(ForestConfig, preset))
         cfg.validate()
-        from train.synth.trainset import TrainSet
+        from depthmocap.train.synth.trainset import TrainSet
 
         from .evaluate import evaluate_forest, save_confusion_png
         from .onnx_export import embedded_graph, export_onnx

@@ -28,9 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-
-from shared.config import config_to_dict
-from shared.forest_format import Forest
+from depthmocap.shared.config import config_to_dict
+from depthmocap.shared.forest_format import Forest
 
 from .config import ForestConfig
 from .features import (

@@ -38,8 +38,7 @@ import os
 from collections.abc import Iterator
 
 import numpy as np
-
-from train.mocap.clip import euler_to_matrix
+from depthmocap.train.mocap.clip import euler_to_matrix
 
 __all__ = ["INCH_M", "ROOT", "applied_in_order", "content_lines", "read_lines", "to_radians"]
 

@@ -10,10 +10,15 @@ import os
 from pathlib import Path
 
 import numpy as np
-
-from train.mocap.acclaim import ROOT, applied_in_order, content_lines, read_lines, to_radians
-from train.mocap.asf import AsfSkeleton, read_asf
-from train.mocap.clip import MotionClip, forward_kinematics
+from depthmocap.train.mocap.acclaim import (
+    ROOT,
+    applied_in_order,
+    content_lines,
+    read_lines,
+    to_radians,
+)
+from depthmocap.train.mocap.asf import AsfSkeleton, read_asf
+from depthmocap.train.mocap.clip import MotionClip, forward_kinematics
 
 __all__ = ["read_amc"]
 

@@ -14,8 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-from train.mocap.acclaim import (
+from depthmocap.train.mocap.acclaim import (
     INCH_M,
     ROOT,
     applied_in_order,

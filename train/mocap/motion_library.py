@@ -14,13 +14,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.kinematics import forward_kinematics, named_joint_positions
-from shared.procedural_motion import procedural_sequences, random_poses
-from train.mocap import read_amc, read_asf, read_bvh
-from train.mocap.retarget import clip_named_joints
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
+from depthmocap.shared.procedural_motion import procedural_sequences, random_poses
+from depthmocap.train.mocap import read_amc, read_asf, read_bvh
+from depthmocap.train.mocap.retarget import clip_named_joints
 
 __all__ = [
     "MotionSequence",
@@ -101,8 +100,8 @@ def procedural_library(
         jitter_rad: uniform random offset in [-jitter, jitter] added to every joint angle of
             every parametric pose (then clamped to the limits): variety for small motion sets.
     """
-    from shared.kinematics import clamp_to_limits
-    from shared.procedural_motion import MOTIONS, ground_poses
+    from depthmocap.shared.kinematics import clamp_to_limits
+    from depthmocap.shared.procedural_motion import MOTIONS, ground_poses
 
     unknown = set(motions) - set(MOTIONS)
     if unknown:

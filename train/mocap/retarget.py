@@ -13,13 +13,12 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-
-from shared import skeleton as sk
-from shared.body import DEFAULT_LENGTHS, BodyShape
-from shared.body_from_mesh import segment_lengths_from_joints
-from shared.ik import fit_pose
-from shared.so3 import matrix_to_rotvec
-from train.mocap import MotionClip
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import DEFAULT_LENGTHS, BodyShape
+from depthmocap.shared.body_from_mesh import segment_lengths_from_joints
+from depthmocap.shared.ik import fit_pose
+from depthmocap.shared.so3 import matrix_to_rotvec
+from depthmocap.train.mocap import MotionClip
 
 __all__ = [
     "RIG_JOINT_MAPS",

@@ -16,7 +16,8 @@ one-frame recording::
 ``runtime-personalize --input DIR`` reads exactly this layout. Command line (until
 ``train-synth`` gets a flag for it)::
 
-    python -m train.synth.calibration_views --out DIR [--seed S] [--phenotype-from REC] [--clean]
+    python -m depthmocap.train.synth.calibration_views --out DIR [--seed S] \
+        [--phenotype-from REC] [--clean]
 
 ``--phenotype-from`` takes the subject of a synthetic recording (its ``phenotype.json``), so
 that the personalized body can be compared with the default one when tracking that recording.
@@ -34,15 +35,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
-from shared import skeleton as sk
-from shared.camera import Intrinsics
-from shared.config import field_doc
-from shared.kinematics import clamp_to_limits
-from shared.recording import RecordingWriter
-from train.bodies.anny_body import PHENOTYPE_KEYS, make_body, sample_phenotype
-from train.synth.frame import SceneConfig, place_on_floor, render_frame
-from train.synth.viewpoints import Viewpoints, look_at
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.config import field_doc
+from depthmocap.shared.kinematics import clamp_to_limits
+from depthmocap.shared.recording import RecordingWriter
+from depthmocap.train.bodies.anny_body import PHENOTYPE_KEYS, make_body, sample_phenotype
+from depthmocap.train.synth.frame import SceneConfig, place_on_floor, render_frame
+from depthmocap.train.synth.viewpoints import Viewpoints, look_at
 
 __all__ = ["CalibrationViewConfig", "CALIBRATION_POSE_DEG", "calibration_world_pose",
            "render_calibration_views", "main"]  # fmt: skip
@@ -107,7 +107,7 @@ def render_calibration_views(
         seed: seeds the body (when ``phenotype`` is None), the jitter and the sensor noise.
         phenotype: anny phenotype of the subject (missing keys 0.5); random when None.
     """
-    from train.synth.render import DepthLabelRenderer
+    from depthmocap.train.synth.render import DepthLabelRenderer
 
     cfg = cfg or CalibrationViewConfig()
     rng = np.random.default_rng([seed, 4242])
@@ -154,7 +154,8 @@ def render_calibration_views(
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
     p = argparse.ArgumentParser(
-        prog="python -m train.synth.calibration_views", description=__doc__.splitlines()[0]
+        prog="python -m depthmocap.train.synth.calibration_views",
+        description=__doc__.splitlines()[0],
     )
     p.add_argument("--out", required=True, help="directory for front/, back/ and ground truth")
     p.add_argument("--seed", type=int, default=0, help="seed of body, pose jitter and noise")

@@ -16,8 +16,8 @@ import os
 import sys
 from pathlib import Path
 
-from shared.config import ConfigError, add_cli_args, config_from_args, load_config
-from train.synth.trainset_builder import SynthConfig
+from depthmocap.shared.config import ConfigError, add_cli_args, config_from_args, load_config
+from depthmocap.train.synth.trainset_builder import SynthConfig
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -49,13 +49,13 @@ def main(argv: list[str] | None = None) -> int:
         cfg = config_from_args(SynthConfig, args, load_config(SynthConfig, args.config))
         cfg.validate()
         if args.calibration_views:
-            from train.synth.calibration_views import render_calibration_views
+            from depthmocap.train.synth.calibration_views import render_calibration_views
 
             path = render_calibration_views(args.out, seed=cfg.seed, overwrite=args.overwrite)
             print(f"calibration views written to {path}")
             return 0
         if args.sequence:
-            from train.synth.sequence import render_sequence
+            from depthmocap.train.synth.sequence import render_sequence
 
             if not args.motion:
                 raise ValueError("--sequence needs --motion CLIP")
@@ -66,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
             )  # fmt: skip
             print(f"recording written to {path}")
             return 0
-        from train.synth.trainset_builder import synthesize_set
+        from depthmocap.train.synth.trainset_builder import synthesize_set
 
         m = synthesize_set(cfg, Path(args.out), progress=not args.quiet)
         print(

@@ -1,4 +1,5 @@
-"""``python -m train.synth.contact_sheet``: a PNG grid of depth + label frames of a training set
+"""``python -m depthmocap.train.synth.contact_sheet``: a PNG grid of depth + label frames of a
+training set
 or a recording, for looking at the data (are bodies human, do labels line up, is the noise
 right)."""
 
@@ -9,8 +10,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-
-from shared.labels import PART_COLORS
+from depthmocap.shared.labels import PART_COLORS
 
 
 def depth_to_bgr(depth_mm: np.ndarray, far_mm: float = 5000.0) -> np.ndarray:
@@ -49,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     root = Path(args.data)
     try:
         if (root / "manifest.json").is_file():
-            from train.synth.trainset import TrainSet
+            from depthmocap.train.synth.trainset import TrainSet
 
             ts = TrainSet(root)
             rng = np.random.default_rng(args.seed)
@@ -57,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
             shard = ts.load_frames(idx)
             depth, labels = shard.depth, shard.labels
         else:
-            from shared.recording import Recording
+            from depthmocap.shared.recording import Recording
 
             rec = Recording(root)
             idx = np.linspace(0, len(rec) - 1, min(args.count, len(rec))).astype(int)

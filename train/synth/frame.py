@@ -12,12 +12,11 @@ from typing import NamedTuple
 
 import numpy as np
 import torch
-
-from shared import skeleton as sk
-from shared.camera import Intrinsics
-from shared.config import field_doc
-from shared.kinematics import transform_pose
-from shared.sensor_noise import (
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.config import field_doc
+from depthmocap.shared.kinematics import transform_pose
+from depthmocap.shared.sensor_noise import (
     BackgroundConfig,
     BackgroundScene,
     KinectNoiseConfig,
@@ -25,12 +24,12 @@ from shared.sensor_noise import (
     apply_kinect_noise,
     level_from_camera,
 )
-from train.bodies.anny_body import AnnyBody, make_body, sample_phenotype
-from train.bodies.measurements import anatomical_joints
-from train.bodies.posing import pose_anny
-from train.mocap.clip import axis_rotation
-from train.synth.render import DepthLabelRenderer
-from train.synth.viewpoints import ViewpointConfig, Viewpoints, transform_points
+from depthmocap.train.bodies.anny_body import AnnyBody, make_body, sample_phenotype
+from depthmocap.train.bodies.measurements import anatomical_joints
+from depthmocap.train.bodies.posing import pose_anny
+from depthmocap.train.mocap.clip import axis_rotation
+from depthmocap.train.synth.render import DepthLabelRenderer
+from depthmocap.train.synth.viewpoints import ViewpointConfig, Viewpoints, transform_points
 
 __all__ = [
     "SceneConfig",
@@ -108,8 +107,8 @@ def face_forward(q: np.ndarray, frames: int | None = 10) -> np.ndarray:
             its first ``frames`` frames (sequences: the person may then turn); None: turn every
             pose by its own heading (independent training poses).
     """
-    from shared.body import BodyShape
-    from shared.kinematics import forward_kinematics, named_joint_positions
+    from depthmocap.shared.body import BodyShape
+    from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
 
     qt = torch.as_tensor(q, dtype=torch.float64)
     used = qt if frames is None else qt[:frames]

@@ -56,10 +56,9 @@ import os
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
-
-from shared.camera import Intrinsics
-from train.synth import offscreen_gl
-from train.synth.label_mesh import (
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.train.synth import offscreen_gl
+from depthmocap.train.synth.label_mesh import (
     SplitMesh,
     as_uint8_labels,
     check_faces,

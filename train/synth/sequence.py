@@ -18,12 +18,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
-from shared import skeleton as sk
-from shared.camera import Intrinsics
-from shared.procedural_motion import MOTIONS, ground_poses, motion_poses
-from shared.recording import RecordingWriter
-from train.synth.frame import (
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.procedural_motion import MOTIONS, ground_poses, motion_poses
+from depthmocap.shared.recording import RecordingWriter
+from depthmocap.train.synth.frame import (
     SceneConfig,
     body_for_index,
     face_forward,
@@ -43,7 +42,7 @@ def sequence_poses(
 ) -> tuple[np.ndarray, str]:
     """World poses (F, 34) of a clip file or a procedural motion name, at ``fps``."""
     if motion in MOTIONS:
-        from shared.body import BodyShape
+        from depthmocap.shared.body import BodyShape
 
         n = frames or int(4 * fps)
         q = motion_poses(motion, n, fps, rng)
@@ -53,8 +52,8 @@ def sequence_poses(
         raise FileNotFoundError(
             f"{motion}: no such clip file and not a built-in motion ({', '.join(MOTIONS)})"
         )
-    from train.mocap.motion_library import load_clip_joints
-    from train.mocap.retarget import body_from_named_joints, retarget_joints
+    from depthmocap.train.mocap.motion_library import load_clip_joints
+    from depthmocap.train.mocap.retarget import body_from_named_joints, retarget_joints
 
     seq = load_clip_joints(path, fps, Path(asf) if asf else None)
     joints = seq.joints[:frames] if frames else seq.joints
@@ -82,10 +81,10 @@ def render_sequence(
     ``require_in_range``: raise :class:`OutOfRangeError` (writing nothing) when no sampled
     camera keeps the whole motion within the sensor's range, instead of rendering it anyway.
     """
-    from shared.sensor_noise import random_background_scene
-    from train.bodies.posing import skeleton_body_of
-    from train.synth.render import DepthLabelRenderer
-    from train.synth.viewpoints import sample_viewpoint_in_view
+    from depthmocap.shared.sensor_noise import random_background_scene
+    from depthmocap.train.bodies.posing import skeleton_body_of
+    from depthmocap.train.synth.render import DepthLabelRenderer
+    from depthmocap.train.synth.viewpoints import sample_viewpoint_in_view
 
     cfg = SceneConfig() if cfg is None else cfg
     rng = np.random.default_rng([seed, 11])
@@ -97,7 +96,7 @@ def render_sequence(
     # Ground-truth q: the skeleton fitted to the mesh's anatomical joints. The pose that drove
     # the mesh is not it: anny's shoulders sit below the neck and its rest legs are splayed, so
     # the same angles put the skeleton's joints several cm away.
-    from train.mocap.retarget import retarget_joints
+    from depthmocap.train.mocap.retarget import retarget_joints
 
     q_fit, fit_rms = retarget_joints(placed.joints, skeleton_body, passes=2)
     intr = Intrinsics.kinect_v1(width)
@@ -133,7 +132,7 @@ def render_sequence(
             break
     if view is None:
         raise RuntimeError(f"{motion}: the motion does not fit in view from any sampled camera")
-    from train.synth.frame import scene_behind
+    from depthmocap.train.synth.frame import scene_behind
 
     far = float(np.linalg.norm(hull[:, [0, 2]], axis=-1).max())  # the motion's reach
     bg_cfg = scene_behind(cfg.scene, float(view.distance[0]) + far)

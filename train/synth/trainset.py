@@ -23,9 +23,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-from shared.camera import Intrinsics
-from shared.labels import PART_NAMES
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.labels import PART_NAMES
 
 __all__ = [
     "TRAINSET_FORMAT",

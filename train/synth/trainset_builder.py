@@ -26,13 +26,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-from shared import skeleton as sk
-from shared.camera import Intrinsics
-from shared.config import config_to_dict, field_doc, save_config
-from shared.labels import PART_NAMES
-from train.synth.frame import SceneConfig
-from train.synth.trainset import TrainSetError, file_sha256, write_manifest, write_shard
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.config import config_to_dict, field_doc, save_config
+from depthmocap.shared.labels import PART_NAMES
+from depthmocap.train.synth.frame import SceneConfig
+from depthmocap.train.synth.trainset import TrainSetError, file_sha256, write_manifest, write_shard
 
 __all__ = ["SynthConfig", "prepare_poses", "frame_plan", "render_shard", "synthesize_set"]
 
@@ -105,8 +104,7 @@ def _poses_key(cfg: SynthConfig, clips: list[Path]) -> str:
 
 def _retarget_task(args):
     import torch
-
-    from train.mocap.retarget import body_from_named_joints, retarget_joints
+    from depthmocap.train.mocap.retarget import body_from_named_joints, retarget_joints
 
     torch.set_num_threads(1)
     all_joints, picked = args
@@ -121,13 +119,13 @@ def prepare_poses(cfg: SynthConfig, cache_dir: Path, log=print) -> tuple[np.ndar
     Returns:
         q: (K, 34) world-frame poses; info: source, counts, retarget error.
     """
-    from train.mocap.motion_library import (
+    from depthmocap.train.mocap.motion_library import (
         find_clips,
         heading_normalized_joints,
         mocap_library,
         procedural_library,
     )
-    from train.mocap.pose_selection import furthest_point_sample
+    from depthmocap.train.mocap.pose_selection import furthest_point_sample
 
     clips = find_clips(cfg.motion_folders)
     key = _poses_key(cfg, clips)
@@ -224,7 +222,7 @@ def _worker_state(width: int):
 
     torch.set_num_threads(1)
     if "renderer" not in _WORKER:
-        from train.synth.render import DepthLabelRenderer
+        from depthmocap.train.synth.render import DepthLabelRenderer
 
         intr = Intrinsics.kinect_v1(width)
         _WORKER.update(renderer=DepthLabelRenderer(intr), intr=intr, bodies={})
@@ -236,9 +234,14 @@ def render_shard(task: dict) -> dict:
 
     Returns the manifest entry of the shard plus its class pixel counts and timing.
     """
-    from train.synth.frame import body_for_index, face_forward, place_on_floor, render_frame
-    from train.synth.trainset import Shard
-    from train.synth.viewpoints import sample_viewpoint_in_view
+    from depthmocap.train.synth.frame import (
+        body_for_index,
+        face_forward,
+        place_on_floor,
+        render_frame,
+    )
+    from depthmocap.train.synth.trainset import Shard
+    from depthmocap.train.synth.viewpoints import sample_viewpoint_in_view
 
     t0 = time.perf_counter()
     cfg: SynthConfig = task["cfg"]

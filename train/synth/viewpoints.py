@@ -35,10 +35,9 @@ from typing import NamedTuple
 
 import numpy as np
 import torch
-
-from shared.camera import Intrinsics, points_to_pixels
-from shared.config import field_doc
-from train.mocap.clip import axis_rotation
+from depthmocap.shared.camera import Intrinsics, points_to_pixels
+from depthmocap.shared.config import field_doc
+from depthmocap.train.mocap.clip import axis_rotation
 
 __all__ = [
     "ViewpointConfig",

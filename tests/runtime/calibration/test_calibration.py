@@ -7,10 +7,9 @@ import math
 import numpy as np
 import pytest
 import torch
-
-from runtime import calibrate_cli
-from runtime.calibrate_cli import main
-from runtime.calibration import (
+from depthmocap.runtime import calibrate_cli
+from depthmocap.runtime.calibrate_cli import main
+from depthmocap.runtime.calibration import (
     CalibrationConfig,
     ReferencePoseWatcher,
     calibrate_body,
@@ -18,13 +17,13 @@ from runtime.calibration import (
     is_reference_pose,
     reference_pose,
 )
-from runtime.raycast import part_labels, render_body
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.kinematics import rest_pose
-from shared.labels import PART_NAMES
-from shared.recording import RecordingWriter
+from depthmocap.runtime.raycast import part_labels, render_body
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import rest_pose
+from depthmocap.shared.labels import PART_NAMES
+from depthmocap.shared.recording import RecordingWriter
 
 INTR = Intrinsics.kinect_v1(320)
 TEMPLATE = BodyShape.default()
@@ -160,9 +159,10 @@ def test_cli_errors(tmp_path, capsys):
 
 
 def test_shipped_template_is_the_cli_default():
-    """configs/body_template.json (python -m train.bodies.template_body) loads and has anny's
+    """configs/body_template.json (python -m depthmocap.train.bodies.template_body) loads and has
+    anny's
     proportions: a chest (top of the lumbar spine to the base of the neck) of some 30 cm."""
-    from runtime.calibrate_cli import DEFAULT_TEMPLATE, build_parser
+    from depthmocap.runtime.calibrate_cli import DEFAULT_TEMPLATE, build_parser
 
     assert build_parser().parse_args(["--input", "x", "--output", "y"]).template == DEFAULT_TEMPLATE
     template = BodyShape.load(DEFAULT_TEMPLATE)
@@ -174,7 +174,7 @@ def test_hips_offsets_and_feet_follow_the_torso_and_template():
     """What a front view cannot measure comes from the template, scaled: the sections' offsets
     from the joint axis (radius scale), the feet (the shank's scales); the pelvis's radius and
     the hip width follow the abdomen's and chest's width, not the pelvis's own pixels."""
-    from runtime.calibrate_cli import DEFAULT_TEMPLATE
+    from depthmocap.runtime.calibrate_cli import DEFAULT_TEMPLATE
 
     template = BodyShape.load(DEFAULT_TEMPLATE)
     t = template
@@ -201,7 +201,7 @@ def test_hips_offsets_and_feet_follow_the_torso_and_template():
 def test_hips_fall_back_to_the_thigh_gap_without_a_torso():
     """No abdomen or chest pixels (covered, or mislabelled): the hip width comes from the gap
     between the thigh axes, the pelvis's radius from the overall scale; the body is valid."""
-    from shared.labels import PART_SEGMENT
+    from depthmocap.shared.labels import PART_SEGMENT
 
     body = subject()
     depth, labels = render_labels(reference_pose(root_position=(0.0, 0.05, 2.6)), body)

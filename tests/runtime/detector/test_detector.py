@@ -7,8 +7,7 @@ import math
 import numpy as np
 import pytest
 import torch
-
-from runtime.detector import (
+from depthmocap.runtime.detector import (
     DetectorConfig,
     DetectorError,
     DetectorEstimator,
@@ -18,17 +17,17 @@ from runtime.detector import (
     labels_from,
     part_markers,
 )
-from runtime.detector.meanshift_baseline import propose_joints
-from runtime.estimator import estimate_frame, make_estimator
-from runtime.frame import Frame
-from runtime.raycast import part_labels, render_body
-from runtime.streams.base import DepthFrame
-from runtime.tracker import Tracker, TrackerConfig
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
-from shared.labels import NUM_CLASSES, PART_NAMES
+from depthmocap.runtime.detector.meanshift_baseline import propose_joints
+from depthmocap.runtime.estimator import estimate_frame, make_estimator
+from depthmocap.runtime.frame import Frame
+from depthmocap.runtime.raycast import part_labels, render_body
+from depthmocap.runtime.streams.base import DepthFrame
+from depthmocap.runtime.tracker import Tracker, TrackerConfig
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
+from depthmocap.shared.labels import NUM_CLASSES, PART_NAMES
 
 INTR = Intrinsics.kinect_v1(320)
 BODY = BodyShape.default()
@@ -195,7 +194,7 @@ def test_shotton_baseline_on_rendered_pose():
 def test_detector_estimator_statuses():
     q = make_pose("rest")
     depth, labels, mask = render_labels(q, BODY)
-    from runtime.detector import Detector
+    from depthmocap.runtime.detector import Detector
 
     est = DetectorEstimator(
         lambda d, m: labels * m, Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
@@ -220,7 +219,7 @@ def test_modes_need_a_model(tmp_path):
 
 
 def test_limb_swaps_mirror_legs_and_arms():
-    from runtime.detector.detect import limb_swaps
+    from depthmocap.runtime.detector.detect import limb_swaps
 
     q = torch.arange(34, dtype=torch.float64)
     base, legs, arms, both = limb_swaps(q)

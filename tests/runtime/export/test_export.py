@@ -8,23 +8,27 @@ import json
 import numpy as np
 import pytest
 import torch
-
-from runtime.export import ResultDirError, ResultWriter
-from runtime.export.bvh import CAMERA_TO_WORLD, BvhWriter, matrix_to_euler, write_bvh
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.kinematics import forward_kinematics, named_joint_positions, rest_pose, transform_pose
-from shared.poses_format import (
+from depthmocap.runtime.export import ResultDirError, ResultWriter
+from depthmocap.runtime.export.bvh import CAMERA_TO_WORLD, BvhWriter, matrix_to_euler, write_bvh
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import (
+    forward_kinematics,
+    named_joint_positions,
+    rest_pose,
+    transform_pose,
+)
+from depthmocap.shared.poses_format import (
     PosesFileError,
     PosesJsonlWriter,
     pose_record,
     poses_to_arrays,
     read_poses_jsonl,
 )
-from shared.procedural_motion import motion_poses
-from train.mocap.bvh import read_bvh
-from train.mocap.clip import euler_to_matrix
+from depthmocap.shared.procedural_motion import motion_poses
+from depthmocap.train.mocap.bvh import read_bvh
+from depthmocap.train.mocap.clip import euler_to_matrix
 
 
 def _body() -> BodyShape:

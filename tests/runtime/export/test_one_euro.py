@@ -7,21 +7,20 @@ import math
 
 import numpy as np
 import pytest
-
-from runtime.export.one_euro import (
+from depthmocap.runtime.export.one_euro import (
     OneEuroFilter,
     PoseSmoother,
     RotationOneEuroFilter,
     SmoothingConfig,
     alpha,
 )
-from runtime.export.rotations import (
+from depthmocap.runtime.export.rotations import (
     matrix_to_quat,
     matrix_to_rotvec,
     quat_to_matrix,
     rotvec_to_matrix,
 )
-from shared import skeleton as sk
+from depthmocap.shared import skeleton as sk
 
 DT = 1 / 30
 

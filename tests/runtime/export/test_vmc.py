@@ -7,9 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-
-from runtime.export.rotations import quat_to_matrix
-from runtime.export.vmc import (
+from depthmocap.runtime.export.rotations import quat_to_matrix
+from depthmocap.runtime.export.vmc import (
     UNITY_FROM_BVH,
     VMC_BONE_NAMES,
     VMC_BONES,
@@ -17,9 +16,9 @@ from runtime.export.vmc import (
     vmc_bone_transforms,
     vmc_root_transform,
 )
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.kinematics import forward_kinematics, rest_pose
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.kinematics import forward_kinematics, rest_pose
 
 pytest.importorskip("pythonosc")
 
@@ -125,7 +124,7 @@ def test_tpose_is_identity_and_rest_pose_has_arms_down():
 
 def test_axis_conversion_of_quaternions():
     # R_unity = N R N with N = diag(-1, 1, 1) is (x, y, z, w) -> (x, -y, -z, w).
-    from runtime.export.rotations import matrix_to_quat, rotvec_to_matrix
+    from depthmocap.runtime.export.rotations import matrix_to_quat, rotvec_to_matrix
 
     r = rotvec_to_matrix(np.array([0.3, -0.5, 0.7]))
     x, y, z, w = matrix_to_quat(r)
@@ -134,10 +133,9 @@ def test_axis_conversion_of_quaternions():
 
 
 def test_bundle_layout():
+    from depthmocap.runtime.export.osc import osc_bundle
+    from depthmocap.runtime.export.vmc import vmc_bundle
     from pythonosc.osc_bundle import OscBundle
-
-    from runtime.export.osc import osc_bundle
-    from runtime.export.vmc import vmc_bundle
 
     body = BodyShape.default(torch.float64)
     q = rest_pose(1, dtype=torch.float64).numpy()[0]

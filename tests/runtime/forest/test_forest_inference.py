@@ -6,18 +6,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-
-from bench.forest import benchmark_forest
-from bench.scenes import person_frame
-from runtime.forest.inference import ForestClassifier, load_classifier
-from shared.camera import Intrinsics
-from shared.forest_format import ForestFormatError, save_forest
-from shared.labels import PART_NAMES
-from train.forest.config import ForestConfig
-from train.forest.onnx_export import embedded_graph, export_onnx
-from train.forest.predict import predict_posteriors
-from train.forest.trainer import train_forest
-from train.synth.trainset import Shard, TrainSet, write_manifest, write_shard
+from depthmocap.bench.forest import benchmark_forest
+from depthmocap.bench.scenes import person_frame
+from depthmocap.runtime.forest.inference import ForestClassifier, load_classifier
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.forest_format import ForestFormatError, save_forest
+from depthmocap.shared.labels import PART_NAMES
+from depthmocap.train.forest.config import ForestConfig
+from depthmocap.train.forest.onnx_export import embedded_graph, export_onnx
+from depthmocap.train.forest.predict import predict_posteriors
+from depthmocap.train.forest.trainer import train_forest
+from depthmocap.train.synth.trainset import Shard, TrainSet, write_manifest, write_shard
 
 INTR = Intrinsics(80, 60, 62.0, 62.0, 39.5, 29.5)
 
@@ -167,7 +166,7 @@ def test_benchmark_reports_milliseconds(forest, tmp_path):
 
 
 def test_default_model_path_points_into_models():
-    from runtime.forest.inference import DEFAULT_MODEL
+    from depthmocap.runtime.forest.inference import DEFAULT_MODEL
 
     assert (
         DEFAULT_MODEL.parent.name == "models"
@@ -176,7 +175,7 @@ def test_default_model_path_points_into_models():
 
 
 def test_smoothing_option_matches_the_shared_function_on_both_backends(forest, test_frames):
-    from shared.posterior_smoothing import smooth_posteriors
+    from depthmocap.shared.posterior_smoothing import smooth_posteriors
 
     d, m = test_frames
     pix, raw = ForestClassifier(forest).pixel_posteriors(d, m)
@@ -195,7 +194,7 @@ def test_smoothing_option_matches_the_shared_function_on_both_backends(forest, t
 
 
 def test_labeler_reports_bad_smoothing_as_a_detector_error(forest, tmp_path):
-    from runtime.detector import DetectorError, load_forest_labeler
+    from depthmocap.runtime.detector import DetectorError, load_forest_labeler
 
     save_forest(tmp_path / "f.npz", forest)
     with pytest.raises(DetectorError, match="smoothing window must be odd"):

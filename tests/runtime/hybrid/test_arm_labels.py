@@ -6,8 +6,7 @@ import math
 
 import pytest
 import torch
-
-from runtime.hybrid.arm_labels import (
+from depthmocap.runtime.hybrid.arm_labels import (
     ARM_FLEXION_DEG,
     ELBOW_FLEXION_DEG,
     arm_candidates,
@@ -17,15 +16,15 @@ from runtime.hybrid.arm_labels import (
     arm_pixels,
     near_other_arm,
 )
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.kinematics import (
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.kinematics import (
     clamp_to_limits,
     forward_kinematics,
     named_joint_positions,
     rest_pose,
 )
-from shared.labels import PART_NAMES
+from depthmocap.shared.labels import PART_NAMES
 
 ARM_DOFS = {
     side: [

@@ -8,11 +8,10 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 import torch
-
-from runtime.detector import Detector, DetectorConfig
-from runtime.estimator import estimate_frame, make_estimator
-from runtime.frame import Frame
-from runtime.hybrid import (
+from depthmocap.runtime.detector import Detector, DetectorConfig
+from depthmocap.runtime.estimator import estimate_frame, make_estimator
+from depthmocap.runtime.frame import Frame
+from depthmocap.runtime.hybrid import (
     ArmSearchConfig,
     FailureThresholds,
     HybridConfig,
@@ -23,18 +22,18 @@ from runtime.hybrid import (
     create_estimator,
     root_turn,
 )
-from runtime.hybrid import arm_search as arm_search_module
-from runtime.hybrid import hybrid_config as config_from_mapping
-from runtime.hybrid import policy as policy_module
-from runtime.raycast import part_labels, render_body
-from runtime.streams.base import DepthFrame
-from runtime.tracker import Tracker, TrackerConfig
-from runtime.tracker.signals import FitSignals
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
-from shared.labels import PART_NAMES
+from depthmocap.runtime.hybrid import arm_search as arm_search_module
+from depthmocap.runtime.hybrid import hybrid_config as config_from_mapping
+from depthmocap.runtime.hybrid import policy as policy_module
+from depthmocap.runtime.raycast import part_labels, render_body
+from depthmocap.runtime.streams.base import DepthFrame
+from depthmocap.runtime.tracker import Tracker, TrackerConfig
+from depthmocap.runtime.tracker.signals import FitSignals
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
+from depthmocap.shared.labels import PART_NAMES
 
 INTR = Intrinsics.kinect_v1(160)
 BODY = BodyShape.default()
@@ -413,7 +412,7 @@ def test_config_and_factory_errors(tmp_path):
 
 
 def test_the_shipped_preset_is_a_tree_of_values():
-    from shared.config import load_settings
+    from depthmocap.shared.config import load_settings
 
     cfg = config_from_mapping(load_settings("configs/hybrid.yaml"))
     assert cfg.failure == FailureThresholds(3.0, 0.7, 80.0)
@@ -624,7 +623,7 @@ def test_label_term_gets_the_forest_labels_once_per_frame(scene):
 
 
 def _write_recording(path, depth, labels, frames, with_labels=True):
-    from shared.recording import RecordingWriter
+    from depthmocap.shared.recording import RecordingWriter
 
     depth_mm = (depth.numpy() * 1000).round().astype(np.uint16)
     with RecordingWriter(path, INTR) as w:

@@ -5,8 +5,7 @@ from __future__ import annotations
 import math
 
 import pytest
-
-from runtime.hybrid import (
+from depthmocap.runtime.hybrid import (
     MAX_TURN_FRAMES,
     Decision,
     Detection,
@@ -15,7 +14,7 @@ from runtime.hybrid import (
     choose,
     judge_track,
 )
-from runtime.tracker.signals import FitSignals
+from depthmocap.runtime.tracker.signals import FitSignals
 
 SHIPPED = FailureThresholds(3.0, 0.7, 80.0)
 GOOD = FitSignals(1.0, 0.95, 30.0)  # badness 1/3 + 0.05/0.3 + 30/80 = 0.875

@@ -10,11 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-
-from shared import skeleton as sk
-from shared.camera import Intrinsics
-from shared.kinematics import clamp_to_limits, forward_kinematics, pose_update
-from shared.recording import RecordingWriter
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import clamp_to_limits, forward_kinematics, pose_update
+from depthmocap.shared.recording import RecordingWriter
 
 INTR = Intrinsics.kinect_v1(320)
 PHEN = {"gender": 0.8, "age": 0.8, "muscle": 0.3, "weight": 0.6, "height": 0.45,
@@ -24,7 +23,7 @@ PHEN = {"gender": 0.8, "age": 0.8, "muscle": 0.3, "weight": 0.6, "height": 0.45,
 @pytest.fixture(scope="module")
 def model():
     pytest.importorskip("anny")
-    from runtime.personalize.shape_model import load_shape_model
+    from depthmocap.runtime.personalize.shape_model import load_shape_model
 
     return load_shape_model()
 
@@ -32,19 +31,19 @@ def model():
 @pytest.fixture(scope="module")
 def gt_body():
     pytest.importorskip("anny")
-    from train.bodies.anny_body import make_body
+    from depthmocap.train.bodies.anny_body import make_body
 
     return make_body(PHEN)
 
 
 def _phen(d):
-    from runtime.personalize.shape_model import PHENOTYPE_KEYS
+    from depthmocap.runtime.personalize.shape_model import PHENOTYPE_KEYS
 
     return torch.tensor([[d[k] for k in PHENOTYPE_KEYS]], dtype=torch.float64)
 
 
 def _views_q() -> np.ndarray:
-    from runtime.personalize.reference_pose import calibration_pose
+    from depthmocap.runtime.personalize.reference_pose import calibration_pose
 
     q = np.stack(
         [calibration_pose("front", (0.05, 0.1, 2.7)), calibration_pose("back", (0.0, 0.1, 2.6))]
@@ -57,7 +56,7 @@ def _views_q() -> np.ndarray:
 
 
 def test_rest_and_pose_match_train_anny_body(model, gt_body):
-    from train.bodies.posing import pose_anny
+    from depthmocap.train.bodies.posing import pose_anny
 
     rest = model.rest(_phen(PHEN))
     np.testing.assert_allclose(rest.vertices[0].numpy(), gt_body.vertices, atol=1e-9)
@@ -82,7 +81,7 @@ def test_local_basis_is_small_and_zero_means_no_change(model):
 
 
 def test_pose_jacobian_matches_finite_differences(model):
-    from runtime.personalize import jacobian as F
+    from depthmocap.runtime.personalize import jacobian as F
 
     phen = _phen(PHEN)[0]
     index = torch.arange(0, model.num_vertices, 97)
@@ -92,7 +91,7 @@ def test_pose_jacobian_matches_finite_differences(model):
     corr = model.rest_corrections(rest.heads, rest.tails)
     q = torch.tensor(_views_q()[:1])
     kin = forward_kinematics(
-        q, __import__("shared.body", fromlist=["B"]).BodyShape.default(torch.float64)
+        q, __import__("depthmocap.shared.body", fromlist=["B"]).BodyShape.default(torch.float64)
     )
     zw, zt = torch.zeros(15, 3, dtype=torch.float64), torch.zeros(3, dtype=torch.float64)
 
@@ -119,8 +118,8 @@ def test_pose_jacobian_matches_finite_differences(model):
 
 
 def test_body_from_rest_matches_ground_truth_skeleton(model, gt_body):
-    from runtime.personalize.body_from_mesh import body_from_rest
-    from train.bodies.posing import skeleton_body_of
+    from depthmocap.runtime.personalize.body_from_mesh import body_from_rest
+    from depthmocap.train.bodies.posing import skeleton_body_of
 
     body = body_from_rest(model, model.rest(_phen(PHEN)))
     ref = skeleton_body_of(gt_body)
@@ -132,10 +131,10 @@ def test_body_from_rest_matches_ground_truth_skeleton(model, gt_body):
 
 
 def _visible_points(model, q: np.ndarray) -> list[torch.Tensor]:
-    from runtime.personalize.correspondences import visible_vertices
-    from runtime.personalize.shape_model import vertex_normals
-    from train.bodies.anny_body import make_body
-    from train.bodies.posing import pose_anny
+    from depthmocap.runtime.personalize.correspondences import visible_vertices
+    from depthmocap.runtime.personalize.shape_model import vertex_normals
+    from depthmocap.train.bodies.anny_body import make_body
+    from depthmocap.train.bodies.posing import pose_anny
 
     posed = torch.tensor(pose_anny(make_body(PHEN), q).vertices)
     normals = vertex_normals(posed, model.faces)
@@ -144,7 +143,7 @@ def _visible_points(model, q: np.ndarray) -> list[torch.Tensor]:
 
 @pytest.mark.slow
 def test_fit_recovers_known_shape_from_noise_free_views(model, gt_body):
-    from runtime.personalize.fit import FitConfig, fit_shape
+    from depthmocap.runtime.personalize.fit import FitConfig, fit_shape
 
     clouds = _visible_points(model, _views_q())
     cfg = FitConfig(levels=(300, 800, 1500), iterations=(8, 5, 3), max_points=3000)
@@ -165,7 +164,7 @@ def test_fit_recovers_known_shape_from_noise_free_views(model, gt_body):
 
 
 def test_fit_needs_two_views_with_a_person():
-    from runtime.personalize.fit import FitConfig, PersonalizeError, fit_shape
+    from depthmocap.runtime.personalize.fit import FitConfig, PersonalizeError, fit_shape
 
     cloud = torch.rand(2000, 3, dtype=torch.float64)
     with pytest.raises(PersonalizeError, match="two views"):
@@ -182,7 +181,7 @@ def _write(path, depth: np.ndarray) -> None:
 
 
 def _run(argv):
-    from runtime.personalize_cli import main
+    from depthmocap.runtime.personalize_cli import main
 
     return main(argv)
 
@@ -216,7 +215,7 @@ def test_cli_wrong_image_size(tmp_path, capsys):
 
 
 def test_cli_missing_anny(tmp_path, capsys, monkeypatch):
-    from runtime.personalize import shape_model as sm
+    from depthmocap.runtime.personalize import shape_model as sm
 
     box = np.zeros((120, 160), np.uint16)
     box[20:110, 60:100] = 2500  # a person-sized slab in front of nothing
@@ -235,9 +234,9 @@ def test_cli_missing_anny(tmp_path, capsys, monkeypatch):
 
 def test_anny_users_share_these_tables():
     """Personalization and synthesis read the same anny facts (shared.anny_rig), not copies."""
-    from runtime.personalize import shape_model
-    from shared import anny_rig as rig
-    from train.bodies import anny_body
+    from depthmocap.runtime.personalize import shape_model
+    from depthmocap.shared import anny_rig as rig
+    from depthmocap.train.bodies import anny_body
 
     assert shape_model.SEGMENT_BONES is rig.SEGMENT_BONES
     assert shape_model.ANNY_TO_BODY is rig.ANNY_TO_BODY

@@ -8,9 +8,8 @@ import math
 import numpy as np
 import pytest
 import torch
-
-from runtime.segmentation import SegmentationConfig, fit_floor_plane, segment_person
-from shared.camera import Intrinsics, depth_to_points
+from depthmocap.runtime.segmentation import SegmentationConfig, fit_floor_plane, segment_person
+from depthmocap.shared.camera import Intrinsics, depth_to_points
 
 INTR = Intrinsics.kinect_v1(320)
 CAM_HEIGHT = 1.0  # camera 1 m above the floor (y points down, so the floor is y = +1)

@@ -11,18 +11,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from runtime.streams import (
+from depthmocap.runtime.streams import (
     DepthFrame,
     FrameRange,
     SensorDisconnected,
     StreamError,
     open_stream,
 )
-from runtime.streams.image_folder import ImageFolderStream
-from runtime.streams.recording import RecordingStream
-from shared.camera import Intrinsics
-from shared.recording import RecordingError, RecordingWriter, write_png16
+from depthmocap.runtime.streams.image_folder import ImageFolderStream
+from depthmocap.runtime.streams.recording import RecordingStream
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.recording import RecordingError, RecordingWriter, write_png16
 
 REPO = Path(__file__).resolve().parents[3]
 INTR = Intrinsics.kinect_v1(640).resized(32, 24)
@@ -193,9 +192,11 @@ def test_demo_depth_has_the_kinect_sensor_model():
     """The demo's depth goes through shared.sensor_noise: readings on disparity steps, within the
     sensor's range, the floor below the person, missing readings where a clean render would have
     floor or body, and the same frames on every run."""
-    pytest.importorskip("runtime.streams.demo", reason="the demo stream is not written yet")
-    from runtime.streams.demo import DemoStream
-    from shared.sensor_noise import KinectNoiseConfig, quantize_depth
+    pytest.importorskip(
+        "depthmocap.runtime.streams.demo", reason="the demo stream is not written yet"
+    )
+    from depthmocap.runtime.streams.demo import DemoStream
+    from depthmocap.shared.sensor_noise import KinectNoiseConfig, quantize_depth
 
     first = list(DemoStream(frame_range=FrameRange(0, 2)))
     again = list(DemoStream(frame_range=FrameRange(0, 2)))
@@ -217,7 +218,7 @@ def test_demo_depth_has_the_kinect_sensor_model():
 
 
 def test_demo_missing_is_a_clean_error(monkeypatch):
-    monkeypatch.setitem(sys.modules, "runtime.streams.demo", None)  # import fails
+    monkeypatch.setitem(sys.modules, "depthmocap.runtime.streams.demo", None)  # import fails
     with pytest.raises(StreamError, match="demo sequence is not available"):
         open_stream("demo")
 
@@ -227,7 +228,7 @@ def test_demo_missing_is_a_clean_error(monkeypatch):
 
 def _openni_or_skip():
     pytest.importorskip("openni", reason="the 'openni' package is not installed")
-    from runtime.streams.openni import load_openni2
+    from depthmocap.runtime.streams.openni import load_openni2
 
     try:
         return load_openni2()
@@ -263,7 +264,7 @@ def test_openni_dummy_device_streams_frames():
     _openni_or_skip()
     r = run_python(
         """
-        from runtime.streams import open_stream, FrameRange
+        from depthmocap.runtime.streams import open_stream, FrameRange
         with open_stream("device:Dummy", frame_range=FrameRange(1, 4)) as s:
             print(s.is_live, s.frame_count, s.fps, s.intrinsics.width, s.intrinsics.height)
             for f in s:
@@ -287,7 +288,7 @@ def test_openni_read_failure_is_a_disconnect():
     _openni_or_skip()
     r = run_python(
         """
-        from runtime.streams import open_stream, SensorDisconnected
+        from depthmocap.runtime.streams import open_stream, SensorDisconnected
         s = open_stream("device:Dummy")
         it = iter(s)
         next(it)

@@ -7,14 +7,13 @@ from collections.abc import Callable
 
 import pytest
 import torch
-
-from bench.scenes import camera_motion
-from runtime.raycast import render_body
-from runtime.tracker.observation import Observation, observe
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.kinematics import rest_pose
+from depthmocap.bench.scenes import camera_motion
+from depthmocap.runtime.raycast import render_body
+from depthmocap.runtime.tracker.observation import Observation, observe
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import rest_pose
 
 INTR = Intrinsics.kinect_v1(320)
 D = {n: i for i, n in enumerate(sk.DOF_NAMES)}

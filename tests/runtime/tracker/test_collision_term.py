@@ -8,22 +8,21 @@ import math
 
 import pytest
 import torch
-
-from runtime.raycast import segment_geometry
-from runtime.tracker import Tracker, TrackerConfig, collision_term
-from runtime.tracker.collision_term import (
+from depthmocap.runtime.raycast import segment_geometry
+from depthmocap.runtime.tracker import Tracker, TrackerConfig, collision_term
+from depthmocap.runtime.tracker.collision_term import (
     ARM_SAMPLES,
     HAND_SAMPLES,
     TORSO_SEGMENTS,
     arm_sample_points,
     collision_rows,
 )
-from runtime.tracker.gauss_newton import normal_equations, rows_jacobian, solve_step
-from runtime.tracker.label_term import capsule_offsets
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.kinematics import forward_kinematics, pose_update, rest_pose
+from depthmocap.runtime.tracker.gauss_newton import normal_equations, rows_jacobian, solve_step
+from depthmocap.runtime.tracker.label_term import capsule_offsets
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import forward_kinematics, pose_update, rest_pose
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -171,7 +170,7 @@ def test_tracker_with_the_collision_term_runs():
     intr = Intrinsics.kinect_v1(160)
     body = BodyShape.default()
     q = _folded_arm_pose().float()[0]
-    from runtime.raycast import render_body
+    from depthmocap.runtime.raycast import render_body
 
     depth = render_body(q[None], body, intr).depth[0]
     res = Tracker(body, intr, TrackerConfig(use_collision=True)).step(depth, depth > 0, q)

@@ -5,15 +5,14 @@ from __future__ import annotations
 
 import pytest
 import torch
-
-from runtime.raycast import render_body
-from runtime.tracker import TrackerConfig, depth_term
-from runtime.tracker.depth_term import depth_rows
-from runtime.tracker.gauss_newton import rows_jacobian
-from runtime.tracker.regions import classify, rendered_points
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.kinematics import pose_update
+from depthmocap.runtime.raycast import render_body
+from depthmocap.runtime.tracker import TrackerConfig, depth_term
+from depthmocap.runtime.tracker.depth_term import depth_rows
+from depthmocap.runtime.tracker.gauss_newton import rows_jacobian
+from depthmocap.runtime.tracker.regions import classify, rendered_points
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.kinematics import pose_update
 
 D = {n: i for i, n in enumerate(sk.DOF_NAMES)}
 

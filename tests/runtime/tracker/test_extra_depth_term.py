@@ -6,14 +6,17 @@ from __future__ import annotations
 
 import pytest
 import torch
-
-from runtime.raycast import render_body
-from runtime.tracker import TrackerConfig, extra_depth_term
-from runtime.tracker.extra_depth_term import closest_points, extra_rows, observed_candidates
-from runtime.tracker.gauss_newton import normal_equations, solve_step
-from runtime.tracker.regions import classify
-from shared import skeleton as sk
-from shared.body import BodyShape
+from depthmocap.runtime.raycast import render_body
+from depthmocap.runtime.tracker import TrackerConfig, extra_depth_term
+from depthmocap.runtime.tracker.extra_depth_term import (
+    closest_points,
+    extra_rows,
+    observed_candidates,
+)
+from depthmocap.runtime.tracker.gauss_newton import normal_equations, solve_step
+from depthmocap.runtime.tracker.regions import classify
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
 
 D = {n: i for i, n in enumerate(sk.DOF_NAMES)}
 

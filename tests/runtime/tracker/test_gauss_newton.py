@@ -5,11 +5,10 @@ from __future__ import annotations
 
 import pytest
 import torch
-
-from runtime.tracker import gauss_newton
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.kinematics import forward_kinematics, pose_update, segment_points_to_world
+from depthmocap.runtime.tracker import gauss_newton
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.kinematics import forward_kinematics, pose_update, segment_points_to_world
 
 D = {n: i for i, n in enumerate(sk.DOF_NAMES)}
 

@@ -7,17 +7,20 @@ import math
 
 import pytest
 import torch
-
-from runtime.raycast import render_body
-from runtime.tracker import Tracker, TrackerConfig, TrackerConfigError
-from runtime.tracker.joint_support import JOINT_SUPPORT, joint_support_cm2, observed_joints
-from runtime.tracker.observation import observe
-from runtime.tracker.regions import Regions, classify, rendered_points
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.kinematics import named_joint_positions, rest_pose
-from shared.so3 import matrix_to_rotvec, rotvec_to_matrix
+from depthmocap.runtime.raycast import render_body
+from depthmocap.runtime.tracker import Tracker, TrackerConfig, TrackerConfigError
+from depthmocap.runtime.tracker.joint_support import (
+    JOINT_SUPPORT,
+    joint_support_cm2,
+    observed_joints,
+)
+from depthmocap.runtime.tracker.observation import observe
+from depthmocap.runtime.tracker.regions import Regions, classify, rendered_points
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import named_joint_positions, rest_pose
+from depthmocap.shared.so3 import matrix_to_rotvec, rotvec_to_matrix
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

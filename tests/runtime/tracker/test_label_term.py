@@ -7,17 +7,27 @@ import math
 
 import pytest
 import torch
-
-from runtime.raycast import part_labels, render_body, segment_geometry
-from runtime.tracker import Tracker, TrackerConfig, TrackerConfigError, TrackerError, label_term
-from runtime.tracker.gauss_newton import rows_jacobian
-from runtime.tracker.label_term import capsule_offsets, label_rows
-from runtime.tracker.observation import observe
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.kinematics import forward_kinematics, named_joint_positions, pose_update, rest_pose
-from shared.labels import PART_SEGMENT
+from depthmocap.runtime.raycast import part_labels, render_body, segment_geometry
+from depthmocap.runtime.tracker import (
+    Tracker,
+    TrackerConfig,
+    TrackerConfigError,
+    TrackerError,
+    label_term,
+)
+from depthmocap.runtime.tracker.gauss_newton import rows_jacobian
+from depthmocap.runtime.tracker.label_term import capsule_offsets, label_rows
+from depthmocap.runtime.tracker.observation import observe
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import (
+    forward_kinematics,
+    named_joint_positions,
+    pose_update,
+    rest_pose,
+)
+from depthmocap.shared.labels import PART_SEGMENT
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

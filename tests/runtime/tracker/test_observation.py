@@ -5,15 +5,14 @@ from __future__ import annotations
 
 import pytest
 import torch
-
-from runtime.tracker.observation import (
+from depthmocap.runtime.tracker.observation import (
     automatic_factor,
     distance_to_mask,
     observe,
     person_window,
     pool_depth,
 )
-from shared.camera import Intrinsics
+from depthmocap.shared.camera import Intrinsics
 
 INTR = Intrinsics.kinect_v1(320)
 

@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import pytest
 import torch
-
-from runtime.tracker.gauss_newton import solve_step
-from runtime.tracker.prior_term import predict_pose, prior_residual, prior_system
-from shared import skeleton as sk
-from shared.kinematics import pose_update
-from shared.so3 import rotvec_to_matrix
+from depthmocap.runtime.tracker.gauss_newton import solve_step
+from depthmocap.runtime.tracker.prior_term import predict_pose, prior_residual, prior_system
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.kinematics import pose_update
+from depthmocap.shared.so3 import rotvec_to_matrix
 
 D = {n: i for i, n in enumerate(sk.DOF_NAMES)}
 

@@ -5,8 +5,7 @@ from __future__ import annotations
 
 import pytest
 import torch
-
-from runtime.tracker.regions import sample_pixels
+from depthmocap.runtime.tracker.regions import sample_pixels
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

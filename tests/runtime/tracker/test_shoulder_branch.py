@@ -7,21 +7,25 @@ import math
 
 import pytest
 import torch
-
-from runtime.raycast import render_body
-from runtime.tracker import Tracker, track_sequence
-from runtime.tracker import tracker as tracker_module
-from runtime.tracker.shoulder_branch import (
+from depthmocap.runtime.raycast import render_body
+from depthmocap.runtime.tracker import Tracker, track_sequence
+from depthmocap.runtime.tracker import tracker as tracker_module
+from depthmocap.runtime.tracker.shoulder_branch import (
     SHOULDER_DOFS,
     align_branch,
     move_to_roomier_branch,
     other_branch,
     shoulder_rotations,
 )
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.kinematics import clamp_to_limits, forward_kinematics, named_joint_positions, rest_pose
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import (
+    clamp_to_limits,
+    forward_kinematics,
+    named_joint_positions,
+    rest_pose,
+)
 
 D = {n: i for i, n in enumerate(sk.DOF_NAMES)}
 pytestmark = pytest.mark.usefixtures("one_thread")

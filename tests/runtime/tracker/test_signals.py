@@ -6,13 +6,12 @@ import math
 
 import pytest
 import torch
-
-from runtime.raycast import render_body
-from runtime.tracker.signals import limb_visibility
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.kinematics import rest_pose
-from shared.so3 import matrix_to_rotvec, rotvec_to_matrix
+from depthmocap.runtime.raycast import render_body
+from depthmocap.runtime.tracker.signals import limb_visibility
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import rest_pose
+from depthmocap.shared.so3 import matrix_to_rotvec, rotvec_to_matrix
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

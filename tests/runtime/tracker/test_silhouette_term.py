@@ -5,14 +5,13 @@ from __future__ import annotations
 
 import pytest
 import torch
-
-from runtime.raycast import render_body
-from runtime.tracker import TrackerConfig, silhouette_term
-from runtime.tracker.gauss_newton import rows_jacobian
-from runtime.tracker.silhouette_term import silhouette_rows
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.kinematics import forward_kinematics, pose_update, segment_points_to_world
+from depthmocap.runtime.raycast import render_body
+from depthmocap.runtime.tracker import TrackerConfig, silhouette_term
+from depthmocap.runtime.tracker.gauss_newton import rows_jacobian
+from depthmocap.runtime.tracker.silhouette_term import silhouette_rows
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.kinematics import forward_kinematics, pose_update, segment_points_to_world
 
 D = {n: i for i, n in enumerate(sk.DOF_NAMES)}
 

@@ -8,13 +8,12 @@ import dataclasses
 
 import pytest
 import torch
-
-from runtime.raycast import render_body
-from runtime.tracker import Tracker, TrackerConfig, TrackerError, track_sequence
-from runtime.tracker import tracker as tracker_module
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
+from depthmocap.runtime.raycast import render_body
+from depthmocap.runtime.tracker import Tracker, TrackerConfig, TrackerError, track_sequence
+from depthmocap.runtime.tracker import tracker as tracker_module
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
 
 INTR = Intrinsics.kinect_v1(320)
 

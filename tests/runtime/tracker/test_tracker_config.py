@@ -8,9 +8,8 @@ import math
 from pathlib import Path
 
 import pytest
-
-from runtime.tracker import TrackerConfig, TrackerConfigError
-from shared.config import load_config
+from depthmocap.runtime.tracker import TrackerConfig, TrackerConfigError
+from depthmocap.shared.config import load_config
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -19,7 +18,7 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 
 class TestTrackerConfig:
     def test_hybrid_preset_sets_the_tracker_terms(self):
-        from runtime.hybrid import HybridConfig
+        from depthmocap.runtime.hybrid import HybridConfig
 
         cfg = load_config(HybridConfig, REPO / "configs" / "hybrid.yaml")
         assert cfg.tracker.use_labels and cfg.tracker.use_collision

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
-
-from runtime.streams.demo import open_demo_stream
-from runtime.track_cli import main
-from shared.camera import Intrinsics
-from shared.poses_format import poses_to_arrays, read_poses_jsonl
-from shared.recording import RecordingWriter
+from depthmocap.runtime.streams.demo import open_demo_stream
+from depthmocap.runtime.track_cli import main
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.poses_format import poses_to_arrays, read_poses_jsonl
+from depthmocap.shared.recording import RecordingWriter
 
 
 def test_tracker_mode_follows_the_demo(tmp_path, capsys):

@@ -14,11 +14,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from shared.labels import NUM_CLASSES, PART_NAMES
-from shared.skeleton import JOINT_NAMES, SEGMENT_NAMES
-from train.bodies import anny_body as ab
-from train.bodies import measurements, skinning
+from depthmocap.shared.labels import NUM_CLASSES, PART_NAMES
+from depthmocap.shared.skeleton import JOINT_NAMES, SEGMENT_NAMES
+from depthmocap.train.bodies import anny_body as ab
+from depthmocap.train.bodies import measurements, skinning
 
 REPO = Path(__file__).resolve().parents[3]
 PHENOTYPE = {"gender": 0.1, "age": 0.8, "muscle": 0.6, "weight": 0.4, "height": 0.45,

@@ -1,9 +1,8 @@
 import numpy as np
 import pytest
 import torch
-
-from shared import skeleton as sk
-from shared.kinematics import forward_kinematics, named_joint_positions
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
 
 J = {n: i for i, n in enumerate(sk.JOINT_NAMES)}
 
@@ -11,7 +10,7 @@ J = {n: i for i, n in enumerate(sk.JOINT_NAMES)}
 @pytest.fixture(scope="module")
 def body():
     pytest.importorskip("anny")
-    from train.bodies.anny_body import make_body
+    from depthmocap.train.bodies.anny_body import make_body
 
     return make_body(
         {
@@ -27,8 +26,8 @@ def body():
 
 @pytest.mark.slow
 def test_rest_q_hangs_arms_down(body):
-    from train.bodies.measurements import anatomical_joints
-    from train.bodies.posing import pose_anny
+    from depthmocap.train.bodies.measurements import anatomical_joints
+    from depthmocap.train.bodies.posing import pose_anny
 
     q = np.zeros((1, 34))
     j = anatomical_joints(body, pose_anny(body, q))[0]
@@ -41,10 +40,10 @@ def test_rest_q_hangs_arms_down(body):
 
 @pytest.mark.slow
 def test_posed_mesh_follows_skeleton_pose(body):
-    from shared.procedural_motion import motion_poses
-    from train.bodies.measurements import anatomical_joints
-    from train.bodies.posing import pose_anny, skeleton_body_of
-    from train.mocap.retarget import retarget_joints
+    from depthmocap.shared.procedural_motion import motion_poses
+    from depthmocap.train.bodies.measurements import anatomical_joints
+    from depthmocap.train.bodies.posing import pose_anny, skeleton_body_of
+    from depthmocap.train.mocap.retarget import retarget_joints
 
     sb = skeleton_body_of(body)
     q = motion_poses("wave", 6, 5.0, np.random.default_rng(0))

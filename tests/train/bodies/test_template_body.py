@@ -1,8 +1,7 @@
 import pytest
 import torch
-
-from shared.body import BodyShape
-from train.bodies.template_body import average_body
+from depthmocap.shared.body import BodyShape
+from depthmocap.train.bodies.template_body import average_body
 
 
 def test_average_body_is_the_fieldwise_mean():

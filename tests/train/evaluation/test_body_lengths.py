@@ -5,10 +5,9 @@ from __future__ import annotations
 
 import pytest
 import torch
-
-from shared import skeleton as sk
-from shared.body import BodyShape
-from train.evaluation.body_lengths import bone_length_errors, format_bone_length_errors
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.train.evaluation.body_lengths import bone_length_errors, format_bone_length_errors
 
 
 def _save(body: BodyShape, path):

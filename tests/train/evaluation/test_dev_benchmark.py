@@ -5,8 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
-from train.evaluation.dev_benchmark import (
+from depthmocap.train.evaluation.dev_benchmark import (
     HEADER,
     body_file,
     body_length_reports,
@@ -69,9 +68,8 @@ def test_bad_arguments_exit_2_before_running_anything(tmp_path, capsys, args, me
 
 
 def test_the_ground_truth_labels_row_reads_each_recording_s_own_labels(tmp_path, monkeypatch):
+    import depthmocap.train.evaluation.dev_benchmark as bench
     import yaml
-
-    import train.evaluation.dev_benchmark as bench
 
     commands = []
     monkeypatch.setattr(bench, "_run", commands.append)
@@ -101,8 +99,7 @@ def test_calibration_recordings_are_looked_up_beside_the_recordings_folder(tmp_p
 
 def test_body_length_reports_compare_made_bodies_and_name_unreadable_ones(tmp_path):
     import torch
-
-    from shared.body import BodyShape
+    from depthmocap.shared.body import BodyShape
 
     body = BodyShape.default(torch.float64)
     recs = [tmp_path / "recs" / n for n in ("HDM_a", "HDM_b", "HDM_c")]

@@ -8,18 +8,17 @@ import json
 import numpy as np
 import pytest
 import torch
-
-from runtime.export import ResultWriter
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
-from shared.recording import RecordingWriter
-from shared.so3 import rotvec_to_matrix
-from train.evaluation import metrics as m
-from train.evaluation.cli import main
-from train.evaluation.evaluate import format_failed_frames
-from train.evaluation.plot import render_plot
+from depthmocap.runtime.export import ResultWriter
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
+from depthmocap.shared.recording import RecordingWriter
+from depthmocap.shared.so3 import rotvec_to_matrix
+from depthmocap.train.evaluation import metrics as m
+from depthmocap.train.evaluation.cli import main
+from depthmocap.train.evaluation.evaluate import format_failed_frames
+from depthmocap.train.evaluation.plot import render_plot
 
 
 def _random_rotations(shape, seed=0) -> np.ndarray:

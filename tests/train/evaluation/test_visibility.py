@@ -8,19 +8,22 @@ import json
 import numpy as np
 import pytest
 import torch
-
-from runtime.export import ResultWriter
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics
-from shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
-from shared.labels import PART_NAMES
-from shared.recording import Recording, RecordingWriter
-from train.evaluation import metrics as m
-from train.evaluation.cli import main
-from train.evaluation.dev_benchmark import format_failures
-from train.evaluation.evaluate import format_failed_frames
-from train.evaluation.visibility import JOINT_PARTS, recording_joint_visibility, visible_joints
+from depthmocap.runtime.export import ResultWriter
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
+from depthmocap.shared.labels import PART_NAMES
+from depthmocap.shared.recording import Recording, RecordingWriter
+from depthmocap.train.evaluation import metrics as m
+from depthmocap.train.evaluation.cli import main
+from depthmocap.train.evaluation.dev_benchmark import format_failures
+from depthmocap.train.evaluation.evaluate import format_failed_frames
+from depthmocap.train.evaluation.visibility import (
+    JOINT_PARTS,
+    recording_joint_visibility,
+    visible_joints,
+)
 
 CAM = Intrinsics.kinect_v1(160)
 FOREARM = PART_NAMES.index("l_forearm")

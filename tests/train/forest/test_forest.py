@@ -6,23 +6,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-
-from shared.camera import Intrinsics
-from shared.config import load_config
-from shared.forest_format import load_forest
-from train.forest.config import ForestConfig
-from train.forest.evaluate import confusion_image, evaluate_forest
-from train.forest.features import (
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.config import load_config
+from depthmocap.shared.forest_format import load_forest
+from depthmocap.train.forest.config import ForestConfig
+from depthmocap.train.forest.evaluate import confusion_image, evaluate_forest
+from depthmocap.train.forest.features import (
     depth_features_mm,
     pad_with_background,
     person_depth_mm,
     sample_offset_pairs,
     sample_pixels,
 )
-from train.forest.grow import GrowParams, grow_tree
-from train.forest.predict import predict_posteriors
-from train.forest.trainer import train_forest
-from train.synth.trainset import Shard, TrainSet, write_manifest, write_shard
+from depthmocap.train.forest.grow import GrowParams, grow_tree
+from depthmocap.train.forest.predict import predict_posteriors
+from depthmocap.train.forest.trainer import train_forest
+from depthmocap.train.synth.trainset import Shard, TrainSet, write_manifest, write_shard
 
 REPO = Path(__file__).resolve().parents[3]
 TOY_INTR = Intrinsics(64, 48, 50.0, 50.0, 31.5, 23.5)
@@ -183,8 +182,8 @@ def test_evaluation_and_confusion_png(toy_set, toy_forest):
 
 
 def test_train_and_eval_clis(toy_set, tmp_path, capsys):
-    from train.forest.eval_cli import main as eval_main
-    from train.forest.train_cli import main as train_main
+    from depthmocap.train.forest.eval_cli import main as eval_main
+    from depthmocap.train.forest.train_cli import main as train_main
 
     out = tmp_path / "m" / "forest.npz"
     rc = train_main(
@@ -206,8 +205,8 @@ def test_train_and_eval_clis(toy_set, tmp_path, capsys):
 
 
 def test_clis_fail_cleanly(tmp_path, capsys):
-    from train.forest.eval_cli import main as eval_main
-    from train.forest.train_cli import main as train_main
+    from depthmocap.train.forest.eval_cli import main as eval_main
+    from depthmocap.train.forest.train_cli import main as train_main
 
     assert train_main(["--data", str(tmp_path), "--out", str(tmp_path / "f.npz")]) == 2
     assert "no manifest.json" in capsys.readouterr().err

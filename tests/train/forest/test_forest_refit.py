@@ -3,13 +3,12 @@ training with it on the separable toy problem."""
 
 import numpy as np
 import torch
+from depthmocap.shared.forest_format import Forest
+from depthmocap.train.forest.predict import predict_posteriors
+from depthmocap.train.forest.refit import leaf_class_counts, refit_leaves
+from depthmocap.train.forest.trainer import train_forest
+from depthmocap.train.synth.trainset import TrainSet
 from test_forest import tiny_config, toy_forest, toy_set  # noqa: F401  (fixtures)
-
-from shared.forest_format import Forest
-from train.forest.predict import predict_posteriors
-from train.forest.refit import leaf_class_counts, refit_leaves
-from train.forest.trainer import train_forest
-from train.synth.trainset import TrainSet
 
 
 def _walk_one(forest: Forest, depth_m: np.ndarray, person: np.ndarray, f, r, c, tree) -> int:

@@ -8,8 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from train.mocap import (
+from depthmocap.train.mocap import (
     MotionClip,
     axis_rotation,
     euler_to_matrix,

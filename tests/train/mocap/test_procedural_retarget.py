@@ -1,18 +1,17 @@
 import numpy as np
 import pytest
 import torch
-
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.kinematics import forward_kinematics, named_joint_positions
-from shared.procedural_motion import (
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
+from depthmocap.shared.procedural_motion import (
     MOTIONS,
     ground_poses,
     motion_poses,
     procedural_sequences,
     random_poses,
 )
-from train.mocap.retarget import body_from_named_joints, retarget_joints
+from depthmocap.train.mocap.retarget import body_from_named_joints, retarget_joints
 
 LIMB = [i for i, n in enumerate(sk.JOINT_NAMES) if n not in ("spine", "neck")]
 
@@ -66,8 +65,8 @@ def test_retarget_round_trip_within_2cm():
 
 
 def test_retarget_real_hdm05_clip(shared_data):
-    from train.mocap import read_amc, read_asf
-    from train.mocap.retarget import clip_named_joints
+    from depthmocap.train.mocap import read_amc, read_asf
+    from depthmocap.train.mocap.retarget import clip_named_joints
 
     folder = shared_data / "mocap" / "hdm05" / "dev"
     asf = read_asf(folder / "HDM_mm.asf")

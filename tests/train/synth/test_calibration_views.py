@@ -1,4 +1,5 @@
-"""train.synth.calibration_views (the two calibration views with ground truth) and the helpers of
+"""depthmocap.train.synth.calibration_views (the two calibration views with ground truth) and the
+helpers of
 train.evaluation.personalization. Rendering needs anny and EGL and skips without them."""
 
 from __future__ import annotations
@@ -8,12 +9,11 @@ import math
 import numpy as np
 import pytest
 import torch
-
-from shared import skeleton as sk
-from shared.recording import Recording
-from shared.so3 import rotvec_to_matrix
-from train.evaluation.personalization import subject_phenotypes, vertex_errors
-from train.synth.calibration_views import (
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.recording import Recording
+from depthmocap.shared.so3 import rotvec_to_matrix
+from depthmocap.train.evaluation.personalization import subject_phenotypes, vertex_errors
+from depthmocap.train.synth.calibration_views import (
     CALIBRATION_POSE_DEG,
     CalibrationViewConfig,
     calibration_world_pose,
@@ -21,7 +21,7 @@ from train.synth.calibration_views import (
 
 
 def test_calibration_pose_matches_the_runtime_reference():
-    from runtime.personalize.reference_pose import CALIBRATION_POSE_DEG as RUNTIME_POSE
+    from depthmocap.runtime.personalize.reference_pose import CALIBRATION_POSE_DEG as RUNTIME_POSE
 
     assert CALIBRATION_POSE_DEG == RUNTIME_POSE
 
@@ -58,7 +58,7 @@ def test_vertex_errors_raw_and_aligned():
 def test_render_calibration_views(tmp_path):
     pytest.importorskip("anny")
     pytest.importorskip("pyrender")
-    from train.synth.calibration_views import render_calibration_views
+    from depthmocap.train.synth.calibration_views import render_calibration_views
 
     try:
         out = render_calibration_views(tmp_path / "v", seed=3, cfg=CalibrationViewConfig(width=160))

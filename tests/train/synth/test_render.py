@@ -17,18 +17,17 @@ import math
 import numpy as np
 import pytest
 import torch
-
-from shared.camera import Intrinsics, points_to_pixels
-from shared.config import config_from_dict
-from train.synth import offscreen_gl
-from train.synth.render import (
+from depthmocap.shared.camera import Intrinsics, points_to_pixels
+from depthmocap.shared.config import config_from_dict
+from depthmocap.train.synth import offscreen_gl
+from depthmocap.train.synth.render import (
     EGL_HELP,
     DepthLabelRenderer,
     face_labels_from_vertices,
     render_depth_labels,
     split_by_label,
 )
-from train.synth.viewpoints import (
+from depthmocap.train.synth.viewpoints import (
     ViewpointConfig,
     fits_in_view,
     look_at,

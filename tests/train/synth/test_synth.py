@@ -12,20 +12,19 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-
-from shared import skeleton as sk
-from shared.body import BodyShape
-from shared.camera import Intrinsics, points_to_pixels
-from shared.config import load_config
-from shared.kinematics import forward_kinematics, named_joint_positions
-from shared.recording import Recording
-from shared.sensor_noise import floor_depth, level_from_camera
-from train.mocap.clip import axis_rotation
-from train.mocap.motion_library import heading_normalized_joints
-from train.mocap.pose_selection import furthest_point_sample
-from train.synth.trainset import TrainSet, TrainSetError
-from train.synth.trainset_builder import SynthConfig, frame_plan, synthesize_set
-from train.synth.viewpoints import look_at
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics, points_to_pixels
+from depthmocap.shared.config import load_config
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
+from depthmocap.shared.recording import Recording
+from depthmocap.shared.sensor_noise import floor_depth, level_from_camera
+from depthmocap.train.mocap.clip import axis_rotation
+from depthmocap.train.mocap.motion_library import heading_normalized_joints
+from depthmocap.train.mocap.pose_selection import furthest_point_sample
+from depthmocap.train.synth.trainset import TrainSet, TrainSetError
+from depthmocap.train.synth.trainset_builder import SynthConfig, frame_plan, synthesize_set
+from depthmocap.train.synth.viewpoints import look_at
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 
@@ -33,7 +32,7 @@ REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.a
 def _need_egl():
     pytest.importorskip("pyrender")
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-    from train.synth.render import DepthLabelRenderer
+    from depthmocap.train.synth.render import DepthLabelRenderer
 
     try:
         DepthLabelRenderer(Intrinsics.kinect_v1(320)).close()
@@ -98,7 +97,7 @@ def test_tiny_set_deterministic_and_resumable(tiny_set, tmp_path):
 
 def test_sequence_mode_recording_reads_back(tmp_path):
     _need_egl()
-    from train.synth.sequence import render_sequence
+    from depthmocap.train.synth.sequence import render_sequence
 
     out = render_sequence("wave", tmp_path / "rec", frames=4, seed=2)
     rec = Recording(out)
@@ -118,8 +117,8 @@ def test_sequence_mode_recording_reads_back(tmp_path):
 
 def test_sequence_out_of_sensor_range_warns_and_still_renders(tmp_path):
     _need_egl()
-    from train.synth.frame import SceneConfig
-    from train.synth.sequence import render_sequence
+    from depthmocap.train.synth.frame import SceneConfig
+    from depthmocap.train.synth.sequence import render_sequence
 
     near = SceneConfig()
     near = replace(near, noise=replace(near.noise, max_depth_m=1.0))  # no camera fits 1 m
@@ -130,8 +129,8 @@ def test_sequence_out_of_sensor_range_warns_and_still_renders(tmp_path):
 
 def test_sequence_out_of_sensor_range_raises_when_required(tmp_path):
     _need_egl()
-    from train.synth.frame import SceneConfig
-    from train.synth.sequence import OutOfRangeError, render_sequence
+    from depthmocap.train.synth.frame import SceneConfig
+    from depthmocap.train.synth.sequence import OutOfRangeError, render_sequence
 
     near = SceneConfig()
     near = replace(near, noise=replace(near.noise, max_depth_m=1.0))
@@ -141,7 +140,7 @@ def test_sequence_out_of_sensor_range_raises_when_required(tmp_path):
 
 
 def test_all_dev_clips_keeps_tracked_classes_in_order(tmp_path):
-    from train.evaluation.dev_recordings import all_dev_clips
+    from depthmocap.train.evaluation.dev_recordings import all_dev_clips
 
     names = ["HDM_mm_squat1Reps_038_120.amc", "HDM_mm_lieDownFloor_015_120.amc",
              "HDM_mm_depositFloorR_019_120.amc", "HDM_mm.asf"]  # fmt: skip
@@ -153,7 +152,7 @@ def test_all_dev_clips_keeps_tracked_classes_in_order(tmp_path):
 
 
 def test_sequence_mode_rejects_unknown_motion(tmp_path):
-    from train.synth.cli import main
+    from depthmocap.train.synth.cli import main
 
     assert main(["--sequence", "--motion", "no_such_clip.bvh", "--out", str(tmp_path / "r")]) == 2
 
@@ -211,7 +210,7 @@ def _thread_env(_):
 def test_rendering_workers_run_native_libraries_single_threaded(monkeypatch):
     import os
 
-    from train.synth.trainset_builder import _single_threaded_pool
+    from depthmocap.train.synth.trainset_builder import _single_threaded_pool
 
     monkeypatch.setenv("OMP_NUM_THREADS", "7")
     monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
@@ -231,8 +230,8 @@ def _facing_deg(q: np.ndarray) -> np.ndarray:
 
 
 def test_face_forward_turns_each_pose_or_the_whole_sequence():
-    from shared.procedural_motion import motion_poses
-    from train.synth.frame import face_forward
+    from depthmocap.shared.procedural_motion import motion_poses
+    from depthmocap.train.synth.frame import face_forward
 
     rng = np.random.default_rng(0)
     q = np.asarray(motion_poses("walk", 12, 30.0, rng), dtype=np.float64)
@@ -255,14 +254,14 @@ def test_face_forward_turns_each_pose_or_the_whole_sequence():
 
 
 def transform_pose_np(q: np.ndarray, rot: torch.Tensor) -> np.ndarray:
-    from shared.kinematics import transform_pose
+    from depthmocap.shared.kinematics import transform_pose
 
     return transform_pose(torch.as_tensor(q), rot, torch.zeros(3, dtype=torch.float64)).numpy()
 
 
 def test_procedural_library_restricted_to_the_calibration_pose_with_jitter():
-    from shared.kinematics import clamp_to_limits
-    from train.mocap.motion_library import procedural_library
+    from depthmocap.shared.kinematics import clamp_to_limits
+    from depthmocap.train.mocap.motion_library import procedural_library
 
     plain = procedural_library(np.random.default_rng(0), 10.0, 0, motions=["t_pose"])
     assert {s.name.rsplit("_", 1)[0] for s in plain} == {"t_pose"} and len(plain) == 3

@@ -1,0 +1,1 @@
+"""depthmocap: real-time full-body motion capture from one depth camera."""
