@@ -24,7 +24,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from depthmocap.shared.body import BodyShape
 from depthmocap.shared.camera import Intrinsics
 from depthmocap.shared.config import (
     ConfigError,
@@ -32,8 +31,6 @@ from depthmocap.shared.config import (
     config_from_args,
     config_to_dict,
     load_config,
-    load_settings,
-    merged_settings,
 )
 from depthmocap.shared.recording import RecordingError
 
@@ -44,9 +41,10 @@ from .cli_common import (
     report_error,
 )
 from .estimator import MODES, MODES_NEEDING_MODEL, make_estimator
+from .estimator_setup import TrackError, check_model, load_body, load_mode_config, pick_device
 from .export.live import add_live_args, live_output_from_args
 from .forest.inference import DEFAULT_MODEL
-from .presets import DEFAULT_PRESET, PRESETS, preset_settings
+from .presets import DEFAULT_PRESET, PRESETS
 from .segmentation import SegmentationConfig
 from .stop_signals import StopRequest, graceful_stop, interrupt_on_signals
 from .streams import (
@@ -65,10 +63,6 @@ __all__ = [
     "TrackError",
     "DEFAULT_MODEL",
 ]
-
-
-class TrackError(ValueError):
-    """Bad options or set-up for ``runtime-track`` (one line, shown as ``error: ...``)."""
 
 
 def _forest_error_types() -> tuple[type[BaseException], ...]:
@@ -208,19 +202,6 @@ def intrinsics_from_args(args: argparse.Namespace) -> Intrinsics | None:
     return intr
 
 
-def load_mode_config(path: Path | None, preset: str | None = None, mode: str = "hybrid") -> dict:
-    """The mode's settings: for the hybrid, the ``preset`` (default: the shipped system)
-    with ``--config``'s YAML on top, key by key; for the other modes ``--config`` alone
-    (:func:`shared.config.load_settings`; the values are checked by the mode itself)."""
-    if preset is not None and mode != "hybrid":
-        raise TrackError(f"--preset names hybrid settings; mode '{mode}' takes --config only")
-    try:
-        base = preset_settings(preset or DEFAULT_PRESET) if mode == "hybrid" else {}
-        return merged_settings(base, load_settings(path)) if path is not None else base
-    except ConfigError as err:
-        raise TrackError(str(err)) from None
-
-
 def initial_pose(stream, start: int) -> np.ndarray | None:
     """Ground-truth pose of the first frame when the input has one (recordings, demo)."""
     gt = getattr(stream, "groundtruth", None)
@@ -229,41 +210,6 @@ def initial_pose(stream, start: int) -> np.ndarray | None:
     if not gt or "q" not in gt or len(gt["q"]) <= start:
         return None
     return np.asarray(gt["q"][start], dtype=np.float64)
-
-
-def pick_device(name: str) -> str:
-    if name == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    if name == "cuda" and not torch.cuda.is_available():
-        raise TrackError("--device cuda: no CUDA device available (use --device cpu)")
-    return name
-
-
-def load_body(path: Path | None) -> BodyShape:
-    if path is None:
-        return BodyShape.default()
-    try:
-        return BodyShape.load(path)
-    except FileNotFoundError:
-        raise TrackError(f"body file not found: {path}") from None
-    except ValueError as err:
-        raise TrackError(str(err)) from None
-
-
-def check_model(path: Path, mode: str) -> None:
-    """Fail early, before a camera is opened, on a missing or unreadable model."""
-    if mode not in MODES_NEEDING_MODEL:
-        return
-    if not path.is_file():
-        raise TrackError(
-            f"model file not found: {path} (train one with `make train-forest` or pass --model)"
-        )
-    try:
-        from depthmocap.shared.forest_format import load_forest
-        from depthmocap.shared.labels import PART_NAMES
-    except ImportError:  # the estimator's own loader will check it
-        return
-    load_forest(path, expected_classes=PART_NAMES)
 
 
 # --------------------------------------------------------------------------------------------

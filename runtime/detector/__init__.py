@@ -109,7 +109,8 @@ class DetectorEstimator:
         self.labels, self.detector, self.tracker = forest_label_source(labeler), detector, tracker
 
     def reset(self) -> None:
-        """Nothing to forget: every frame is detected from scratch."""
+        """Every frame is detected from scratch; only the random sequence restarts."""
+        self.detector.reset()
 
     def estimate(self, frame):
         from depthmocap.runtime.estimator import PoseEstimate, lost, observed_of

@@ -332,6 +332,11 @@ class Detector:
         self.body = body.to(dtype=dtype, device=self.device)
         self.generator = torch.Generator().manual_seed(self.cfg.seed)
 
+    def reset(self) -> None:
+        """Restart the RANSAC's random sequence: after a reset the detector samples as a new
+        one would, so a person's return is estimated the same however long the run was."""
+        self.generator.manual_seed(self.cfg.seed)
+
     def detect(
         self,
         depth_m: torch.Tensor,

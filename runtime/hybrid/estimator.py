@@ -80,8 +80,10 @@ class HybridEstimator:
         self.state = TrackState()
 
     def reset(self) -> None:
-        """Forget the track: the next frame goes to the detector."""
+        """Forget the track: the next frame goes to the detector, which then behaves as a new
+        one would (its random sequence restarts)."""
         self.state = TrackState()
+        self.detector.reset()
         if self.arm_search is not None:
             self.arm_search.reset()
 

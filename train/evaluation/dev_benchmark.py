@@ -9,6 +9,7 @@ configuration averaged over the recordings (frame-weighted), as a Markdown table
 - ``tracker`` (ground-truth start, ground-truth body), its ablations (``no occlusion``,
   ``no silhouette``, ``no extra depth``) and ``tracker, default body``;
 - ``hybrid``, ``detector`` and ``shotton`` (no ground truth at run time; need the forest);
+  ``hybrid, default body`` is plain ``runtime-track`` (no body given, nothing calibrated);
   ``hybrid, calibrated body`` is Wei's whole system: the body from ``runtime-calibrate`` on
   the same person's T-pose recording, the pose from the forest, no ground truth anywhere;
   ``hybrid, ground-truth labels`` is a diagnostic, not a system: the recording's own part
@@ -50,6 +51,7 @@ CONFIGS: dict[str, tuple[str, str, dict]] = {
     "tracker, personalized body": ("tracker", "personalized", {}),
     "tracker, calibrated body": ("tracker", "calibrated", {}),
     "hybrid": ("hybrid", "gt", {}),
+    "hybrid, default body": ("hybrid", "default", {}),
     "hybrid, personalized body": ("hybrid", "personalized", {}),
     "hybrid, calibrated body": ("hybrid", "calibrated", {}),
     "hybrid, ground-truth labels": ("hybrid", "gt", {"labels_from_recording": RECORDING}),

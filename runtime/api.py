@@ -1,0 +1,144 @@
+"""The Python API: poses from depth frames in the caller's own loop.
+
+::
+
+    from depthmocap import Tracker, open_stream, read_poses
+
+    tracker = Tracker()                      # shipped forest and preset; body optional
+    for frame in open_stream("demo"):        # or "device", a recording, a .oni, a folder
+        pose = tracker.track(frame)          # status, joints (m), observed flags, q
+
+:class:`Tracker` runs the same per-frame pipeline as ``runtime-track`` (depth to metres, the
+person's mask, the estimator of the mode with the preset's settings) and checks its inputs with
+the same messages (:mod:`runtime.estimator_setup`). It is built from names and paths, not
+from the internals, so that what a script runs is what ``runtime-track`` runs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+
+from .estimator import PoseEstimate, PoseEstimator, estimate_frame, make_estimator
+from .estimator_setup import TrackError, check_model, load_body, load_mode_config, pick_device
+from .forest.inference import DEFAULT_MODEL
+from .frame import Frame
+from .segmentation import SegmentationConfig, segment_person
+from .streams import DepthFrame
+
+__all__ = ["Tracker", "TrackError", "PoseEstimate"]
+
+
+class Tracker:
+    """Full-body poses from depth frames, one frame at a time, keeping the track in between.
+
+    Args:
+        body: the person's body: a :class:`BodyShape`, a ``body.json`` (``runtime-calibrate``
+            or ``runtime-personalize`` make one), or None for the default adult body.
+        model: the body-part forest (default: the shipped ``models/forest.npz``).
+        preset: named hybrid settings (``runtime.presets.PRESETS``; default ``"shipped"``,
+            the measured-best system; ``"wei2012"`` for the paper's thresholds).
+        config: settings laid over the preset key by key: a YAML path or a mapping of the
+            same shape.
+        mode: "hybrid" (tracker with detector fall-back), "detector" or "shotton".
+        device: "auto" (CUDA when present), "cpu" or "cuda".
+        segmentation: how the person is cut from the background (defaults when None).
+    Raises:
+        TrackError (a ValueError): bad body, model, preset, config or device; the message is
+        one line, as ``runtime-track`` prints it.
+    """
+
+    def __init__(
+        self,
+        body: BodyShape | str | Path | None = None,
+        model: str | Path | None = None,
+        preset: str | None = None,
+        config: str | Path | Mapping | None = None,
+        mode: str = "hybrid",
+        device: str = "auto",
+        segmentation: SegmentationConfig | None = None,
+    ):
+        self.device = pick_device(device)
+        self.body = body if isinstance(body, BodyShape) else load_body(_path(body))
+        self.model = Path(model) if model is not None else DEFAULT_MODEL
+        self.mode = mode
+        check_model(self.model, mode)
+        self.settings = load_mode_config(_path(config), preset, mode)
+        self.segmentation = segmentation or SegmentationConfig()
+        self._estimator: PoseEstimator | None = None
+        self._intrinsics: Intrinsics | None = None
+        self._next_index = 0
+
+    def track(
+        self,
+        frame: DepthFrame | np.ndarray,
+        intrinsics: Intrinsics | None = None,
+        time: float | None = None,
+    ) -> PoseEstimate:
+        """The pose in one depth frame, tracked from the previous one.
+
+        Args:
+            frame: a frame of :func:`open_stream`, or an (H, W) uint16 array of millimetres
+                (0 = no reading; float arrays may hold NaN for no reading).
+            intrinsics: the camera of a raw array (default: a Kinect v1 at the array's
+                width); ignored for a stream's frame, which carries its own.
+            time: seconds since the start, for a raw array (default: index / 30).
+        Returns:
+            :class:`PoseEstimate`: ``status`` ("tracked", "detected" or "lost"), ``joints``
+            (16, 3) camera metres and ``q`` (34,) (None when lost), ``observed`` (16,) bool,
+            ``errors`` (fit figures). A frame with nobody in it is "lost" and resets the track.
+        """
+        if not isinstance(frame, DepthFrame):
+            frame = self._wrap_array(frame, intrinsics, time)
+        self._next_index = frame.index + 1
+        estimator = self._estimator_for(frame.intrinsics)
+        prepared = Frame.from_depth(
+            frame, device=self.device, segment=lambda d, i: segment_person(d, i, self.segmentation)
+        )
+        return estimate_frame(estimator, prepared)
+
+    def reset(self) -> None:
+        """Forget the track: the next frame is found from scratch (a new person, a cut)."""
+        if self._estimator is not None:
+            self._estimator.reset()
+
+    def _estimator_for(self, intrinsics: Intrinsics) -> PoseEstimator:
+        # Built on the first frame, whose camera it needs; a new camera gets a new one.
+        if self._estimator is None or intrinsics != self._intrinsics:
+            try:
+                self._estimator = make_estimator(
+                    self.mode, self.model, self.body, intrinsics, self.device, self.settings
+                )
+            except TrackError:
+                raise
+            except ValueError as err:  # a mode's own bad-input error (its contract)
+                raise TrackError(str(err)) from None
+            self._intrinsics = intrinsics
+        return self._estimator
+
+    def _wrap_array(
+        self, depth: np.ndarray, intrinsics: Intrinsics | None, time: float | None
+    ) -> DepthFrame:
+        depth = np.asarray(depth)
+        if depth.ndim != 2 or depth.dtype.kind not in "uif":
+            raise TrackError(
+                f"a depth frame is an (H, W) array of millimetres, got {depth.shape} {depth.dtype}"
+            )
+        height, width = depth.shape
+        if intrinsics is None:
+            intrinsics = Intrinsics.kinect_v1(width)
+        if (intrinsics.height, intrinsics.width) != (height, width):
+            raise TrackError(
+                f"the frame is {width}x{height} but the intrinsics are "
+                f"{intrinsics.width}x{intrinsics.height}"
+            )
+        index = self._next_index
+        return DepthFrame(index, index / 30.0 if time is None else float(time), depth, intrinsics)
+
+
+def _path(value: str | Path | Mapping | None):
+    return Path(value) if isinstance(value, str) else value

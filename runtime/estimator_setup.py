@@ -1,0 +1,79 @@
+"""Building a pose estimator from what a user names: device, body, model, preset and config.
+
+Shared by ``runtime-track`` and the Python API (:class:`runtime.api.Tracker`), so both check
+the same things in the same order and fail with the same one-line messages.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import torch
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.config import ConfigError, load_settings, merged_settings
+
+from .estimator import MODES_NEEDING_MODEL
+from .presets import DEFAULT_PRESET, preset_settings
+
+__all__ = ["TrackError", "pick_device", "load_body", "check_model", "load_mode_config"]
+
+
+class TrackError(ValueError):
+    """Bad options or set-up for ``runtime-track`` (one line, shown as ``error: ...``)."""
+
+
+def pick_device(name: str) -> str:
+    """ "auto" -> "cuda" when present, else "cpu"; "cuda" without a GPU is an error."""
+    if name == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cuda" and not torch.cuda.is_available():
+        raise TrackError("--device cuda: no CUDA device available (use --device cpu)")
+    return name
+
+
+def load_body(path: Path | None) -> BodyShape:
+    """The body in ``path`` (a ``body.json``), or the default body for None."""
+    if path is None:
+        return BodyShape.default()
+    try:
+        return BodyShape.load(path)
+    except FileNotFoundError:
+        raise TrackError(f"body file not found: {path}") from None
+    except ValueError as err:
+        raise TrackError(str(err)) from None
+
+
+def check_model(path: Path, mode: str) -> None:
+    """Fail early, before a camera is opened, on a missing or unreadable model."""
+    if mode not in MODES_NEEDING_MODEL:
+        return
+    if not path.is_file():
+        raise TrackError(
+            f"model file not found: {path} (train one with `make train-forest` or pass --model)"
+        )
+    try:
+        from depthmocap.shared.forest_format import load_forest
+        from depthmocap.shared.labels import PART_NAMES
+    except ImportError:  # the estimator's own loader will check it
+        return
+    load_forest(path, expected_classes=PART_NAMES)
+
+
+def load_mode_config(
+    path: Path | Mapping | None, preset: str | None = None, mode: str = "hybrid"
+) -> dict:
+    """The mode's settings: for the hybrid, the ``preset`` (default: the shipped system)
+    with ``--config``'s YAML (or a mapping of the same shape) on top, key by key; for the
+    other modes ``--config`` alone (:func:`shared.config.load_settings`; the values are
+    checked by the mode itself)."""
+    if preset is not None and mode != "hybrid":
+        raise TrackError(f"--preset names hybrid settings; mode '{mode}' takes --config only")
+    try:
+        base = preset_settings(preset or DEFAULT_PRESET) if mode == "hybrid" else {}
+        if path is None:
+            return base
+        overlay = dict(path) if isinstance(path, Mapping) else load_settings(path)
+        return merged_settings(base, overlay)
+    except ConfigError as err:
+        raise TrackError(str(err)) from None

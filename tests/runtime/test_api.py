@@ -1,0 +1,163 @@
+"""The Python API (``from depthmocap import Tracker, open_stream, read_poses``): the same poses
+as ``runtime-track``, raw arrays, reset, clear errors, and results read back into arrays."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import depthmocap.runtime.track_cli as cli
+import numpy as np
+import pytest
+import torch
+from depthmocap.runtime.streams import FrameRange
+from depthmocap.shared.poses_format import PosesFileError
+
+import depthmocap
+from depthmocap import Intrinsics, Tracker, TrackError, open_stream, read_poses
+
+FRAMES = 8
+
+
+@pytest.fixture(scope="module")
+def demo_frames():
+    with open_stream("demo", frame_range=FrameRange(0, FRAMES)) as stream:
+        return list(stream)
+
+
+@pytest.fixture(scope="module")
+def cli_result(tmp_path_factory):
+    """``runtime-track --input demo`` with nothing else, first FRAMES frames (1 thread)."""
+    out = tmp_path_factory.mktemp("api") / "result"
+    before = torch.get_num_threads()
+    assert cli.main(["-i", "demo", "-o", str(out), "--stop", str(FRAMES), "-q"]) == 0
+    torch.set_num_threads(before)
+    return out
+
+
+def _track_all(tracker, frames, raw=False):
+    if raw:
+        return [tracker.track(f.depth_mm, intrinsics=f.intrinsics, time=f.time) for f in frames]
+    return [tracker.track(f) for f in frames]
+
+
+@pytest.mark.slow
+def test_the_same_poses_as_runtime_track(one_thread, demo_frames, cli_result):
+    poses = read_poses(cli_result)
+    estimates = _track_all(Tracker(), demo_frames)
+    assert list(poses.status) == [e.status for e in estimates]
+    joints = np.stack([e.joints for e in estimates])
+    # poses.jsonl rounds to micrometres.
+    np.testing.assert_allclose(poses.joints, joints, atol=1e-6)
+    np.testing.assert_allclose(poses.q, np.stack([e.q for e in estimates]), atol=1e-6)
+    observed = np.stack([e.observed for e in estimates]).astype(float)
+    np.testing.assert_array_equal(poses.observed, observed)
+
+
+@pytest.mark.slow
+def test_raw_uint16_arrays_and_reset(one_thread, demo_frames):
+    from_stream = _track_all(Tracker(), demo_frames[:4])
+    tracker = Tracker()
+    from_arrays = _track_all(tracker, demo_frames[:4], raw=True)
+    for a, b in zip(from_stream, from_arrays):
+        assert a.status == b.status
+        np.testing.assert_array_equal(a.joints, b.joints)
+    # reset(): the next frame is found from scratch, as by a new tracker.
+    tracker.reset()
+    after_reset = tracker.track(demo_frames[5])
+    fresh = Tracker().track(demo_frames[5])
+    assert after_reset.status == fresh.status
+    np.testing.assert_array_equal(after_reset.joints, fresh.joints)
+
+
+def test_an_empty_frame_is_lost_and_the_default_camera_is_a_kinect():
+    tracker = Tracker()
+    pose = tracker.track(np.zeros((240, 320), np.uint16))
+    assert pose.status == "lost" and pose.joints is None and pose.q is None
+    assert tracker._intrinsics == Intrinsics.kinect_v1(320)
+    nan_frame = np.full((240, 320), np.nan, np.float32)  # float frames: NaN = no reading
+    assert tracker.track(nan_frame).status == "lost"
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"preset": "nope"}, "shipped"),
+        ({"model": "no/such/forest.npz"}, "model file not found: no/such/forest.npz"),
+        ({"body": "no/such/body.json"}, "body file not found"),
+        ({"config": "no/such.yaml"}, "config file not found"),
+        ({"mode": "detector", "preset": "wei2012"}, "--preset names hybrid settings"),
+    ],
+)
+def test_bad_set_up_is_one_clear_error(kwargs, match):
+    with pytest.raises(TrackError, match=match):
+        Tracker(**kwargs)
+
+
+def test_bad_frames_are_clear_errors():
+    tracker = Tracker()
+    with pytest.raises(TrackError, match=r"\(H, W\) array"):
+        tracker.track(np.zeros((2, 240, 320), np.uint16))
+    with pytest.raises(TrackError, match="320x240 but the intrinsics are 640x480"):
+        tracker.track(np.zeros((240, 320), np.uint16), intrinsics=Intrinsics.kinect_v1(640))
+
+
+def test_settings_follow_preset_and_config(tmp_path):
+    shipped = Tracker()
+    wei = Tracker(preset="wei2012")
+    assert shipped.settings != wei.settings
+    over = Tracker(config={"failure": {"epsilon1_cm": 4.5}})
+    assert over.settings["failure"]["epsilon1_cm"] == 4.5
+    assert over.settings["arm_search"] == shipped.settings["arm_search"]
+    path = tmp_path / "c.yaml"
+    path.write_text("failure:\n  epsilon1_cm: 4.5\n")
+    assert Tracker(config=str(path)).settings == over.settings
+    with pytest.raises(TrackError):  # an unknown key fails when the estimator is built
+        Tracker(config={"no_such_key": 1}).track(np.zeros((240, 320), np.uint16))
+
+
+def test_read_poses(cli_result, tmp_path):
+    poses = read_poses(cli_result)
+    assert len(poses) == FRAMES and poses.joints.shape == (FRAMES, 16, 3)
+    assert poses.q.shape == (FRAMES, 34) and poses.observed.shape == (FRAMES, 16)
+    assert list(poses.frame) == list(range(FRAMES)) and not poses.truncated
+    np.testing.assert_array_equal(poses.joint("head"), poses.joints[:, 0])
+    assert poses.summary["frames"] == FRAMES and poses.summary["complete"]
+    again = read_poses(cli_result / "poses.jsonl")
+    np.testing.assert_array_equal(again.joints, poses.joints)
+    # An interrupted write: the unfinished last line is dropped and reported.
+    cut = tmp_path / "cut"
+    cut.mkdir()
+    text = (cli_result / "poses.jsonl").read_text()
+    (cut / "poses.jsonl").write_text(text[: text.rindex("\n", 0, -1) + 20])
+    part = read_poses(cut)
+    assert part.truncated and len(part) == FRAMES - 1 and part.summary is None
+    (cut / "summary.json").write_text("{not json")
+    with pytest.raises(PosesFileError, match="summary.json"):
+        read_poses(cut)
+    with pytest.raises(PosesFileError, match="no such file"):
+        read_poses(tmp_path / "nowhere")
+
+
+def test_lost_frames_read_as_nan(tmp_path):
+    out = tmp_path / "r"
+    rec = {"frame": 0, "time": 0.0, "status": "lost", "joints": None, "q": None, "errors": {}}
+    out.mkdir()
+    (out / "poses.jsonl").write_text(json.dumps(rec) + "\n")
+    poses = read_poses(out)
+    assert poses.status[0] == "lost" and np.isnan(poses.joints).all() and np.isnan(poses.q).all()
+
+
+def test_the_package_exports_resolve_and_import_lazily():
+    for name in depthmocap.__all__:
+        assert getattr(depthmocap, name) is not None
+    with pytest.raises(AttributeError):
+        depthmocap.no_such_name  # noqa: B018
+    code = "import sys, depthmocap; print('torch' in sys.modules, depthmocap.__version__)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", depthmocap.__version__]
+
+
+def test_all_lists_exactly_the_lazy_exports():
+    assert set(depthmocap.__all__) == {*depthmocap._EXPORTS, "__version__"}
