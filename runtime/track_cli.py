@@ -333,7 +333,9 @@ def _run(args, stream, estimator, writer, view, seg_cfg, device) -> int:
                 code, note = 2, f"error: {err}"
             finally:
                 progress.close()
-                writer.extra.update({"dropped_frames": stats.dropped, "stopped": note})
+                writer.extra.update(
+                    {"dropped_frames": stats.dropped, "stopped": note, **stats.timing()}
+                )
     except bad_input as err:  # finishing the files failed (disk full, ...)
         code, note = 2, f"error: {err}"
     if code == 2:  # bad input: that one line, and where the frames before it are

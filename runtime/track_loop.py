@@ -13,10 +13,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
+import numpy as np
+
 from .estimator import PoseEstimator, estimate_frame
 from .frame import Frame
 from .segmentation import SegmentationConfig, segment_person
 from .streams import DepthStream
+from .streams.latest_frame import LatestFrameReader, timed_frames
 
 __all__ = ["Progress", "TrackStats", "track"]
 
@@ -28,9 +31,14 @@ class TrackStats:
     Attributes:
         frames: frames written.
         status_counts: written frames per status.
-        dropped: frames skipped by real-time pacing.
+        dropped: frames skipped because a newer one arrived while the estimator was busy
+            (live cameras and ``--realtime``; a file read as fast as possible skips none).
         last_index: index of the last written frame (None if none).
         wall_s: seconds spent.
+        latency_ms: per written frame, milliseconds from its arrival (read from the source)
+            to its pose being written.
+        frame_ms: per written frame, milliseconds of its own processing (mask, estimate,
+            outputs), without the time it waited.
     """
 
     frames: int = 0
@@ -40,10 +48,29 @@ class TrackStats:
     dropped: int = 0
     last_index: int | None = None
     wall_s: float = 0.0
+    latency_ms: list[float] = field(default_factory=list)
+    frame_ms: list[float] = field(default_factory=list)
 
     @property
     def fps(self) -> float:
         return self.frames / self.wall_s if self.wall_s > 0 else 0.0
+
+    def timing(self) -> dict[str, dict[str, float] | None]:
+        """``latency_ms`` and ``frame_time_ms``: mean, median, 95th percentile and maximum
+        over the written frames (None before the first), for ``summary.json``."""
+        return {"latency_ms": _spread(self.latency_ms), "frame_time_ms": _spread(self.frame_ms)}
+
+
+def _spread(values: list[float]) -> dict[str, float] | None:
+    if not values:
+        return None
+    v = np.asarray(values)
+    return {
+        "mean": round(float(v.mean()), 2),
+        "p50": round(float(np.percentile(v, 50)), 2),
+        "p95": round(float(np.percentile(v, 95)), 2),
+        "max": round(float(v.max()), 2),
+    }
 
 
 class Progress:
@@ -113,7 +140,10 @@ def track(
     Args:
         writer: a ResultWriter (``write_frame(index, time, status, joints, q, errors,
             observed=...)``).
-        realtime: pace a file source to its frame rate and drop frames when behind.
+        realtime: pace a file source to its frame rate, as a camera delivers it. A live
+            camera, and a paced file, are read on their own thread and the newest frame wins
+            (:class:`~runtime.streams.latest_frame.LatestFrameReader`); frames it replaced
+            are counted in ``stats.dropped``.
         stop: set it to end the loop after the frame in flight (Ctrl-C handler).
         stats: filled in place (so a caller sees the counts even if the loop raises).
     Raises:
@@ -123,20 +153,13 @@ def track(
     stats = stats if stats is not None else TrackStats()
     seg_cfg = seg_cfg or SegmentationConfig()
     t_begin = time.perf_counter()
-    t_stream0: float | None = None
-    t_wall0 = t_begin
-    frame_dt = 1.0 / stream.fps
+    reader = (
+        LatestFrameReader(stream, pace=not stream.is_live) if (realtime or stream.is_live) else None
+    )
+    frames = iter(reader) if reader is not None else timed_frames(stream)
     try:
-        for frame in stream:
-            if realtime and not stream.is_live:
-                if t_stream0 is None:  # the clocks start at the first frame: never dropped
-                    t_stream0, t_wall0 = frame.time, time.perf_counter()
-                lag = time.perf_counter() - t_wall0 - (frame.time - t_stream0)
-                if lag < 0:
-                    time.sleep(-lag)
-                elif lag > 1.5 * frame_dt:  # a live camera would have dropped this frame
-                    stats.dropped += 1
-                    continue
+        for frame, arrival in frames:
+            t_frame = time.perf_counter()
             prepared = Frame.from_depth(
                 frame, device=device, segment=lambda d, intr: segment_person(d, intr, seg_cfg)
             )
@@ -145,6 +168,9 @@ def track(
                 frame.index, frame.time, est.status, est.joints, est.q, est.errors,
                 observed=est.observed,
             )  # fmt: skip
+            t_written = time.perf_counter()
+            stats.latency_ms.append((t_written - arrival) * 1e3)
+            stats.frame_ms.append((t_written - t_frame) * 1e3)
             stats.frames += 1
             stats.status_counts[est.status] = stats.status_counts.get(est.status, 0) + 1
             stats.last_index = frame.index
@@ -165,6 +191,11 @@ def track(
                 progress.update(stats, frame.index)
             if stop is not None and stop.is_set():
                 break
+            if reader is not None:
+                stats.dropped = reader.skipped
     finally:
+        if reader is not None:
+            reader.close()
+            stats.dropped = reader.skipped
         stats.wall_s = time.perf_counter() - t_begin
     return stats

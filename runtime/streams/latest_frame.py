@@ -1,0 +1,101 @@
+"""Reading a depth stream apart from estimation: the camera is never blocked, the newest frame
+wins.
+
+A live camera delivers 30 frames/s whether or not the estimator keeps up. Reading on the
+estimator's thread would let the driver's queue fill and the poses fall further and further
+behind the person. :class:`LatestFrameReader` reads on its own thread into a one-frame
+mailbox; a frame the estimator has not taken when the next one arrives is replaced and counted
+as skipped, so the estimator always works on the newest frame and latency stays bounded.
+
+A file source can be paced to its frame rate (``runtime-track --realtime``): the reader thread
+then plays it back like a camera would deliver it.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+
+from .base import DepthFrame, DepthStream
+
+__all__ = ["LatestFrameReader", "timed_frames"]
+
+
+def timed_frames(stream: DepthStream) -> Iterator[tuple[DepthFrame, float]]:
+    """Every frame of ``stream`` in order, with the ``time.perf_counter()`` it was read at."""
+    for frame in stream:
+        yield frame, time.perf_counter()
+
+
+class LatestFrameReader:
+    """Reads ``stream`` on a daemon thread; iterating yields ``(frame, arrival)`` pairs, each
+    the newest frame read since the previous pair (``arrival``: its ``time.perf_counter()``).
+
+    Args:
+        stream: the source; its iteration runs on the reader thread.
+        pace: deliver a file source at its frame rate, as a camera would (its first frame at
+            once, frame ``k`` at ``time_k - time_0`` seconds after it).
+    Attributes:
+        skipped: frames replaced by a newer one before the consumer took them.
+    Errors the stream raises on the reader thread (a disconnected camera, a corrupt file) are
+    raised by the consumer's iteration after the frames read before them.
+    """
+
+    def __init__(self, stream: DepthStream, pace: bool = False) -> None:
+        self.stream, self.pace = stream, pace
+        self.skipped = 0
+        self._slot: tuple[DepthFrame, float] | None = None
+        self._ended = False
+        self._error: BaseException | None = None
+        self._stop = threading.Event()
+        self._cond = threading.Condition()
+        self._thread: threading.Thread | None = None
+
+    def _read(self) -> None:
+        start: tuple[float, float] | None = None
+        try:
+            for frame in self.stream:
+                if self._stop.is_set():
+                    break
+                if self.pace:
+                    if start is None:
+                        start = (frame.time, time.perf_counter())
+                    due = start[1] + (frame.time - start[0]) - time.perf_counter()
+                    if due > 0 and self._stop.wait(due):
+                        break
+                with self._cond:
+                    if self._slot is not None:
+                        self.skipped += 1
+                    self._slot = (frame, time.perf_counter())
+                    self._cond.notify()
+        except BaseException as err:  # handed to the consumer, which reports it
+            self._error = err
+        finally:
+            with self._cond:
+                self._ended = True
+                self._cond.notify()
+
+    def __iter__(self) -> Iterator[tuple[DepthFrame, float]]:
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._read, name="depth-reader", daemon=True)
+            self._thread.start()
+        while True:
+            with self._cond:
+                # A timeout, so that a signal handler on this thread gets to run promptly.
+                while self._slot is None and not self._ended:
+                    self._cond.wait(0.1)
+                item, self._slot = self._slot, None
+                ended, error = self._ended, self._error
+            if item is not None:
+                yield item
+            elif ended:
+                if error is not None:
+                    raise error
+                return
+
+    def close(self, timeout_s: float = 2.0) -> None:
+        """Stop reading (after the frame being read) and wait for the reader thread."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)

@@ -1,0 +1,91 @@
+"""LatestFrameReader: reading apart from estimation, the newest frame wins, errors reach the
+consumer, paced playback never delivers a frame early."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+from depthmocap.runtime.streams import DepthFrame, DepthStream, SensorDisconnected
+from depthmocap.runtime.streams.latest_frame import LatestFrameReader, timed_frames
+from depthmocap.shared.camera import Intrinsics
+
+INTR = Intrinsics.kinect_v1(160)
+
+
+class CountingStream(DepthStream):
+    """``n`` blank frames at ``fps``; optionally a pause before each frame (a camera's rate)
+    and an error after the last."""
+
+    def __init__(self, n: int, fps: float = 30.0, period_s: float = 0.0, fail=None):
+        self.n, self._fps, self.period_s, self.fail = n, fps, period_s, fail
+        self.source = "test:counting"
+        self.reader_threads: set[str] = set()
+
+    @property
+    def intrinsics(self):
+        return INTR
+
+    @property
+    def fps(self):
+        return self._fps
+
+    @property
+    def frame_count(self):
+        return self.n
+
+    def __iter__(self):
+        for i in range(self.n):
+            self.reader_threads.add(threading.current_thread().name)
+            time.sleep(self.period_s)
+            yield DepthFrame(i, i / self._fps, np.zeros((INTR.height, INTR.width), np.uint16), INTR)
+        if self.fail is not None:
+            raise self.fail
+
+
+def test_a_slow_consumer_gets_the_newest_frames_and_the_last():
+    stream = CountingStream(40, period_s=0.002)
+    reader = LatestFrameReader(stream)
+    got = []
+    for frame, arrival in reader:
+        got.append(frame.index)
+        assert arrival <= time.perf_counter()
+        time.sleep(0.01)  # five frames arrive while one is processed
+    assert got == sorted(set(got)) and got[-1] == 39
+    assert reader.skipped == 40 - len(got) and reader.skipped > 0
+    assert stream.reader_threads == {"depth-reader"}  # the stream never runs on the consumer
+
+
+def test_a_fast_consumer_skips_nothing_when_paced():
+    stream = CountingStream(12, fps=200.0)
+    reader = LatestFrameReader(stream, pace=True)
+    got = [(f.index, f.time, arrival) for f, arrival in reader]
+    assert [i for i, _, _ in got] == list(range(12)) and reader.skipped == 0
+    # Pacing never delivers a frame before its time relative to the first.
+    t0, a0 = got[0][1], got[0][2]
+    assert all(a - a0 >= (t - t0) - 1e-3 for _, t, a in got)
+
+
+def test_stream_errors_reach_the_consumer_after_the_frames_before_them():
+    reader = LatestFrameReader(CountingStream(3, fail=SensorDisconnected("cable pulled")))
+    got = []
+    with pytest.raises(SensorDisconnected, match="cable pulled"):
+        for frame, _ in reader:
+            got.append(frame.index)
+    assert got[-1] == 2
+
+
+def test_close_stops_the_reader_thread():
+    reader = LatestFrameReader(CountingStream(10_000, period_s=0.001))
+    frames = iter(reader)
+    next(frames)
+    reader.close()
+    assert not reader._thread.is_alive()
+
+
+def test_timed_frames_are_every_frame_in_order():
+    got = [(f.index, a) for f, a in timed_frames(CountingStream(5))]
+    assert [i for i, _ in got] == list(range(5))
+    assert all(a1 <= a2 for (_, a1), (_, a2) in zip(got, got[1:]))
