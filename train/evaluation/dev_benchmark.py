@@ -72,6 +72,9 @@ METRICS = (
     "observed_flag_recall_pct",
     "observed_flag_precision_pct",
     "fps",
+    "frame_time_p50_ms",
+    "frame_time_p95_ms",
+    "latency_mean_ms",
 )
 
 
@@ -190,6 +193,27 @@ def format_row(name: str, agg: dict, mode: str | None = None) -> str:
         f"{f('precision_10cm', 1, 100)}% | {f('surface_error_q97_mm')} | "
         f"{tracking} | {f('detector_frames_pct')}% | "
         f"{f('system_failure_pct')}% | {f('fps')} |"
+    )
+
+
+def format_speed(name: str, per_recording: dict[str, dict]) -> str:
+    """One line of speed figures of configuration ``name`` over its recordings (issue 38's
+    measure): the median over recordings of the median frame rate (1000 / the median frame
+    time), the worst recording's 95th-percentile frame time and the frame-weighted mean
+    latency from a frame's arrival to its pose written."""
+    reports = list(per_recording.values())
+    p50 = [r["frame_time_p50_ms"] for r in reports if r.get("frame_time_p50_ms")]
+    p95 = [r["frame_time_p95_ms"] for r in reports if r.get("frame_time_p95_ms") is not None]
+    lat = [(r["latency_mean_ms"], r.get("frames") or 1) for r in reports
+           if r.get("latency_mean_ms") is not None]  # fmt: skip
+    if not p50 or not p95 or not lat:
+        return f"{name}: speed not recorded (results without frame times)"
+    latency = np.average([v for v, _ in lat], weights=[w for _, w in lat])
+    return (
+        f"{name}: median frame rate {np.median(1000.0 / np.asarray(p50)):.1f} frames/s "
+        f"(median over {len(p50)} recordings), 95th-percentile frame time "
+        f"{max(p95):.1f} ms (worst recording; median {np.median(p95):.1f}), "
+        f"mean latency {latency:.1f} ms"
     )
 
 
@@ -320,6 +344,10 @@ def main(argv: list[str] | None = None) -> int:
     for row, res in results.items():
         if "per_recording" in res:
             print("\n" + format_failures(row, res["per_recording"], res["mean"]))
+    print("\nspeed (runtime-track end to end, per-frame times from summary.json):")
+    for row, res in results.items():
+        if "per_recording" in res:
+            print("  " + format_speed(row, res["per_recording"]))
     kinds = {CONFIGS[n][1] for n in args.configs}
     for kind, (errors, text) in body_length_reports(Path(args.out) / "bodies", recs, kinds).items():
         results[f"{kind} bodies"] = {"bone_length_errors": errors}

@@ -175,6 +175,25 @@ def _match(result: TrackingResult, rec: Recording, gt: dict) -> tuple:
     return names, ignored
 
 
+def _timing(summary: dict) -> dict[str, float | None]:
+    """The run's per-frame time (median, 95th percentile) and mean latency in ms, from
+    ``summary.json``'s ``extra`` (None for results written before they were recorded)."""
+    extra = summary.get("extra") if isinstance(summary, dict) else None
+    extra = extra if isinstance(extra, dict) else {}
+    frame = extra.get("frame_time_ms") if isinstance(extra.get("frame_time_ms"), dict) else {}
+    latency = extra.get("latency_ms") if isinstance(extra.get("latency_ms"), dict) else {}
+
+    def number(d: dict, key: str) -> float | None:
+        v = d.get(key)
+        return _finite(float(v)) if isinstance(v, (int, float)) else None
+
+    return {
+        "frame_time_p50_ms": number(frame, "p50"),
+        "frame_time_p95_ms": number(frame, "p95"),
+        "latency_mean_ms": number(latency, "mean"),
+    }
+
+
 def evaluate(
     recording: str | Path, result_dir: str | Path, cfg: EvalConfig | None = None
 ) -> Evaluation:
@@ -282,6 +301,7 @@ def evaluate(
         "status_counts": {s: int((result.status == s).sum()) for s in STATUSES},
         "fps": _finite(result.summary.get("fps") or math.nan),
         "stream_fps": _finite(result.summary.get("stream_fps") or rec.fps),
+        **_timing(result.summary),
         "offset_frame": offset_frame,
         "joints": list(names),
         "joints_ignored": ignored,

@@ -120,3 +120,22 @@ def test_body_length_reports_compare_made_bodies_and_name_unreadable_ones(tmp_pa
     (recs[1] / "body.json").write_text("{broken")
     errors, text = body_length_reports(bodies, recs, {"calibrated"})["calibrated"]
     assert errors is None and "not compared" in text and "HDM_b" in text
+
+
+def test_speed_line_median_rate_worst_p95_and_weighted_latency():
+    from depthmocap.train.evaluation.dev_benchmark import format_speed
+
+    per_rec = {
+        "a": {"frame_time_p50_ms": 20.0, "frame_time_p95_ms": 40.0, "latency_mean_ms": 30.0,
+              "frames": 100},
+        "b": {"frame_time_p50_ms": 50.0, "frame_time_p95_ms": 90.0, "latency_mean_ms": 60.0,
+              "frames": 300},
+        "c": {"frame_time_p50_ms": 25.0, "frame_time_p95_ms": 45.0, "latency_mean_ms": 30.0,
+              "frames": 100},
+    }  # fmt: skip
+    line = format_speed("hybrid", per_rec)
+    # Median of 50, 20 and 40 frames/s; the worst p95; latency (30*100+60*300+30*100)/500.
+    assert "median frame rate 40.0 frames/s" in line
+    assert "95th-percentile frame time 90.0 ms" in line and "median 45.0" in line
+    assert "mean latency 48.0 ms" in line
+    assert "not recorded" in format_speed("old", {"a": {"frame_time_p50_ms": None}})
