@@ -75,7 +75,21 @@ def main(argv: list[str] | None = None) -> None:
         help="also time the tracker on each recording with ground truth in this folder "
         "(make dev-recordings: anny bodies and sensor noise)",
     )
+    parser.add_argument(
+        "--hybrid-source",
+        default="demo",
+        help="source of the whole-hybrid timing (any runtime-track --input; default: the "
+        "built-in demo, so it needs no data)",
+    )
+    parser.add_argument(
+        "--hybrid-frames",
+        type=int,
+        default=120,
+        help="frames of the whole-hybrid timing (0: skip it)",
+    )
     args = parser.parse_args(argv)
+    if args.hybrid_frames < 0:
+        parser.error(f"--hybrid-frames must be >= 0, got {args.hybrid_frames}")
     if args.recordings is not None and not args.recordings.is_dir():
         parser.error(f"--recordings {args.recordings}: no such folder")
     torch.set_num_threads(args.threads)
@@ -90,6 +104,14 @@ def main(argv: list[str] | None = None) -> None:
             _print_segmentation()
             _print_forest(args.threads)
         _print_tracker(dev, name)
+        if args.hybrid_frames:
+            from .hybrid import hybrid_rows
+
+            print(
+                f"\n== the whole hybrid on {name} (shipped preset, default body), "
+                f"{args.hybrid_source}: per frame, as runtime-track runs it without its files =="
+            )
+            _print_rows(hybrid_rows(args.hybrid_source, dev, args.hybrid_frames))
         if args.recordings is not None:
             from .tracker import recording_rows
 
