@@ -1,6 +1,5 @@
 """``python -m depthmocap.train.bodies.template_body``: the calibration template, the average body
-of the
-training population measured on its meshes like every ground-truth body.
+of the training population measured on its meshes like every ground-truth body.
 
 Skeleton calibration (``runtime-calibrate``, Wei section 6) scales a template's proportions
 by what it measures. The built-in average adult (``BodyShape.default``) has rounded

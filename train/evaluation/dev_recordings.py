@@ -1,7 +1,6 @@
-"""``python -m depthmocap.train.evaluation.dev_recordings``: render the dev evaluation recordings
-(one per
-motion class of the HDM05 dev actor) with ``train-synth --sequence``; skips recordings already
-there.
+"""``python -m depthmocap.train.evaluation.dev_recordings``: render the dev evaluation
+recordings (one per motion class of the HDM05 dev actor) with ``train-synth --sequence``; skips
+recordings already there.
 
 Each recording: one clip, its first ``--frames`` frames at 30 fps, a random anny body (seeded
 by the clip's position in the list), a frontal camera, floor/background and Kinect noise. The

@@ -1,6 +1,5 @@
 """depthmocap.train.synth.calibration_views (the two calibration views with ground truth) and the
-helpers of
-train.evaluation.personalization. Rendering needs anny and EGL and skips without them."""
+helpers of train.evaluation.personalization. Rendering needs anny and EGL and skips without them."""
 
 from __future__ import annotations
 
