@@ -1,6 +1,6 @@
 """``python -m depthmocap.train.synth.contact_sheet``: a PNG grid of depth + label frames of a
-training set or a recording, for looking at the data (are bodies human, do labels line up, is the noise
-right)."""
+training set or a recording, for looking at the data (are bodies human, do labels line up, is the
+noise right)."""
 
 from __future__ import annotations
 
