@@ -24,7 +24,14 @@ from depthmocap.shared.body import BodyShape
 from depthmocap.shared.camera import Intrinsics
 
 from .estimator import PoseEstimate, PoseEstimator, estimate_frame, make_estimator
-from .estimator_setup import TrackError, check_model, load_body, load_mode_config, pick_device
+from .estimator_setup import (
+    TrackError,
+    check_model,
+    load_body,
+    load_mode_config,
+    pick_device,
+    settings_for_body,
+)
 from .forest.inference import DEFAULT_MODEL
 from .frame import Frame
 from .segmentation import SegmentationConfig, segment_person
@@ -67,7 +74,9 @@ class Tracker:
         self.model = Path(model) if model is not None else DEFAULT_MODEL
         self.mode = mode
         check_model(self.model, mode)
-        self.settings = load_mode_config(_path(config), preset, mode)
+        self.settings = settings_for_body(
+            load_mode_config(_path(config), preset, mode), mode, body is not None
+        )
         self.segmentation = segmentation or SegmentationConfig()
         self._estimator: PoseEstimator | None = None
         self._intrinsics: Intrinsics | None = None

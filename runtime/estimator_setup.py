@@ -16,7 +16,14 @@ from depthmocap.shared.config import ConfigError, load_settings, merged_settings
 from .estimator import MODES_NEEDING_MODEL
 from .presets import DEFAULT_PRESET, preset_settings
 
-__all__ = ["TrackError", "pick_device", "load_body", "check_model", "load_mode_config"]
+__all__ = [
+    "TrackError",
+    "pick_device",
+    "load_body",
+    "check_model",
+    "load_mode_config",
+    "settings_for_body",
+]
 
 
 class TrackError(ValueError):
@@ -77,3 +84,11 @@ def load_mode_config(
         return merged_settings(base, overlay)
     except ConfigError as err:
         raise TrackError(str(err)) from None
+
+
+def settings_for_body(settings: dict, mode: str, body_given: bool) -> dict:
+    """The hybrid's settings for a run with or without a body file: with one, the person's
+    size is known and is not estimated (``body_scale`` off)."""
+    if mode != "hybrid" or not body_given:
+        return settings
+    return merged_settings(settings, {"body_scale": None})

@@ -41,7 +41,14 @@ from .cli_common import (
     report_error,
 )
 from .estimator import MODES, MODES_NEEDING_MODEL, make_estimator
-from .estimator_setup import TrackError, check_model, load_body, load_mode_config, pick_device
+from .estimator_setup import (
+    TrackError,
+    check_model,
+    load_body,
+    load_mode_config,
+    pick_device,
+    settings_for_body,
+)
 from .export.live import add_live_args, live_output_from_args
 from .forest.inference import DEFAULT_MODEL
 from .presets import DEFAULT_PRESET, PRESETS
@@ -257,6 +264,7 @@ def _set_up(args: argparse.Namespace):
             raise TrackError(str(err)) from None
         try:
             mode_cfg = load_mode_config(args.config, args.preset, args.mode)
+            mode_cfg = settings_for_body(mode_cfg, args.mode, args.body is not None)
             if args.mode == "tracker":
                 mode_cfg["initial_q"] = initial_pose(stream, args.start)
             estimator = make_estimator(
@@ -334,7 +342,12 @@ def _run(args, stream, estimator, writer, view, seg_cfg, device) -> int:
             finally:
                 progress.close()
                 writer.extra.update(
-                    {"dropped_frames": stats.dropped, "stopped": note, **stats.timing()}
+                    {
+                        "dropped_frames": stats.dropped,
+                        "stopped": note,
+                        "body_scale": getattr(estimator, "body_scale", None),
+                        **stats.timing(),
+                    }
                 )
     except bad_input as err:  # finishing the files failed (disk full, ...)
         code, note = 2, f"error: {err}"

@@ -157,6 +157,7 @@ def track(
         LatestFrameReader(stream, pace=not stream.is_live) if (realtime or stream.is_live) else None
     )
     frames = iter(reader) if reader is not None else timed_frames(stream)
+    body = getattr(estimator, "body", None)
     try:
         for frame, arrival in frames:
             t_frame = time.perf_counter()
@@ -164,6 +165,9 @@ def track(
                 frame, device=device, segment=lambda d, intr: segment_person(d, intr, seg_cfg)
             )
             est = estimate_frame(estimator, prepared)
+            if getattr(estimator, "body", None) is not body:  # e.g. the person's size found
+                body = estimator.body
+                writer.update_body(body)
             writer.write_frame(
                 frame.index, frame.time, est.status, est.joints, est.q, est.errors,
                 observed=est.observed,

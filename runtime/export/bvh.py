@@ -280,24 +280,65 @@ class BvhWriter:
         self.body = body.to(torch.float64)
         self.units = units
         self.fsync = fsync
+        self.fps = float(fps)
         self.frames = 0
         self._last: np.ndarray | None = None
-        head = bvh_hierarchy(self.body, units) + "MOTION\n"
-        self._count_pos = len(head.encode("ascii")) + len("Frames: ")
-        head += f"Frames: {0:<{_FRAMES_WIDTH}d}\nFrame Time: {1.0 / fps:.8f}\n"
+        # Every frame's pose, so a new body can rewrite the file (set_body): 272 bytes a
+        # frame, 29 MB for an hour at 30 frames/s.
+        self._poses: list[np.ndarray] = []
+        self._last_q: np.ndarray | None = None
         self._file = open(self.path, "w+b")  # noqa: SIM115 (lives until close)
+        self._write_head()
+
+    def _write_head(self) -> None:
+        head = bvh_hierarchy(self.body, self.units) + "MOTION\n"
+        self._count_pos = len(head.encode("ascii")) + len("Frames: ")
+        head += f"Frames: {self.frames:<{_FRAMES_WIDTH}d}\nFrame Time: {1.0 / self.fps:.8f}\n"
         self._file.write(head.encode("ascii"))
         self._end = self._file.tell()
         self._sync()
+
+    def set_body(self, body: BodyShape, path: str | Path | None = None) -> None:
+        """Use ``body`` from now on and rewrite the frames written so far with it (the
+        offsets and the root's values depend on the body): the file then reads as if the
+        body had been known from the first frame. Written to a new file and renamed over
+        the old one, so a reader sees one or the other, never a mix; on an error the old
+        file and state stay. ``path``: where the file is now, if it was moved."""
+        if self._file is None:
+            raise ValueError(f"{self.path}: writer is closed")
+        _check_body(body)
+        path = self.path if path is None else Path(path)
+        tmp = path.with_name(path.name + ".tmp")
+        new = open(tmp, "w+b")  # noqa: SIM115 (lives until close); raises with nothing changed
+        saved = (self._file, self.body, self.frames, self._end, self._count_pos, self._last)
+        try:
+            self._file, self.body, self.frames = new, body.to(torch.float64), 0
+            self._write_head()
+            if self._poses:
+                rows = bvh_frame_values(np.stack(self._poses), self.body, self.units)
+                self._append(rows, None)
+                self._last = rows[-1:]
+            os.replace(tmp, path)
+        except BaseException:
+            new.close()
+            tmp.unlink(missing_ok=True)
+            self._file, self.body, self.frames, self._end, self._count_pos, self._last = saved
+            raise
+        saved[0].close()
+        self.path = path
 
     def _sync(self) -> None:
         self._file.flush()
         if self.fsync:
             os.fsync(self._file.fileno())
 
-    def _append(self, values: np.ndarray) -> None:
+    def _append(self, values: np.ndarray, poses: list[np.ndarray] | None) -> None:
+        """Write ``values`` (F, C) rows; ``poses``: the F poses they came from, kept for
+        :meth:`set_body` (None when rewriting the kept ones)."""
         if self._file is None:
             raise ValueError(f"{self.path}: writer is closed")
+        if poses is not None:
+            self._poses.extend(poses)
         data = _format_rows(values)
         # Line first, then the count: an interrupt in between leaves one extra line that
         # close() cuts off; a reader never sees a count larger than the lines present.
@@ -323,20 +364,22 @@ class BvhWriter:
             return
         if q is None:
             if self._last is None:
-                rest = rest_pose(1, dtype=torch.float64).numpy()
-                self._last = bvh_frame_values(rest, self.body, self.units)
+                self._last_q = rest_pose(1, dtype=torch.float64).numpy()[0]
+                self._last = bvh_frame_values(self._last_q[None], self.body, self.units)
             values = self._last
         else:
-            values = bvh_frame_values(np.asarray(q, dtype=np.float64)[None], self.body, self.units)
+            self._last_q = np.asarray(q, dtype=np.float64)
+            values = bvh_frame_values(self._last_q[None], self.body, self.units)
             self._last = values
-        self._append(np.repeat(values, repeat, 0))
+        self._append(np.repeat(values, repeat, 0), [self._last_q] * repeat)
 
     def write_poses(self, q: np.ndarray) -> None:
         """Append poses ``q`` (F, 34) in one batch."""
         values = bvh_frame_values(q, self.body, self.units)
         if len(values):
             self._last = values[-1:]
-            self._append(values)
+            self._last_q = np.asarray(q[-1], dtype=np.float64)
+            self._append(values, list(np.asarray(q, dtype=np.float64)))
 
     def close(self) -> None:
         """Drop any half-written tail, make ``Frames:`` match the lines, close. Idempotent."""

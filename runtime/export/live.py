@@ -167,6 +167,11 @@ class LiveOutput:
     def frames(self) -> int:
         return self.writer.frames
 
+    def update_body(self, body: BodyShape) -> None:
+        """As :meth:`ResultWriter.update_body`; the VMC bones follow the new body too."""
+        self.body = body
+        self.writer.update_body(body)
+
     def _report(self) -> None:
         extra = self.writer.extra
         extra["stream_sent"] = {t.name: t.sent for t in self.targets}

@@ -208,6 +208,15 @@ class ResultWriter:
         """Frames written so far."""
         return self._poses.frames
 
+    def update_body(self, body: BodyShape) -> None:
+        """The estimator found a better body (e.g. the person's size, estimated while
+        tracking): ``body.json`` and ``motion.bvh``, its frames so far included, use it."""
+        try:
+            self._bvh.set_body(body, self._dir / RESULT_FILES["bvh"])
+            body.save(self._dir / RESULT_FILES["body"])
+        except OSError as err:
+            raise ResultDirError(f"{self.out_dir}: cannot write ({err})") from None
+
     def write_frame(
         self,
         index: int,

@@ -18,8 +18,11 @@ from depthmocap.runtime.tracker.config import TrackerConfig
 from depthmocap.runtime.tracker.signals import FitSignals
 from depthmocap.shared.config import ConfigError, field_doc
 
+from .body_scale import BodyScaleConfig
+
 __all__ = [
     "ArmSearchConfig",
+    "BodyScaleConfig",
     "FailureThresholds",
     "HybridConfig",
     "HybridError",
@@ -203,6 +206,11 @@ class HybridConfig:
     arm_search: ArmSearchConfig | None = field_doc(
         help="refit a hidden or misplaced arm on suspect frames (None: off, as in Wei)",
         default_factory=_shipped_arm_search,
+    )
+    body_scale: BodyScaleConfig | None = field_doc(
+        None,
+        "estimate the person's size from the first tracked frames when no body file is given "
+        "(None: off; runtime-track and depthmocap.Tracker switch it off when given a body)",
     )
     labels_from_recording: str | None = field_doc(
         None,

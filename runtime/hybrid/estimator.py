@@ -32,6 +32,7 @@ from depthmocap.shared.kinematics import forward_kinematics, named_joint_positio
 from depthmocap.shared.so3 import rotvec_to_matrix
 
 from .arm_search import ArmSearch
+from .body_scale import BodyScaleSearch
 from .config import HybridConfig
 from .policy import Detection, choose, judge_track
 
@@ -78,6 +79,21 @@ class HybridEstimator:
             None if cfg.arm_search is None else ArmSearch(cfg.arm_search, tracker.body)
         )
         self.state = TrackState()
+        self.scale_search = (
+            None if cfg.body_scale is None else BodyScaleSearch(cfg.body_scale, tracker.body)
+        )
+        self._candidate: tuple | None = None  # (body, tracker) of the size search
+
+    @property
+    def body(self):
+        """The body in use: the given one, or the default scaled to the person once
+        :attr:`body_scale` is known."""
+        return self.tracker.body
+
+    @property
+    def body_scale(self) -> float | None:
+        """The factor found on the default body (None: not searched, or not yet)."""
+        return None if self.scale_search is None else self.scale_search.scale
 
     def reset(self) -> None:
         """Forget the track: the next frame goes to the detector, which then behaves as a new
@@ -113,12 +129,38 @@ class HybridEstimator:
 
     # ---- estimates, each updating the track ----
 
-    def _tracked(self, res: TrackResult, errors: dict) -> PoseEstimate:
+    def _tracked(self, res: TrackResult, errors: dict, frame: Frame) -> PoseEstimate:
         q = res.q.detach()
         self.state.q_prev, self.state.q_prev2 = q, self.state.q_prev
-        return PoseEstimate(
+        estimate = PoseEstimate(
             q.cpu().double().numpy(), self._joints(q), "tracked", errors, observed=observed_of(res)
         )
+        if self.scale_search is not None:
+            self.scale_search.offer(frame, q)
+            if self.scale_search.ready:
+                self._use_body(self.body.scaled(self.scale_search.search(self._refit_overlap)))
+        return estimate
+
+    def _refit_overlap(self, body, frame: Frame, q: torch.Tensor) -> float:
+        """Silhouette overlap of ``frame`` refitted from ``q`` with ``body`` (a candidate of
+        the size search; one tracker per candidate body, its observations cached)."""
+        if self._candidate is None or self._candidate[0] is not body:
+            t = self.tracker
+            self._candidate = (body, Tracker(body, t.intr, t.cfg, device=t.device, dtype=t.dtype))
+        tracker, k = self._candidate[1], self.cfg.body_scale.iterations
+        obs = frame.observation(tracker, self._tracker_labels(frame))
+        return float(tracker.fit(obs, q, None, k).overlap)
+
+    def _use_body(self, body) -> None:
+        """Track and detect with ``body`` from now on; the track goes on from its pose."""
+        t, d = self.tracker, self.detector
+        self._candidate = None
+        self.tracker = Tracker(body, t.intr, t.cfg, device=t.device, dtype=t.dtype)
+        detector = Detector(body, d.intr, d.cfg, device=d.device, dtype=d.dtype)
+        detector.generator.set_state(d.generator.get_state())
+        self.detector = detector
+        if self.arm_search is not None:
+            self.arm_search = ArmSearch(self.cfg.arm_search, body)
 
     def _detected(self, det: DetectionResult, errors: dict) -> PoseEstimate:
         errors["labelled_pixels"] = float(det.labelled_pixels)
@@ -165,7 +207,7 @@ class HybridEstimator:
         verdict = judge_track(res.signals, badness, state.passed, cfg.failure, cfg.keep_better)
         if not verdict.run_detector:
             state.turned_round = 0
-            return self._tracked(res, errors)
+            return self._tracked(res, errors, frame)
         state.passed = 0
         failed = {f"tracker_{k}": v for k, v in errors.items()}
         det = self._run_detector(frame)
@@ -182,5 +224,5 @@ class HybridEstimator:
         state.turned_round = decision.turned_round
         if decision.keep_track:
             kept = {"kept_over_detector": 1.0} if verdict.failed else {"rechecked": 1.0}
-            return self._tracked(res, {**errors, **kept})
+            return self._tracked(res, {**errors, **kept}, frame)
         return self._detected(det, failed)

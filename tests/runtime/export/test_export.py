@@ -294,3 +294,47 @@ def test_result_writer_gaps_order_and_directory_policy(tmp_path):
     (other / "notes.txt").write_text("mine")
     with pytest.raises(ResultDirError, match="not empty"):
         ResultWriter(other, body, 30.0, Intrinsics.kinect_v1(160), "tracker", "t")
+
+
+def test_bvh_set_body_rewrites_as_if_known_from_the_start(tmp_path):
+    """A body found while tracking (the person's size): the file, its past frames included,
+    equals one written with that body from the first frame, and writing goes on."""
+    from depthmocap.runtime.export.bvh import BvhWriter
+    from depthmocap.shared.kinematics import rest_pose
+
+    body, bigger = BodyShape.default(), BodyShape.default().scaled(1.1)
+    q = rest_pose(3, dtype=torch.float64).numpy()
+    q[1, 3:6] = [3.0, 0.2, 0.1]
+    moved = tmp_path / "moved"
+    moved.mkdir()
+    with BvhWriter(tmp_path / "a.bvh", body, 30.0) as w:
+        w.write_pose(q[0])
+        w.write_pose(None, 2)
+        w.write_poses(q[1:2])
+        (tmp_path / "a.bvh").rename(moved / "a.bvh")  # the staging folder moved into place
+        w.set_body(bigger, moved / "a.bvh")
+        w.write_pose(q[2])
+        w.write_pose(None)
+    with BvhWriter(tmp_path / "b.bvh", bigger, 30.0) as w:
+        w.write_pose(q[0])
+        w.write_pose(None, 2)
+        w.write_poses(q[1:2])
+        w.write_pose(q[2])
+        w.write_pose(None)
+    assert (moved / "a.bvh").read_bytes() == (tmp_path / "b.bvh").read_bytes()
+    assert not (moved / "a.bvh.tmp").exists()
+
+
+def test_bvh_set_body_failure_keeps_the_file(tmp_path):
+    from depthmocap.runtime.export.bvh import BvhWriter
+    from depthmocap.shared.kinematics import rest_pose
+
+    q = rest_pose(1, dtype=torch.float64).numpy()
+    with BvhWriter(tmp_path / "a.bvh", BodyShape.default(), 30.0) as w:
+        w.write_pose(q[0])
+        before = (tmp_path / "a.bvh").read_bytes()
+        with pytest.raises(OSError):
+            w.set_body(BodyShape.default().scaled(1.1), tmp_path / "gone" / "a.bvh")
+        assert (tmp_path / "a.bvh").read_bytes() == before
+        w.write_pose(q[0])  # still writing to the old file
+    assert (tmp_path / "a.bvh").read_text().count("\n") == before.decode().count("\n") + 1

@@ -1,0 +1,107 @@
+"""The person's size from the first tracked frames, when no body file is given.
+
+Without a body the tracker fits the default adult to everyone, and a person 10% smaller or
+larger costs more than the rest of the pipeline together (dev recordings: 58.7 mm with the
+default body, 47.9 mm with the default body scaled to the person's true stature, 34.7 mm with
+the true body; ``docs/experiments.md``). The size is found by analysis by synthesis, as the
+pose is: a few tracked frames are refitted with the default body scaled by each candidate
+factor, and the factor whose fits cover the person's silhouette best wins (the mean overlap
+``|R and O| / |R or O|``, peak refined by a parabola through the best grid point and its
+neighbours). The silhouette decides because it measures size directly; the depth residual
+favours small bodies, which hide inside the observed surface.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.config import ConfigError, field_doc
+
+__all__ = ["BodyScaleConfig", "BodyScaleSearch", "peak_of"]
+
+
+@dataclass
+class BodyScaleConfig:
+    """Estimating the person's size from the first tracked frames (runs only when no body
+    file is given: ``runtime-track`` and ``depthmocap.Tracker`` switch it off with one)."""
+
+    samples: int = field_doc(8, "tracked frames refitted at each candidate size")
+    every: int = field_doc(3, "take every k-th tracked frame, so the samples span a motion")
+    min_scale: float = field_doc(0.84, "smallest factor tried on the default body")
+    max_scale: float = field_doc(1.16, "largest factor tried on the default body")
+    step: float = field_doc(0.04, "spacing of the factors tried")
+    iterations: int = field_doc(5, "Gauss-Newton iterations of each refit")
+
+    def __post_init__(self) -> None:
+        ok = (
+            self.samples >= 1
+            and self.every >= 1
+            and self.iterations >= 1
+            and 0 < self.min_scale < self.max_scale
+            and 0 < self.step <= self.max_scale - self.min_scale
+        )
+        if not ok:
+            raise ConfigError(
+                "body_scale: need samples, every, iterations >= 1 and "
+                f"0 < min_scale < max_scale, 0 < step <= their difference, got {self}"
+            )
+
+    def scales(self) -> np.ndarray:
+        """(S,) the candidate factors, ``min_scale`` to ``max_scale`` in ``step``."""
+        n = int(math.floor((self.max_scale - self.min_scale) / self.step + 1e-9)) + 1
+        return self.min_scale + self.step * np.arange(n)
+
+
+def peak_of(scales: np.ndarray, score: np.ndarray) -> float:
+    """The factor where ``score`` (S,) peaks: the best grid point moved to the vertex of the
+    parabola through it and its two neighbours (at an end of the grid, that end)."""
+    k = int(np.argmax(score))
+    if k == 0 or k == len(scales) - 1:
+        return float(scales[k])
+    # argmax takes the first of equal values, so left < mid >= right: the curvature < 0.
+    left, mid, right = score[k - 1], score[k], score[k + 1]
+    shift = 0.5 * (left - right) / (left - 2 * mid + right)  # grid steps, within (-0.5, 0.5]
+    return float(scales[k] + shift * (scales[k + 1] - scales[k]))
+
+
+class BodyScaleSearch:
+    """Collects tracked frames of a stream, then finds the factor on the default body.
+
+    ``offer(frame, q)`` after each tracked frame; when :attr:`ready`, ``search(fit)`` with
+    ``fit(body, frame, q) -> overlap`` (the caller's tracker refit of one frame) returns the
+    factor. A search runs once per estimator.
+    """
+
+    def __init__(self, cfg: BodyScaleConfig, body: BodyShape) -> None:
+        self.cfg, self.body = cfg, body
+        self.kept: list[tuple[object, torch.Tensor]] = []
+        self._seen = 0
+        self.scale: float | None = None  # the result, once searched
+
+    @property
+    def ready(self) -> bool:
+        return self.scale is None and len(self.kept) >= self.cfg.samples
+
+    def offer(self, frame, q: torch.Tensor) -> None:
+        """A tracked frame and its pose; every ``cfg.every``-th is kept until there are
+        ``cfg.samples``."""
+        if self.scale is not None or len(self.kept) >= self.cfg.samples:
+            return
+        if self._seen % self.cfg.every == 0:
+            self.kept.append((frame, q.detach().clone()))
+        self._seen += 1
+
+    def search(self, fit: Callable[[BodyShape, object, torch.Tensor], float]) -> float:
+        """The factor whose refits overlap the silhouettes best; frees the kept frames."""
+        scales = self.cfg.scales()
+        score = np.array(
+            [np.mean([fit(self.body.scaled(float(s)), f, q) for f, q in self.kept]) for s in scales]
+        )
+        self.scale = peak_of(scales, score)
+        self.kept = []
+        return self.scale

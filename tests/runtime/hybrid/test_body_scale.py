@@ -1,0 +1,82 @@
+"""The person's size from tracked frames (runtime.hybrid.body_scale): the grid and its peak,
+the collection of frames, and the search on frames rendered from a scaled body."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from depthmocap.bench.scenes import camera_motion
+from depthmocap.runtime.frame import Frame
+from depthmocap.runtime.hybrid import HybridConfig, hybrid_config
+from depthmocap.runtime.hybrid.body_scale import BodyScaleConfig, BodyScaleSearch, peak_of
+from depthmocap.runtime.raycast import render_body
+from depthmocap.runtime.tracker import Tracker
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.config import ConfigError
+
+INTR = Intrinsics.kinect_v1(320)
+
+
+def test_the_grid():
+    np.testing.assert_allclose(BodyScaleConfig().scales(), np.arange(0.84, 1.1601, 0.04))
+    assert len(BodyScaleConfig(min_scale=0.9, max_scale=1.1, step=0.1).scales()) == 3
+    for bad in ({"samples": 0}, {"min_scale": 1.2}, {"step": 0.0}, {"step": 1.0}):
+        with pytest.raises(ConfigError):
+            BodyScaleConfig(**bad)
+
+
+def test_peak_of_a_parabola_is_its_vertex():
+    scales = BodyScaleConfig().scales()
+    for true in (0.9, 1.0, 1.03, 1.13):
+        assert peak_of(scales, -((scales - true) ** 2)) == pytest.approx(true, abs=1e-9)
+    assert peak_of(scales, scales) == pytest.approx(1.16)  # rising to the end: the end
+    assert peak_of(scales, -scales) == pytest.approx(0.84)
+    step = np.zeros_like(scales)
+    step[3:6] = 1.0  # the parabola through (0.92, 0), (0.96, 1), (1.0, 1) peaks at 0.98
+    assert peak_of(scales, step) == pytest.approx(0.98)
+
+
+def test_collects_every_kth_frame_then_searches_once():
+    body = BodyShape.default()
+    search = BodyScaleSearch(BodyScaleConfig(samples=3, every=2), body)
+    for i in range(10):
+        search.offer(f"frame{i}", torch.full((34,), float(i)))
+    assert [f for f, _ in search.kept] == ["frame0", "frame2", "frame4"] and search.ready
+    # A fit whose overlap peaks at the body 8% taller than the default.
+    stature = float(body.stature())
+
+    def fit(candidate, frame, q):
+        return -((float(candidate.stature()) / stature - 1.08) ** 2)
+
+    assert search.search(fit) == pytest.approx(1.08, abs=1e-6)
+    assert not search.ready and search.kept == []
+    search.offer("late", torch.zeros(34))
+    assert search.kept == []  # once found, no more frames are kept
+
+
+def test_off_by_default_and_on_by_config():
+    assert HybridConfig().body_scale is None
+    assert hybrid_config({"body_scale": {}}).body_scale == BodyScaleConfig()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("true_scale", [0.9, 1.1])
+def test_the_search_finds_the_size_of_a_rendered_person(one_thread, true_scale):
+    """Frames rendered from the default body scaled by ``true_scale``, tracked poses given;
+    the search with the tracker's refits recovers the factor."""
+    default = BodyShape.default()
+    person = default.scaled(true_scale)
+    truth = camera_motion("walk", 24, seed=0, body=person).float()
+    depth = render_body(truth, person, INTR).depth
+    search = BodyScaleSearch(BodyScaleConfig(samples=6, every=4), default)
+    for i in range(len(truth)):
+        search.offer(Frame(i, i / 30, depth[i], depth[i] > 0, INTR), truth[i])
+    trackers: dict = {}
+
+    def fit(body, frame, q):
+        tracker = trackers.setdefault(id(body), (body, Tracker(body, INTR)))[1]
+        return float(tracker.fit(frame.observation(tracker), q, None, 5).overlap)
+
+    assert search.search(fit) == pytest.approx(true_scale, abs=0.03)
