@@ -192,9 +192,6 @@ def test_demo_depth_has_the_kinect_sensor_model():
     """The demo's depth goes through shared.sensor_noise: readings on disparity steps, within the
     sensor's range, the floor below the person, missing readings where a clean render would have
     floor or body, and the same frames on every run."""
-    pytest.importorskip(
-        "depthmocap.runtime.streams.demo", reason="the demo stream is not written yet"
-    )
     from depthmocap.runtime.streams.demo import DemoStream
     from depthmocap.shared.sensor_noise import KinectNoiseConfig, quantize_depth
 
