@@ -20,8 +20,9 @@ Backends (``backend="auto"``, the default, is ``numba`` on the CPU when numba is
   where work is proportional to the pairs).
 - ``onnxruntime``: the ONNX graph stored in the artifact (``train-forest`` embeds it; see
   ``train/forest/onnx_export.py``) with the node and leaf tables fed as inputs; CPU execution.
-  Same arithmetic, same labels. Slower than both others (every pair takes all ``max_depth``
-  steps, and the tables are fed on every call); never chosen by ``auto``.
+  Same arithmetic, same labels. Several times slower than torch (the graph copies six slices
+  of every level's node rows and broadcasts over all pairs for all ``max_depth`` levels; more
+  threads do not help, ``docs/experiments.md``), so ``auto`` never picks it.
 
 Another camera: the artifact records the focal lengths it was trained for. Pass the runtime
 camera's ``intrinsics`` and offsets are scaled by ``(fx'/fx, fy'/fy)`` so that each probe keeps
