@@ -31,7 +31,7 @@ def _print_segmentation() -> None:
 
 
 def _print_forest(threads: int) -> None:
-    from .forest import benchmark_forest
+    from .forest import benchmark_forest, forest_rows
 
     fr = benchmark_forest(threads=threads)
     if not fr:
@@ -40,19 +40,7 @@ def _print_forest(threads: int) -> None:
         f"\n== forest inference (models/forest.npz: {fr['trees']:.0f} trees, depth "
         f"{fr['depth']:.0f}), {fr['pixels']:.0f} person pixels of a 320x240 frame =="
     )
-    for key, what in (
-        ("torch_cpu_ms", "torch CPU, every person pixel"),
-        ("torch_cpu_stride2_ms", "torch CPU, every 2nd pixel (detector)"),
-        ("onnxruntime_ms", "onnxruntime CPU, every person pixel"),
-    ):
-        if key in fr:
-            print(f"  {what:<45s} {fr[key]:9.3f} ms  target <= 10 ms")
-    if "torch_cpu_smoothed_ms" in fr:
-        ratio = fr["torch_cpu_smoothed_ms"] / fr["torch_cpu_ms"]
-        print(
-            f"  {'torch CPU, 5x5 smoothed (detector, hybrid)':<45s} "
-            f"{fr['torch_cpu_smoothed_ms']:9.3f} ms  {ratio:.2f} of the raw forest's"
-        )
+    _print_rows(forest_rows(fr))
 
 
 def _print_tracker(device: str, name: str) -> None:

@@ -3,7 +3,9 @@
 The frame is :func:`bench.scenes.person_frame` unless ``frame`` is given. The detector needs
 part centroids, not every pixel: ``stride=2`` (every 2nd row and column) is the intended
 setting on a 2-core CPU, so it is timed beside the full frame; onnxruntime is timed when the
-model carries its graph.
+model carries its graph. With numba installed, the compiled walk (backend ``numba``, what the
+runtime uses) is timed in turns with the torch walk, the reference it must equal, so that their
+ratio holds on a noisy host.
 """
 
 from __future__ import annotations
@@ -12,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from depthmocap.runtime.forest.inference import DEFAULT_MODEL, ForestClassifier
+from depthmocap.runtime.forest.inference import DEFAULT_MODEL, ForestClassifier, compiled_walk
 from depthmocap.shared.forest_format import load_forest
 
 from .scenes import person_frame
-from .timing import median_ms
+from .timing import alternating_median_ms, median_ms
 
 __all__ = ["DEFAULT_MODEL", "benchmark_forest"]
 
@@ -27,9 +29,11 @@ def benchmark_forest(
     repeats: int = 20,
     frame: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> dict[str, float]:
-    """Milliseconds per frame of the torch CPU backend (every pixel, every 2nd pixel, 5x5
-    smoothed) and of onnxruntime, plus the person pixel count and the forest's size; empty
-    dict when there is no model file."""
+    """Milliseconds per frame of the torch CPU backend and, with numba, of the numba backend
+    (``numba_*``, timed in turns with torch; every pixel, every 2nd pixel, 5x5 smoothed), of
+    onnxruntime, plus the person pixel count, the forest's size and ``numba_identical`` (1.0
+    when numba's labels and posteriors equal torch's bit for bit on the frame); empty dict when
+    there is no model file."""
     path = Path(model_path) if model_path is not None else DEFAULT_MODEL
     if not path.is_file():
         return {}
@@ -39,17 +43,26 @@ def benchmark_forest(
     torch.set_num_threads(threads)
     try:
         d, m = torch.from_numpy(depth), torch.from_numpy(mask)
-        clf = ForestClassifier(forest, "cpu")
         out = {
             "pixels": float(int((m & (d > 0)).sum())),
             "trees": float(forest.num_trees),
             "depth": float(forest.max_depth),
-            "torch_cpu_ms": median_ms(lambda: clf.labels(d, m), repeats),
-            "torch_cpu_stride2_ms": median_ms(lambda: clf.labels(d, m, stride=2), repeats),
         }
-        # The detector's and the hybrid's labels (DetectorConfig.label_smoothing_window).
-        smoothed = ForestClassifier(forest, "cpu", smooth_window=5)
-        out["torch_cpu_smoothed_ms"] = median_ms(lambda: smoothed.labels(d, m), repeats)
+        backends = ["torch"] + (["numba"] if compiled_walk() is not None else [])
+        fns = {}
+        for backend in backends:
+            clf = ForestClassifier(forest, "cpu", backend=backend)
+            # The detector's and the hybrid's labels (DetectorConfig.label_smoothing_window).
+            smoothed = ForestClassifier(forest, "cpu", backend=backend, smooth_window=5)
+            fns[f"{backend}_cpu_ms"] = lambda c=clf: c.labels(d, m)
+            fns[f"{backend}_cpu_stride2_ms"] = lambda c=clf: c.labels(d, m, stride=2)
+            fns[f"{backend}_cpu_smoothed_ms"] = lambda c=smoothed: c.labels(d, m)
+            if backend == "numba":
+                ref = ForestClassifier(forest, "cpu", backend="torch").pixel_posteriors(d, m)
+                new = clf.pixel_posteriors(d, m)
+                same = torch.equal(ref[0], new[0]) and torch.equal(ref[1], new[1])
+                out["numba_identical"] = float(same)
+        out.update(alternating_median_ms(fns, repeats))
         if forest.onnx_graph is not None:
             try:
                 ort_clf = ForestClassifier(forest, backend="onnxruntime", threads=threads)
@@ -62,15 +75,48 @@ def benchmark_forest(
         torch.set_num_threads(previous)
 
 
+def forest_rows(fr: dict[str, float]) -> list[tuple[str, float, str]]:
+    """(what, ms, note) rows of :func:`benchmark_forest`'s figures; numba's notes give its
+    ratio to the torch walk timed in the same run."""
+    rows = []
+    for kind, what in (
+        ("cpu", "every person pixel"),
+        ("cpu_stride2", "every 2nd pixel (detector)"),
+        ("cpu_smoothed", "5x5 smoothed (detector, hybrid)"),
+    ):
+        torch_ms = fr[f"torch_{kind}_ms"]
+        note = {"cpu": "target <= 10 ms", "cpu_stride2": ""}.get(kind)
+        if note is None:
+            note = f"{torch_ms / fr['torch_cpu_ms']:.2f} of the raw forest's"
+        rows.append((f"torch CPU, {what}", torch_ms, note))
+        if f"numba_{kind}_ms" in fr:
+            ms = fr[f"numba_{kind}_ms"]
+            note = f"{ms / torch_ms:.2f} of torch's ({torch_ms / ms:.1f}x faster)"
+            if kind == "cpu":
+                same = "identical" if fr.get("numba_identical") == 1.0 else "DIFFERENT"
+                note += f", output {same}; target <= 10 ms"
+            rows.append((f"numba CPU, {what}", ms, note))
+    if "onnxruntime_ms" in fr:
+        rows.append(("onnxruntime CPU, every person pixel", fr["onnxruntime_ms"], ""))
+    return rows
+
+
 if __name__ == "__main__":
     import argparse
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", help="forest.npz (default: models/forest.npz)")
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--repeats", type=int, default=20)
     args = parser.parse_args()
-    result = benchmark_forest(args.model, args.threads)
+    result = benchmark_forest(args.model, args.threads, args.repeats)
     if not result:
         print("no forest model found")
-    for key, value in result.items():
-        print(f"  {key:<24s} {value:9.2f}")
+    else:
+        print(
+            f"{result['pixels']:.0f} person pixels, {result['trees']:.0f} trees of depth "
+            f"{result['depth']:.0f}, torch {torch.__version__} on {args.threads} threads, "
+            f"medians of {args.repeats} (torch and numba in turns)"
+        )
+        for what, ms, note in forest_rows(result):
+            print(f"  {what:<42s} {ms:9.3f} ms  {note}")

@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 import torch
 
-__all__ = ["synchronize", "wall_ms", "median_ms"]
+__all__ = ["synchronize", "wall_ms", "median_ms", "alternating_median_ms"]
 
 
 def synchronize(device: str | torch.device = "cpu") -> None:
@@ -46,3 +46,21 @@ def median_ms(
     for _ in range(warmup):
         fn()
     return statistics.median(wall_ms(fn, device) for _ in range(repeats))
+
+
+def alternating_median_ms(
+    fns: dict[str, Callable[[], object]],
+    repeats: int = 20,
+    warmup: int = 3,
+    device: str | torch.device = "cpu",
+) -> dict[str, float]:
+    """:func:`median_ms` of several functions timed in turn, one call of each per round, so that
+    a slow spell of a noisy host falls on all of them alike: the figures to take ratios of."""
+    for _ in range(warmup):
+        for fn in fns.values():
+            fn()
+    times: dict[str, list[float]] = {name: [] for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            times[name].append(wall_ms(fn, device))
+    return {name: statistics.median(t) for name, t in times.items()}

@@ -6,8 +6,13 @@ image reads the forest's background constant (10 m), as in training. Posteriors 
 over trees of the leaf class distributions; ``labels`` is their arg-max (0 = background outside
 the mask).
 
-Backends:
+Backends (``backend="auto"``, the default, is ``numba`` on the CPU when numba is installed and
+``torch`` otherwise):
 
+- ``numba`` (CPU): :mod:`shared.forest_kernel`, a compiled loop in which each pixel walks down
+  each tree and stops at its leaf; the same leaves and posteriors as ``torch`` bit for bit, and
+  faster: on one thread than torch on two. numba is optional (the ``runtime`` extra). Pixels
+  are listed and results scattered with numpy, not torch (see ``_prepare``).
 - ``torch`` (CPU or CUDA, follows ``device``): all (pixel, tree) pairs descend together, one
   level per step, with one row gather from the node table (:func:`shared.forest_format.
   traversal_table`) and one depth gather per step. Leaves point to themselves, so there is no
@@ -15,7 +20,9 @@ Backends:
   where work is proportional to the pairs).
 - ``onnxruntime``: the ONNX graph stored in the artifact (``train-forest`` embeds it; see
   ``train/forest/onnx_export.py``) with the node and leaf tables fed as inputs; CPU execution.
-  Same arithmetic, same labels.
+  Same arithmetic, same labels. Several times slower than torch (the graph copies six slices
+  of every level's node rows and broadcasts over all pairs for all ``max_depth`` levels; more
+  threads do not help, ``docs/experiments.md``), so ``auto`` never picks it.
 
 Another camera: the artifact records the focal lengths it was trained for. Pass the runtime
 camera's ``intrinsics`` and offsets are scaled by ``(fx'/fx, fy'/fy)`` so that each probe keeps
@@ -36,10 +43,14 @@ from depthmocap.shared.forest_walk import traverse, walk_posteriors
 from depthmocap.shared.posterior_smoothing import check_smoothing, smooth_posteriors
 from depthmocap.shared.resources import MODELS_DIR
 
+BACKENDS = ("auto", "numba", "torch", "onnxruntime")
+
 __all__ = [
     "DEFAULT_MODEL",
     "DEFAULT_CALIBRATION_MODEL",
+    "BACKENDS",
     "ForestClassifier",
+    "compiled_walk",
     "traverse",
     "load_classifier",
 ]
@@ -50,16 +61,27 @@ DEFAULT_MODEL = MODELS_DIR / "forest.npz"
 DEFAULT_CALIBRATION_MODEL = DEFAULT_MODEL.with_name("forest_calib.npz")
 
 
+def compiled_walk():
+    """The module :mod:`shared.forest_kernel` (numba's compiled walk), or None without numba."""
+    try:
+        from depthmocap.shared import forest_kernel
+    except ImportError:
+        return None
+    return forest_kernel
+
+
 class ForestClassifier:
     """Per-pixel posteriors of a forest; see the module docstring.
 
     Args:
         forest: a loaded :class:`Forest`.
         device: torch device of the torch backend (inputs are moved to it).
-        backend: ``"torch"`` or ``"onnxruntime"``.
+        backend: one of :data:`BACKENDS` (see the module docstring); ``"auto"`` is ``"numba"``
+            on the CPU when numba imports and ``"torch"`` otherwise.
         intrinsics: runtime camera; offsets are rescaled when its focal lengths differ from the
             trained camera's.
-        threads: CPU threads of the onnxruntime session (torch uses its global setting).
+        threads: CPU threads of the onnxruntime session (torch uses its global setting, numba
+            one thread).
         smooth_window: posteriors are averaged over this box of classified pixels
             (:func:`shared.posterior_smoothing.smooth_posteriors`; 1: off).
         smooth_depth_gate_m: neighbours farther in depth than this are not averaged in (m).
@@ -69,19 +91,31 @@ class ForestClassifier:
         self,
         forest: Forest,
         device: str | torch.device = "cpu",
-        backend: str = "torch",
+        backend: str = "auto",
         intrinsics: Intrinsics | None = None,
         threads: int = 2,
         smooth_window: int = 1,
         smooth_depth_gate_m: float = 0.05,
     ) -> None:
-        if backend not in ("torch", "onnxruntime"):
-            raise ValueError(f"backend must be 'torch' or 'onnxruntime', not {backend!r}")
+        if backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, not {backend!r}")
         check_smoothing(smooth_window, smooth_depth_gate_m)
         self.smooth_window, self.smooth_depth_gate_m = smooth_window, smooth_depth_gate_m
         self.forest = forest
-        self.backend = backend
         self.device = torch.device(device)
+        self._kernel = None
+        if backend in ("auto", "numba") and self.device.type == "cpu":
+            self._kernel = compiled_walk()
+        if backend == "numba" and self._kernel is None:
+            raise ValueError(
+                "backend 'numba' needs numba (pip install numba) and device 'cpu'; "
+                "backend 'torch' runs anywhere"
+            )
+        if backend == "auto":
+            backend = "torch" if self._kernel is None else "numba"
+        self.backend = backend
+        # The numba backend prepares pixels and scatters results with numpy, not torch.
+        self._numpy = backend == "numba"
         self.levels = forest.max_depth
         if intrinsics is None:
             self.scale = (1.0, 1.0)
@@ -93,10 +127,14 @@ class ForestClassifier:
         self.table = torch.from_numpy(table).to(self.device)
         self.is_leaf = torch.from_numpy(forest.left < 0).to(self.device)
         self.roots = torch.from_numpy(forest.roots.astype(np.int64)).to(self.device)
-        self.leaf_dist = torch.from_numpy(forest.leaf_dist.astype(np.float32)).to(self.device)
+        self._leaf_dist_np = forest.leaf_dist.astype(np.float32)  # converted once, at load
+        self._roots_np = forest.roots.astype(np.int64)
+        self.leaf_dist = torch.from_numpy(self._leaf_dist_np).to(self.device)
         self._session = None
         if backend == "onnxruntime":
             self._session = self._make_session(threads)
+        if backend == "numba":  # compile (or load numba's cache) now, not on the first frame
+            self.pixel_posteriors(torch.ones(1, 1), torch.ones(1, 1, dtype=torch.bool))
 
     @property
     def num_classes(self) -> int:
@@ -149,6 +187,16 @@ class ForestClassifier:
         mask = mask.to(self.device, torch.bool)
         if single:
             depth_m, mask = depth_m[None], mask[None]
+        if self._numpy:
+            # numpy is single-threaded: on a busy 2-core host each of torch's multi-threaded
+            # element-wise passes over a 320x240 frame costs more than the whole walk.
+            d, m = depth_m.numpy(), mask.numpy()
+            valid = m & (d > 0) & np.isfinite(d)
+            if stride > 1:
+                keep = np.zeros_like(valid)
+                keep[:, ::stride, ::stride] = True
+                valid &= keep
+            return depth_m, torch.from_numpy(valid), single
         valid = mask & (depth_m > 0) & torch.isfinite(depth_m)
         if stride > 1:
             sub = torch.zeros_like(valid)
@@ -171,7 +219,10 @@ class ForestClassifier:
         """
         depth, valid, _ = self._prepare(depth_m, mask, stride)
         b, h, w = depth.shape
-        pix = torch.nonzero(valid)
+        if self._numpy:
+            pix = torch.from_numpy(np.argwhere(valid.numpy()))  # row-major, as torch.nonzero
+        else:
+            pix = torch.nonzero(valid)
         if pix.shape[0] == 0:
             return pix, torch.zeros(0, self.num_classes, device=self.device)
         if self.backend == "onnxruntime":
@@ -183,6 +234,8 @@ class ForestClassifier:
                     for i in range(b)  # one image per ONNX call: the graph takes (H, W)
                 ]
             ).to(self.device)
+        elif self.backend == "numba":
+            probs = self._numba_posteriors(depth, valid, pix)
         else:
             probs = self._torch_posteriors(depth, valid, pix)
         probs = smooth_posteriors(
@@ -198,27 +251,43 @@ class ForestClassifier:
             pix, self.scale, is_leaf,
         )  # fmt: skip
 
+    def _numba_posteriors(self, depth, valid, pix) -> torch.Tensor:
+        post = self._kernel.walk_posteriors(
+            self._table_np, self._roots_np, self._leaf_dist_np, self.levels, self.background,
+            depth.numpy(), valid.numpy(), pix.numpy(), self.scale,
+        )  # fmt: skip
+        return torch.from_numpy(post)
+
+    def _dense(self, depth_m, pix: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+        """(B, H, W, *values.shape[1:]) zeros with ``values`` at ``pix``; the batch axis dropped
+        for an (H, W) input."""
+        shape = torch.as_tensor(depth_m).shape
+        single = len(shape) == 2
+        b, h, w = (1, *shape) if single else shape
+        if self._numpy:
+            out = np.zeros((b, h, w, *values.shape[1:]), values.numpy().dtype)
+            p = pix.numpy()
+            out[p[:, 0], p[:, 1], p[:, 2]] = values.numpy()
+            out = torch.from_numpy(out)
+        else:
+            out = torch.zeros(b, h, w, *values.shape[1:], dtype=values.dtype, device=self.device)
+            out[pix[:, 0], pix[:, 1], pix[:, 2]] = values
+        return out[0] if single else out
+
     def posteriors(self, depth_m: torch.Tensor, mask: torch.Tensor, stride: int = 1):
         """Dense posteriors: (C, H, W) for an (H, W) input, (B, C, H, W) for (B, H, W); zero at
         pixels that were not classified."""
         pix, probs = self.pixel_posteriors(depth_m, mask, stride)
-        shape = torch.as_tensor(depth_m).shape
-        single = len(shape) == 2
-        b, h, w = (1, *shape) if single else shape
-        out = torch.zeros(b, h, w, self.num_classes, device=self.device)
-        out[pix[:, 0], pix[:, 1], pix[:, 2]] = probs
-        out = out.permute(0, 3, 1, 2)
-        return out[0] if single else out
+        return self._dense(depth_m, pix, probs).movedim(-1, -3)
 
     def labels(self, depth_m: torch.Tensor, mask: torch.Tensor, stride: int = 1) -> torch.Tensor:
         """Arg-max class per pixel: (H, W) or (B, H, W) int64, 0 where not classified."""
         pix, probs = self.pixel_posteriors(depth_m, mask, stride)
-        shape = torch.as_tensor(depth_m).shape
-        single = len(shape) == 2
-        b, h, w = (1, *shape) if single else shape
-        out = torch.zeros(b, h, w, dtype=torch.int64, device=self.device)
-        out[pix[:, 0], pix[:, 1], pix[:, 2]] = probs.argmax(1)
-        return out[0] if single else out
+        if self._numpy:  # first maximum on ties, as torch.argmax
+            arg = torch.from_numpy(probs.numpy().argmax(1).astype(np.int64))
+        else:
+            arg = probs.argmax(1)
+        return self._dense(depth_m, pix, arg)
 
 
 def load_classifier(

@@ -9,7 +9,7 @@ import torch
 from depthmocap.bench.kinematics import kinematics_rows, random_poses
 from depthmocap.bench.scenes import person_frame
 from depthmocap.bench.segmentation import benchmark_segmentation
-from depthmocap.bench.timing import median_ms, wall_ms
+from depthmocap.bench.timing import alternating_median_ms, median_ms, wall_ms
 from depthmocap.shared import skeleton as sk
 
 
@@ -18,6 +18,16 @@ def test_median_ms_warms_up_then_takes_the_median():
     ms = median_ms(lambda: calls.append(1), repeats=5, warmup=2)
     assert len(calls) == 7 and 0 <= ms < 50
     assert wall_ms(lambda: None) >= 0
+
+
+def test_alternating_median_ms_takes_turns():
+    calls = []
+    ms = alternating_median_ms(
+        {"a": lambda: calls.append("a"), "b": lambda: calls.append("b")}, repeats=4, warmup=1
+    )
+    assert (
+        calls == ["a", "b"] * 5 and set(ms) == {"a", "b"} and all(0 <= t < 50 for t in ms.values())
+    )
 
 
 def test_kinematics_rows_compare_against_autograd():

@@ -1,14 +1,23 @@
-"""Forest inference: torch and onnxruntime backends agree with each other and with training's
-reference predictor, across save/load and ONNX export; batches, strides, camera scaling."""
+"""Forest inference: the numba, torch and onnxruntime backends agree with each other and with
+training's reference predictor, across save/load and ONNX export; batches, strides, camera
+scaling; ``auto`` falls back to torch without numba."""
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from depthmocap.bench.forest import benchmark_forest
+from depthmocap.bench.forest import benchmark_forest, forest_rows
 from depthmocap.bench.scenes import person_frame
-from depthmocap.runtime.forest.inference import ForestClassifier, load_classifier
+from depthmocap.runtime.forest import inference
+from depthmocap.runtime.forest.inference import (
+    DEFAULT_MODEL,
+    ForestClassifier,
+    compiled_walk,
+    load_classifier,
+)
 from depthmocap.shared.camera import Intrinsics
 from depthmocap.shared.forest_format import ForestFormatError, save_forest
 from depthmocap.shared.labels import PART_NAMES
@@ -70,7 +79,7 @@ def test_frames():
 
 def test_torch_backend_matches_training_reference(forest, test_frames):
     d, m = test_frames
-    clf = ForestClassifier(forest, "cpu")
+    clf = ForestClassifier(forest, "cpu", backend="torch")
     pix, post = clf.pixel_posteriors(d, m)
     ref_pix, ref_post = predict_posteriors(forest, d, m)
     assert torch.equal(pix, ref_pix) and torch.equal(post, ref_post)
@@ -160,14 +169,23 @@ def test_benchmark_reports_milliseconds(forest, tmp_path):
     assert res["torch_cpu_ms"] > 0 and res["torch_cpu_stride2_ms"] > 0 and res["pixels"] > 1000
     assert res["torch_cpu_smoothed_ms"] > 0
     assert "onnxruntime_ms" in res
+    if compiled_walk() is not None:
+        for key in ("numba_cpu_ms", "numba_cpu_stride2_ms", "numba_cpu_smoothed_ms"):
+            assert res[key] > 0
+        assert res["numba_identical"] == 1.0
+    rows = forest_rows(res)
+    assert [r[0] for r in rows][:2] == ["torch CPU, every person pixel"] + (
+        ["numba CPU, every person pixel"]
+        if "numba_cpu_ms" in res
+        else ["torch CPU, every 2nd pixel (detector)"]
+    )
+    assert all(ms > 0 for _, ms, _ in rows)
     assert benchmark_forest(tmp_path / "missing.npz") == {}
     depth, mask = person_frame()
     assert depth.shape == (240, 320) and (depth[mask] > 2).all() and (depth[~mask] == 0).all()
 
 
 def test_default_model_path_points_into_models():
-    from depthmocap.runtime.forest.inference import DEFAULT_MODEL
-
     assert (
         DEFAULT_MODEL.parent.name == "models"
         and DEFAULT_MODEL.parent.parent == Path(__file__).resolve().parents[3]
@@ -202,3 +220,94 @@ def test_labeler_reports_bad_smoothing_as_a_detector_error(forest, tmp_path):
     labels = load_forest_labeler(tmp_path / "f.npz", "cpu", INTR, smooth_window=3)
     depth, mask = person_frame(80, 60)
     assert labels(torch.from_numpy(depth), torch.from_numpy(mask)).shape == (60, 80)
+
+
+# ---------------------------------------------------------------- numba backend and fallback
+
+
+def both(forest, **kw):
+    """The numba and the torch classifier of ``forest`` (skips without numba)."""
+    pytest.importorskip("numba")
+    fast = ForestClassifier(forest, backend="numba", **kw)
+    return fast, ForestClassifier(forest, backend="torch", **kw)
+
+
+def test_numba_backend_gives_the_torch_outputs_bit_for_bit(forest, test_frames):
+    d, m = test_frames
+    fast, ref = both(forest)
+    assert ForestClassifier(forest).backend == "numba"  # what auto picks when numba is there
+    for stride in (1, 2, 3):
+        pix, post = fast.pixel_posteriors(d, m, stride)
+        pix_r, post_r = ref.pixel_posteriors(d, m, stride)
+        assert torch.equal(pix, pix_r) and torch.equal(post, post_r)
+    assert torch.equal(fast.labels(d, m), ref.labels(d, m))
+    assert torch.equal(fast.posteriors(d, m), ref.posteriors(d, m))
+    assert torch.equal(fast.labels(d[2], m[2]), ref.labels(d[2], m[2]))  # (H, W) input
+    assert torch.equal(fast.posteriors(d[2], m[2]), ref.posteriors(d[2], m[2]))
+    assert fast.labels(d, m).dtype == torch.int64 and fast.posteriors(d, m).dtype == torch.float32
+    # numpy inputs, float64 depth, an empty mask
+    assert torch.equal(fast.labels(d.double().numpy(), m.numpy()), ref.labels(d, m))
+    empty = torch.zeros_like(m)
+    pix, post = fast.pixel_posteriors(d, empty)
+    assert pix.shape == (0, 3) and post.shape == (0, 20)
+    assert not fast.labels(d, empty).any() and fast.labels(d, empty).shape == d.shape
+
+
+def test_numba_backend_with_smoothing_and_another_camera(forest, test_frames):
+    d, m = test_frames
+    big = Intrinsics(160, 120, 124.0, 124.0, 79.5, 59.5)
+    fast, ref = both(forest, intrinsics=big, smooth_window=5)
+    up_d = d.repeat_interleave(2, 1).repeat_interleave(2, 2)
+    up_m = m.repeat_interleave(2, 1).repeat_interleave(2, 2)
+    for stride in (1, 2):
+        pix, post = fast.pixel_posteriors(up_d, up_m, stride)
+        pix_r, post_r = ref.pixel_posteriors(up_d, up_m, stride)
+        assert torch.equal(pix, pix_r) and torch.equal(post, post_r)
+
+
+def test_shipped_forest_numba_equals_torch_on_the_bench_frame():
+    if not DEFAULT_MODEL.is_file():
+        pytest.skip("no shipped forest")
+    pytest.importorskip("numba")
+    from depthmocap.shared.forest_format import load_forest
+
+    fast, ref = both(load_forest(DEFAULT_MODEL))
+    depth, mask = (torch.from_numpy(a) for a in person_frame())
+    pix, post = fast.pixel_posteriors(depth, mask)
+    pix_r, post_r = ref.pixel_posteriors(depth, mask)
+    assert len(pix) == 6963 and torch.equal(pix, pix_r) and torch.equal(post, post_r)
+    assert torch.equal(fast.labels(depth, mask, stride=2), ref.labels(depth, mask, stride=2))
+
+
+def test_without_numba_auto_falls_back_to_torch(forest, test_frames, monkeypatch):
+    import depthmocap.shared as shared
+
+    monkeypatch.setitem(sys.modules, "numba", None)  # "import numba" raises ImportError
+    monkeypatch.delitem(sys.modules, "depthmocap.shared.forest_kernel", raising=False)
+    monkeypatch.delattr(shared, "forest_kernel", raising=False)
+    assert compiled_walk() is None
+    clf = ForestClassifier(forest)
+    assert clf.backend == "torch"
+    d, m = test_frames
+    pix, post = clf.pixel_posteriors(d, m)
+    ref = predict_posteriors(forest, d, m)
+    assert torch.equal(pix, ref[0]) and torch.equal(post, ref[1])
+    with pytest.raises(ValueError, match="needs numba"):
+        ForestClassifier(forest, backend="numba")
+
+
+def test_numba_is_not_for_cuda_and_auto_uses_torch_there(forest, monkeypatch):
+    monkeypatch.setattr(inference, "compiled_walk", lambda: pytest.fail("looked for numba"))
+    with pytest.raises(ValueError, match="device 'cpu'"):
+        ForestClassifier(forest, "cuda", backend="numba")
+    if torch.cuda.is_available():
+        assert ForestClassifier(forest, "cuda").backend == "torch"
+
+
+def test_importing_the_runtime_does_not_import_numba():
+    code = (
+        "import sys, depthmocap.runtime.forest.inference, depthmocap.runtime.detector; "
+        "print('numba' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
