@@ -31,6 +31,7 @@ from depthmocap.shared.camera import Intrinsics
 
 __all__ = [
     "KINECT_JOINTS",
+    "ACTION_NAMES",
     "JOINT_MAP",
     "FOCAL_PX",
     "FPS",
@@ -82,6 +83,13 @@ JOINT_MAP: tuple[tuple[str, str], ...] = (
     ("l_ankle", "left_ankle"),
     ("r_ankle", "right_ankle"),
 )
+
+# The whole-body actions of the shared copy (its README); the dataset has 27 actions.
+ACTION_NAMES: dict[int, str] = {
+    5: "throw", 7: "basketball shoot", 12: "bowling", 14: "baseball swing",
+    17: "tennis serve", 21: "pick up and throw", 22: "jog in place", 23: "walk in place",
+    24: "sit to stand", 25: "stand to sit", 26: "lunge", 27: "squat",
+}  # fmt: skip
 
 FOCAL_PX = 285.63  # NUI_CAMERA_SKELETON_TO_DEPTH_IMAGE_MULTIPLIER_320x240 of the SDK
 FPS = 30.0
