@@ -32,10 +32,9 @@ from __future__ import annotations
 import argparse
 import fnmatch
 import json
-import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +43,8 @@ from depthmocap.train.importers.utd_mhad import ACTION_NAMES
 
 from . import metrics as m
 from . import overlay_sheet as sheet
+from . import silhouette_check as sil
+from .dev_benchmark import _run as run_command
 from .evaluate import EvalConfig, EvaluationError, evaluate
 from .result_io import ResultFileError, load_result
 
@@ -63,6 +64,9 @@ class Scored:
         norm_errors_m: (F, J) offset-normalized joint distances, metres, NaN without a pose.
         frame_errors_mm: (F,) raw mean joint distance per frame, NaN without a pose.
         joint_names: the J joints.
+        sides: of the frames with a joint beyond the threshold after normalization, how many
+            fall in each :data:`silhouette_check.SIDES` class (which tracker the depth image
+            refutes at the worst joint).
     """
 
     name: str
@@ -71,6 +75,7 @@ class Scored:
     norm_errors_m: np.ndarray
     frame_errors_mm: np.ndarray
     joint_names: tuple[str, ...]
+    sides: dict[str, int] = field(default_factory=lambda: dict.fromkeys(sil.SIDES, 0))
 
 
 def _stack(scored: list[Scored], attr: str) -> np.ndarray:
@@ -101,6 +106,7 @@ def pooled(scored: list[Scored], cfg: EvalConfig | None = None) -> dict:
         return float(v) if np.isfinite(v) else None
 
     raw = _stack(scored, "frame_errors_mm")
+    sides = {k: sum(s.sides[k] for s in scored) for k in sil.SIDES}
     return {
         "recordings": len(scored),
         "frames": int(len(norm)),
@@ -113,6 +119,7 @@ def pooled(scored: list[Scored], cfg: EvalConfig | None = None) -> dict:
         "detected_pct": share(counts["detected"]),
         "lost_pct": share(counts["lost"]),
         "fps": written / seconds if seconds > 0 else None,
+        "beyond_20cm_frames_by_side": sides,
     }
 
 
@@ -182,9 +189,7 @@ def _track(rec: Path, result: Path, threads: int, device: str | None) -> None:
            "--output", str(result), "--threads", str(threads), "--save-overlays", "-q"]  # fmt: skip
     if device:
         cmd += ["--device", device]
-    done = subprocess.run(cmd, capture_output=True, text=True)
-    if done.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed:\n{done.stderr.strip()[-2000:]}")
+    run_command(cmd)  # RuntimeError with the end of stderr if it fails
 
 
 def _complete(result: Path, frames: int) -> bool:
@@ -195,14 +200,37 @@ def _complete(result: Path, frames: int) -> bool:
     return bool(summary.get("complete")) and summary.get("frames") == frames
 
 
+def disagreement_sides(rec_dir: Path, result_dir: Path, failures: list[dict]) -> dict[str, int]:
+    """For each failed frame (``system_failure_offset_normalized_frames``) with a pose, which
+    tracker's worst joint projects off the person (:mod:`.silhouette_check`): counts by side."""
+    counts = dict.fromkeys(sil.SIDES, 0)
+    failures = [f for f in failures if f["worst_joint"] is not None]
+    if not failures:
+        return counts
+    rec = Recording(rec_dir)
+    reference, names = mapped_reference(rec.reference())
+    result = load_result(result_dir)
+    for f in failures:
+        i, joint = f["frame"], f["worst_joint"]
+        body = rec.read_depth_mm(i) > 0
+        ours = result.joints[np.flatnonzero(result.frame == i)[0], result.joint_names.index(joint)]
+        side = sil.classify(
+            sil.on_body(body, reference[i, names.index(joint)], rec.intrinsics),
+            sil.on_body(body, ours, rec.intrinsics),
+        )
+        counts[side] += 1
+    return counts
+
+
 def score(rec: Path, result: Path) -> Scored:
     """Evaluate one result against its recording's reference."""
     ev = evaluate(rec, result)
     if ev.report["truth"] != "reference":
         raise EvaluationError(f"{rec}: has ground truth; this benchmark is for references")
     group = rec.name.split("_")[0]
+    sides = disagreement_sides(rec, result, ev.report["system_failure_offset_normalized_frames"])
     return Scored(rec.name, group, ev.report, ev.norm_errors_m, ev.frame_errors_mm,
-                  ev.joint_names)  # fmt: skip
+                  ev.joint_names, sides)  # fmt: skip
 
 
 def _tile(data: Path, results: Path, pick: dict) -> np.ndarray | None:
@@ -263,6 +291,27 @@ def format_row(label: str, p: dict) -> str:
         f"{_fmt(p['raw_mean_mm'])} | {_fmt(p['within_10cm_pct'], 1, '%')} | "
         f"{_fmt(p['frames_beyond_20cm_pct'], 1, '%')} | {_fmt(p['detected_pct'], 1, '%')} | "
         f"{_fmt(p['lost_pct'], 1, '%')} | {_fmt(p['fps'])} |"
+    )
+
+
+SIDES_HEADER = (
+    "| action | frames with a joint > 20 cm | reference's joint off the body | "
+    "ours off the body | both off | both on the body |\n|---|---|---|---|---|---|"
+)
+
+
+def format_sides_row(label: str, p: dict) -> str:
+    """One row of :data:`SIDES_HEADER`: the failed frames with a pose, split by which
+    tracker's worst joint the depth image refutes, in % of them."""
+    sides = p["beyond_20cm_frames_by_side"]
+    n = sum(sides.values())
+
+    def pct(key: str) -> str:
+        return f"{100 * sides[key] / n:.1f}%" if n else "n/a"
+
+    return (
+        f"| {label} | {n} | {pct('reference_off_body')} | {pct('ours_off_body')} | "
+        f"{pct('both_off_body')} | {pct('both_on_body')} |"
     )
 
 
@@ -342,6 +391,12 @@ def main(argv: list[str] | None = None) -> int:
     for g, p in by_group.items():
         print(format_row(_label(g), p))
     print(format_row("**all**", everything))
+    print("\nWhich side the depth image refutes at the worst joint of those frames (a joint "
+          "projecting more than 3 px off the person is wrong)\n")  # fmt: skip
+    print(SIDES_HEADER)
+    for g, p in by_group.items():
+        print(format_sides_row(_label(g), p))
+    print(format_sides_row("**all**", everything))
     print("\n" + format_joint_table(joints))
     worst = worst_frames(scored, args.worst)
     typical = typical_frames(scored)

@@ -18,6 +18,7 @@ from depthmocap.shared.recording import RecordingWriter
 from depthmocap.train.evaluation import metrics as m
 from depthmocap.train.evaluation import overlay_sheet as sheet
 from depthmocap.train.evaluation import real_benchmark as rb
+from depthmocap.train.evaluation import silhouette_check as sil
 
 NAMES = ("head", "l_wrist")
 
@@ -81,6 +82,18 @@ def test_sheet_pieces():
     assert sheet.tile_sheet([tile] * 3, 2).shape == (2 * 432 + 2, 2 * 300 + 2, 3)
 
 
+def test_silhouette_check():
+    intr = Intrinsics(320, 240, 285.63, 285.63, 159.0, 120.0)
+    body = np.zeros((240, 320), bool)
+    body[100:140, 150:170] = True  # columns 150-169
+    at = lambda u, v: np.array([(u - 159.0) * 2.0 / 285.63, (v - 120.0) * 2.0 / 285.63, 2.0])  # noqa: E731
+    assert sil.on_body(body, at(160, 120), intr)
+    assert sil.on_body(body, at(172, 120), intr)  # 3 px slack
+    assert not sil.on_body(body, at(173, 120), intr)
+    assert not sil.on_body(body, at(400, 120), intr) and not sil.on_body(body, -at(160, 120), intr)
+    assert [sil.classify(r, o) for r, o in ((1, 1), (0, 1), (1, 0), (0, 0))] == list(sil.SIDES)
+
+
 FRAMES = 6
 CAM = Intrinsics(320, 240, 285.63, 285.63, 159.0, 120.0)
 
@@ -120,6 +133,9 @@ def test_benchmark_end_to_end_without_tracking(tmp_path, monkeypatch, capsys):
     assert "| a22 jog in place | 1 | 6 |" in printed and "| **all** | 2 | 12 |" in printed
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert report["all"]["frames_beyond_20cm_pct"] == pytest.approx(100 / 12)
+    # The whole image is "body" here: both wrists project onto it.
+    assert report["all"]["beyond_20cm_frames_by_side"]["both_on_body"] == 1
+    assert "| **all** | 1 | 0.0% | 0.0% | 0.0% | 100.0% |" in printed
     worst = report["worst_frames"][0]
     assert (worst["recording"], worst["frame"], worst["joint"]) == ("a05_s1_t1", 3, "l_wrist")
     assert worst["distance_mm"] == pytest.approx(500.0)
