@@ -18,15 +18,7 @@ from depthmocap.shared.labels import PART_COLORS
 
 __all__ = ["LiveViewError", "LiveView", "BONES"]
 
-# Named-joint pairs drawn as the skeleton.
-_BONE_NAMES = (
-    ("head", "neck"), ("neck", "spine"), ("spine", "pelvis"),
-    ("neck", "l_shoulder"), ("l_shoulder", "l_elbow"), ("l_elbow", "l_wrist"),
-    ("neck", "r_shoulder"), ("r_shoulder", "r_elbow"), ("r_elbow", "r_wrist"),
-    ("pelvis", "l_hip"), ("l_hip", "l_knee"), ("l_knee", "l_ankle"),
-    ("pelvis", "r_hip"), ("r_hip", "r_knee"), ("r_knee", "r_ankle"),
-)  # fmt: skip
-BONES = np.array([[sk.JOINT_NAMES.index(a), sk.JOINT_NAMES.index(b)] for a, b in _BONE_NAMES])
+BONES = np.array([[sk.JOINT_NAMES.index(a), sk.JOINT_NAMES.index(b)] for a, b in sk.JOINT_BONES])
 _STATUS_COLOURS = {"tracked": (60, 220, 60), "detected": (250, 200, 40), "lost": (230, 60, 60)}
 _INFERRED_COLOUR = (128, 128, 128)
 

@@ -9,6 +9,11 @@ Layout of a recording directory::
     labels/000000.png    optional uint8 part labels (shared.labels)
     groundtruth.npz      optional: joints (F, J, 3) camera metres, joint_names (J,),
                          q (F, 34), body parameters, anything else per frame
+    reference.npz        optional: another tracker's skeleton, kept apart from ground truth
+                         because it is not one: joints (F, K, 3) camera metres (the same
+                         frame as the depth: x right, y down, z forward), joint_names (K,),
+                         source (text naming the tracker), joint_map (M, 2) pairs
+                         (our joint name, its joint name) for the joints that correspond
 
 The writer keeps ``meta.json`` current after every frame (atomic replace), so a recording
 cut off by Ctrl-C or a dropped camera is complete and readable up to its last frame.
@@ -36,6 +41,7 @@ __all__ = [
     "write_png16",
     "read_png",
     "png_problem",
+    "mapped_reference",
 ]
 
 RECORDING_FORMAT = "depthmocap-recording"
@@ -134,6 +140,34 @@ def _atomic_write_json(path: Path, data: dict) -> None:
     os.replace(tmp, path)
 
 
+def _joint_map_problem(pairs: np.ndarray, names: np.ndarray) -> str | None:
+    """What is wrong with a reference's ``joint_map`` (M, 2) against its K ``names``, or None."""
+    if pairs.ndim != 2 or pairs.shape[1] != 2 or len(pairs) == 0:
+        return f"joint_map must be a non-empty (M, 2) list of name pairs, got {pairs.shape}"
+    ours, theirs = list(pairs[:, 0]), list(pairs[:, 1])
+    if len(set(ours)) != len(ours):
+        return "joint_map names one of our joints twice"
+    unknown = sorted(set(theirs) - set(names.tolist()))
+    if unknown:
+        return f"joint_map names joints the reference does not have: {', '.join(unknown)}"
+    return None
+
+
+def mapped_reference(reference: dict[str, np.ndarray]) -> tuple[np.ndarray, tuple[str, ...]]:
+    """A reference's joints under our names, through its ``joint_map``.
+
+    Args:
+        reference: the contents of ``reference.npz`` (:meth:`Recording.reference`).
+    Returns:
+        (F, M, 3) float64 camera metres and the M names of ours, in ``joint_map`` order.
+    """
+    names = [str(n) for n in reference["joint_names"]]
+    pairs = np.asarray(reference["joint_map"]).reshape(-1, 2)
+    index = [names.index(str(theirs)) for theirs in pairs[:, 1]]
+    joints = np.asarray(reference["joints"], dtype=np.float64)[:, index]
+    return joints, tuple(str(ours) for ours in pairs[:, 0])
+
+
 class RecordingWriter:
     """Streams frames into a new recording directory.
 
@@ -228,6 +262,39 @@ class RecordingWriter:
             **{k: np.asarray(v) for k, v in per_frame.items()},
         )
 
+    def write_reference(self, joints: np.ndarray, joint_names, source: str, joint_map) -> None:
+        """Write ``reference.npz``: another tracker's skeleton for the frames written so far.
+
+        Kept out of ``groundtruth.npz`` on purpose: a reference is only another estimate, so
+        evaluations against it measure agreement, not accuracy, and nothing treats it as truth.
+
+        Args:
+            joints: (F, K, 3) the tracker's joints in camera metres (our frame: x right, y down,
+                z forward), F = frames written.
+            joint_names: K names, the tracker's own.
+            source: what produced them, e.g. ``"Kinect SDK v1 skeleton (another tracker)"``.
+            joint_map: (our joint name, its joint name) pairs of the joints that correspond.
+        """
+        joints = np.asarray(joints, dtype=np.float32)
+        names = np.asarray(list(joint_names), dtype=str)
+        pairs = np.asarray([list(p) for p in joint_map], dtype=str).reshape(-1, 2)
+        if joints.ndim != 3 or joints.shape[2] != 3 or joints.shape[1] != len(names):
+            raise ValueError(f"joints must be (F, {len(names)}, 3), got {joints.shape}")
+        if joints.shape[0] != self.frame_count:
+            raise ValueError(
+                f"reference has {joints.shape[0]} frames, recording has {self.frame_count}"
+            )
+        problem = _joint_map_problem(pairs, names)
+        if problem:
+            raise ValueError(problem)
+        np.savez_compressed(
+            self.path / "reference.npz",
+            joints=joints,
+            joint_names=names,
+            source=np.asarray(source, dtype=str),
+            joint_map=pairs,
+        )
+
     def close(self) -> None:
         _atomic_write_json(self.path / "meta.json", self.meta)
 
@@ -300,6 +367,7 @@ class Recording:
                 f"{self._depth_path(missing[0]).name} is missing"
             )
         self._gt = None
+        self._ref = None
 
     def _depth_path(self, i: int) -> Path:
         return self.path / "depth" / f"{i:06d}.png"
@@ -380,3 +448,37 @@ class Recording:
             raise RecordingError(f"{path}: q has shape {gt['q'].shape}, expected ({len(self)}, 34)")
         self._gt = gt
         return gt
+
+    @property
+    def has_reference(self) -> bool:
+        return (self.path / "reference.npz").is_file()
+
+    def reference(self) -> dict[str, np.ndarray]:
+        """Contents of ``reference.npz`` (another tracker's skeleton, not ground truth),
+        validated against the frame count: ``joints`` (F, K, 3), ``joint_names`` (K,),
+        ``source`` (a 0-d text array), ``joint_map`` (M, 2)."""
+        if self._ref is not None:
+            return self._ref
+        path = self.path / "reference.npz"
+        if not path.is_file():
+            raise RecordingError(f"{self.path}: recording has no reference (reference.npz)")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                ref = {k: data[k] for k in data.files}
+        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as err:
+            raise RecordingError(f"{path}: unreadable ({err})") from None
+        missing = [k for k in ("joints", "joint_names", "source", "joint_map") if k not in ref]
+        if missing:
+            raise RecordingError(f"{path}: needs {', '.join(repr(k) for k in missing)}")
+        j, names = ref["joints"], ref["joint_names"]
+        if names.ndim != 1 or names.dtype.kind != "U" or ref["source"].dtype.kind != "U":
+            raise RecordingError(f"{path}: joint_names and source must be text")
+        if j.ndim != 3 or j.shape != (len(self), len(names), 3) or j.dtype.kind != "f":
+            raise RecordingError(
+                f"{path}: joints have shape {j.shape}, expected ({len(self)}, {len(names)}, 3)"
+            )
+        problem = _joint_map_problem(np.asarray(ref["joint_map"]), names)
+        if problem or ref["joint_map"].dtype.kind != "U":
+            raise RecordingError(f"{path}: {problem or 'joint_map must be text'}")
+        self._ref = ref
+        return ref

@@ -64,6 +64,7 @@ __all__ = [
     "JOINT_NAMES",
     "JOINT_SEGMENT",
     "JOINT_FRACTION",
+    "JOINT_BONES",
     "ROOT_TRANSLATION",
     "ROOT_ROTATION",
     "ANGLE_DOFS",
@@ -247,6 +248,14 @@ _NAMED = (
 JOINT_NAMES: tuple[str, ...] = tuple(n[0] for n in _NAMED)
 JOINT_SEGMENT = np.array([n[1] for n in _NAMED], dtype=np.int64)
 JOINT_FRACTION = np.array([n[2] for n in _NAMED], dtype=np.float64)
+# The named joints' stick figure (overlays, live view, contact sheets): pairs of JOINT_NAMES.
+JOINT_BONES: tuple[tuple[str, str], ...] = (
+    ("head", "neck"), ("neck", "spine"), ("spine", "pelvis"),
+    ("neck", "l_shoulder"), ("l_shoulder", "l_elbow"), ("l_elbow", "l_wrist"),
+    ("neck", "r_shoulder"), ("r_shoulder", "r_elbow"), ("r_elbow", "r_wrist"),
+    ("pelvis", "l_hip"), ("l_hip", "l_knee"), ("l_knee", "l_ankle"),
+    ("pelvis", "r_hip"), ("r_hip", "r_knee"), ("r_knee", "r_ankle"),
+)  # fmt: skip
 
 # Upright, facing the camera (camera y points down, z away from the camera).
 FACING_CAMERA_ROTVEC = np.array([math.pi, 0.0, 0.0])

@@ -5,32 +5,13 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from depthmocap.shared.skeleton import JOINT_NAMES
+from depthmocap.shared.skeleton import JOINT_BONES, JOINT_NAMES
 
 if TYPE_CHECKING:
     from depthmocap.runtime.estimator import PoseEstimate
     from depthmocap.runtime.frame import Frame
 
 __all__ = ["draw_overlay"]
-
-# Skeleton lines of the overlay images, between named joints.
-_BONES = (
-    ("head", "neck"),
-    ("neck", "spine"),
-    ("spine", "pelvis"),
-    ("neck", "l_shoulder"),
-    ("l_shoulder", "l_elbow"),
-    ("l_elbow", "l_wrist"),
-    ("neck", "r_shoulder"),
-    ("r_shoulder", "r_elbow"),
-    ("r_elbow", "r_wrist"),
-    ("pelvis", "l_hip"),
-    ("l_hip", "l_knee"),
-    ("l_knee", "l_ankle"),
-    ("pelvis", "r_hip"),
-    ("r_hip", "r_knee"),
-    ("r_knee", "r_ankle"),
-)
 
 
 def draw_overlay(frame: Frame, est: PoseEstimate) -> np.ndarray:
@@ -59,7 +40,7 @@ def draw_overlay(frame: Frame, est: PoseEstimate) -> np.ndarray:
             [intr.fx * est.joints[:, 0] / z + intr.cx, intr.fy * est.joints[:, 1] / z + intr.cy], 1
         )
         pix = {n: tuple(int(round(c)) for c in uv[i]) for i, n in enumerate(JOINT_NAMES)}
-        for a, b in _BONES:
+        for a, b in JOINT_BONES:
             cv2.line(img, pix[a], pix[b], (0, 255, 0), 1, cv2.LINE_AA)
         for p, ok in zip(pix.values(), est.observed_or_all()):
             # Inferred joints (the camera does not confirm them) as open red rings.

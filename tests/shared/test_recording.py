@@ -3,7 +3,12 @@ import json
 import numpy as np
 import pytest
 from depthmocap.shared.camera import Intrinsics
-from depthmocap.shared.recording import Recording, RecordingError, RecordingWriter
+from depthmocap.shared.recording import (
+    Recording,
+    RecordingError,
+    RecordingWriter,
+    mapped_reference,
+)
 
 
 def make_recording(path, frames=3, labels=True, gt=True):
@@ -118,3 +123,70 @@ def test_writer_rejects_bad_frames(tmp_path):
         w.write_frame(np.zeros((240, 320), np.uint16))
     with pytest.raises(FileExistsError):
         RecordingWriter(tmp_path / "rec", Intrinsics.kinect_v1(160))
+
+
+# --- reference skeleton (another tracker's joints, kept apart from ground truth) -------------
+REF_NAMES = ["top", "middle", "hand"]
+REF_MAP = [("head", "top"), ("spine", "middle")]
+
+
+def _write_reference(path, frames=3):
+    joints = np.arange(frames * 3 * 3, dtype=np.float64).reshape(frames, 3, 3) / 10 + 1
+    with RecordingWriter(path, Intrinsics.kinect_v1(160)) as w:
+        for _ in range(frames):
+            w.write_frame(np.zeros((120, 160), np.uint16))
+        w.write_reference(joints, REF_NAMES, "another tracker", REF_MAP)
+    return joints
+
+
+def test_reference_round_trip_and_mapping(tmp_path):
+    joints = _write_reference(tmp_path / "rec")
+    rec = Recording(tmp_path / "rec")
+    assert rec.has_reference and not rec.has_groundtruth
+    ref = rec.reference()
+    assert list(ref["joint_names"]) == REF_NAMES and str(ref["source"]) == "another tracker"
+    np.testing.assert_allclose(ref["joints"], joints, rtol=1e-6)
+    mapped, names = mapped_reference(ref)
+    assert names == ("head", "spine") and mapped.shape == (3, 2, 3)
+    np.testing.assert_allclose(mapped, joints[:, [0, 1]], rtol=1e-6)  # the hand is left out
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"joints": np.zeros((2, 3, 3))}, r"joints have shape \(2, 3, 3\), expected \(3, 3, 3\)"),
+        ({"joint_map": np.array([["head", "nose"]])}, "does not have: nose"),
+        ({"joint_map": np.array([["head", "top"], ["head", "middle"]])}, "twice"),
+        ({"joint_map": np.array(["head"])}, r"\(M, 2\)"),
+        ({"joint_names": np.array([1, 2, 3])}, "must be text"),
+        ({"source": None}, "needs 'source'"),
+    ],
+)
+def test_reference_errors(tmp_path, change, message):
+    _write_reference(tmp_path / "rec")
+    path = tmp_path / "rec" / "reference.npz"
+    with np.load(path) as data:
+        contents = {k: data[k] for k in data.files}
+    contents.update(change)
+    np.savez(path, **{k: v for k, v in contents.items() if v is not None})
+    with pytest.raises(RecordingError, match=message):
+        Recording(tmp_path / "rec").reference()
+
+
+def test_reference_missing_or_unreadable(tmp_path):
+    make_recording(tmp_path / "rec", labels=False, gt=False)
+    with pytest.raises(RecordingError, match="no reference"):
+        Recording(tmp_path / "rec").reference()
+    (tmp_path / "rec" / "reference.npz").write_bytes(b"PK\x03\x04 cut off")
+    with pytest.raises(RecordingError, match="reference.npz: unreadable"):
+        Recording(tmp_path / "rec").reference()
+
+
+def test_writer_rejects_bad_references(tmp_path):
+    w = RecordingWriter(tmp_path / "rec", Intrinsics.kinect_v1(160))
+    w.write_frame(np.zeros((120, 160), np.uint16))
+    with pytest.raises(ValueError, match="reference has 2 frames, recording has 1"):
+        w.write_reference(np.zeros((2, 3, 3)), REF_NAMES, "t", REF_MAP)
+    with pytest.raises(ValueError, match="does not have: nose"):
+        w.write_reference(np.zeros((1, 3, 3)), REF_NAMES, "t", [("head", "nose")])
+    assert not (tmp_path / "rec" / "reference.npz").exists()

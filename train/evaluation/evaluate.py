@@ -1,4 +1,5 @@
-"""Evaluate a tracking result directory against a recording's ground truth.
+"""Evaluate a tracking result directory against a recording's ground truth, or, on a recording
+without one, against its reference skeleton (another tracker: :mod:`.truth`).
 
 Frame matching: result frame ``i`` is recording frame ``i``. The evaluated range is recording
 frames ``0 .. last result frame``: frames inside it that the result lacks (dropped by the
@@ -24,6 +25,7 @@ from depthmocap.shared.recording import Recording
 
 from . import metrics as m
 from .result_io import STATUSES, ResultFileError, TrackingResult, load_result
+from .truth import REFERENCE, Truth, recording_truth
 from .visibility import recording_joint_visibility
 
 __all__ = [
@@ -36,6 +38,10 @@ __all__ = [
 ]
 
 SURFACE_KEY = "surface_error_q97_mm"
+REFERENCE_NOTE = (
+    "compared with a reference skeleton from {source}, NOT with ground truth: every distance "
+    "is agreement with another tracker, not accuracy (read the offset-normalized figures)"
+)
 
 
 class EvaluationError(ValueError):
@@ -64,6 +70,8 @@ class Evaluation:
         frame_status: (F,) status per evaluated frame, ``missing`` where the result lacks it.
         joint_names: the evaluated joints.
         per_joint_mm: (J,) raw mean error per joint; per_joint_norm_mm: offset-normalized.
+        norm_errors_m: (F, J) offset-normalized joint errors, metres, NaN without a pose.
+        truth: what the result was compared with (ground truth or a reference).
     """
 
     report: dict
@@ -72,6 +80,8 @@ class Evaluation:
     joint_names: tuple[str, ...]
     per_joint_mm: np.ndarray
     per_joint_norm_mm: np.ndarray
+    norm_errors_m: np.ndarray
+    truth: Truth
 
 
 def _segment_rotations(q: np.ndarray, joint_names: tuple[str, ...]) -> np.ndarray | None:
@@ -153,12 +163,12 @@ def check_same_recording(summary: dict, rec: Recording, result_dir: str | Path) 
             )
 
 
-def _match(result: TrackingResult, rec: Recording, gt: dict) -> tuple:
-    gt_names = tuple(str(n) for n in gt["joint_names"])
+def _match(result: TrackingResult, rec: Recording, truth: Truth) -> tuple:
+    gt_names = truth.joint_names
     if not result.joint_names and len(result.frame):
         raise EvaluationError(
             f"every one of the result's {len(result.frame)} frames is lost: there is no pose "
-            "to compare with the ground truth (system failure 100%)"
+            f"to compare with the {truth.kind.replace('_', ' ')} (system failure 100%)"
         )
     names = tuple(n for n in gt_names if n in result.joint_names)
     if not names:
@@ -197,24 +207,24 @@ def _timing(summary: dict) -> dict[str, float | None]:
 def evaluate(
     recording: str | Path, result_dir: str | Path, cfg: EvalConfig | None = None
 ) -> Evaluation:
-    """Compare ``result_dir`` (runtime-track output) with ``recording``'s ground truth.
+    """Compare ``result_dir`` (runtime-track output) with ``recording``'s ground truth, or
+    with its reference skeleton when it has no ground truth (``report["truth"]`` says which).
 
     Raises:
         RecordingError, ResultFileError, EvaluationError: with the file and the problem.
     """
     cfg = EvalConfig() if cfg is None else cfg
     rec = Recording(recording)
-    gt = rec.groundtruth()
+    truth = recording_truth(rec)
     result = load_result(result_dir)
     check_same_recording(result.summary, rec, result_dir)
-    names, ignored = _match(result, rec, gt)
+    names, ignored = _match(result, rec, truth)
     notes: list[str] = []
     if not len(result.frame):
         raise EvaluationError(f"{result_dir}: the result has no frames to evaluate")
     n_eval = int(result.frame[-1]) + 1
-    gt_names = [str(n) for n in gt["joint_names"]]
-    gt_joints = np.asarray(gt["joints"], dtype=np.float64)[:n_eval][
-        :, [gt_names.index(n) for n in names]
+    gt_joints = np.asarray(truth.joints, dtype=np.float64)[:n_eval][
+        :, [truth.joint_names.index(n) for n in names]
     ]
     pred = np.full_like(gt_joints, np.nan)
     res_idx = [result.joint_names.index(n) for n in names]
@@ -226,8 +236,8 @@ def evaluate(
 
     errors = m.joint_errors(pred, gt_joints)
     rotations, offset_frame = None, "camera"
-    if "q" in gt and np.isfinite(gt["q"][:n_eval]).all():
-        rotations = _segment_rotations(np.asarray(gt["q"][:n_eval], np.float64), names)
+    if truth.q is not None and np.isfinite(truth.q[:n_eval]).all():
+        rotations = _segment_rotations(truth.q[:n_eval], names)
         offset_frame = "ground_truth_q" if rotations is not None else offset_frame
     if rotations is None and np.isfinite(pred_q).all(1).any():
         rotations = _segment_rotations(pred_q, names)
@@ -268,9 +278,12 @@ def evaluate(
     per_joint = m.per_joint_error_mm(errors)
     per_joint_norm = m.per_joint_error_mm(norm_errors)
     frame_mm = m.per_frame_error_mm(errors)
+    failures_norm = m.system_failures(norm_errors, cfg.failure_threshold_m)
     report = {
         "recording": str(recording),
         "result": str(result_dir),
+        "truth": truth.kind,
+        "truth_source": truth.source,
         "frames": n_eval,
         "frames_with_pose": int(np.isfinite(errors).any(1).sum()),
         "frames_missing": int((status == "missing").sum()),
@@ -283,12 +296,25 @@ def evaluate(
         "per_joint_precision_10cm": _per_joint(
             names, m.per_joint_precision_at(errors, cfg.precision_threshold_m)
         ),
+        "precision_10cm_offset_normalized": _finite(
+            m.precision_at(norm_errors, cfg.precision_threshold_m)
+        ),
+        "per_joint_precision_10cm_offset_normalized": _per_joint(
+            names, m.per_joint_precision_at(norm_errors, cfg.precision_threshold_m)
+        ),
         "surface_error_q97_mm": _finite(surface_mm),
         "surface_error_frames": surface_frames,
         "tracking_failure_pct": _finite(m.tracking_failure_pct(result.status)),
         "detector_frames_pct": _finite(m.detector_frames_pct(result.status)),
         "system_failure_pct": _finite(m.percent(failures)),
         "system_failure_frames": _failed_frames(errors, failures, names, visible),
+        "system_failure_offset_normalized_pct": _finite(m.percent(failures_norm)),
+        "per_joint_failure_offset_normalized_pct": _per_joint(
+            names, m.per_joint_failure_pct(norm_errors, cfg.failure_threshold_m)
+        ),
+        "system_failure_offset_normalized_frames": _failed_frames(
+            norm_errors, failures_norm, names, visible
+        ),
         "system_failure_visible_pct": (
             _finite(m.percent(failures_seen)) if failures_seen is not None else None
         ),
@@ -305,6 +331,7 @@ def evaluate(
         "offset_frame": offset_frame,
         "joints": list(names),
         "joints_ignored": ignored,
+        "reference_joints_without_counterpart": list(truth.unmapped),
         "thresholds": {
             "precision_m": cfg.precision_threshold_m,
             "system_failure_m": cfg.failure_threshold_m,
@@ -313,4 +340,8 @@ def evaluate(
     }
     if not math.isclose(cfg.precision_threshold_m, 0.10):
         notes.append(f"precision_10cm was measured at {cfg.precision_threshold_m} m")
-    return Evaluation(report, frame_mm, status, names, per_joint, per_joint_norm)
+    if truth.kind == REFERENCE:
+        notes.insert(0, REFERENCE_NOTE.format(source=truth.source))
+    return Evaluation(
+        report, frame_mm, status, names, per_joint, per_joint_norm, norm_errors, truth
+    )

@@ -42,6 +42,12 @@ Definitions (F frames, J joints; a missing prediction is NaN and is never "corre
   inferred joints; a joint of a frame written without flags counts.
   :func:`observed_flag_agreement` says how well those flags match the joints the camera
   sees, so that a system cannot pass by calling every joint inferred.
+* **After offset normalization** the same precision and failure counts are taken on the
+  normalized errors (``precision_10cm_offset_normalized``,
+  ``system_failure_offset_normalized_pct``, and per joint the share of its estimates beyond
+  the threshold, :func:`per_joint_failure_pct`). They are the figures to read against a
+  *reference* skeleton from another tracker (:mod:`train.evaluation.truth`), whose joints
+  sit at other anatomical points than ours: raw distances there mix definition and error.
 * **Surface error, 97% quantile** (Helten IV-C "Surface Tracking Error"): per frame, the 97%
   quantile over all foreground depth points of the distance to the tracked body surface
   (the tracker reports it per frame as ``errors["surface_error_q97_mm"]``); the sequence value
@@ -61,6 +67,7 @@ __all__ = [
     "offset_normalized_errors",
     "precision_at",
     "per_joint_precision_at",
+    "per_joint_failure_pct",
     "system_failures",
     "observed_flag_agreement",
     "initializations",
@@ -167,6 +174,12 @@ def per_joint_precision_at(errors: np.ndarray, threshold_m: float = 0.10) -> np.
     hits = (np.where(finite, errors, np.inf) <= threshold_m).sum(0)
     with np.errstate(invalid="ignore", divide="ignore"):
         return hits / np.where(finite.sum(0) > 0, finite.sum(0), np.nan)
+
+
+def per_joint_failure_pct(errors: np.ndarray, failure_threshold_m: float = 0.20) -> np.ndarray:
+    """Percentage of each joint's estimates beyond the threshold: (F, J) -> (J,), NaN for
+    joints never estimated (frames without a pose are not counted: see system failures)."""
+    return 100.0 * (1.0 - per_joint_precision_at(errors, failure_threshold_m))
 
 
 def system_failures(

@@ -1,0 +1,150 @@
+"""The real-data benchmark: pooling by action (golden values), the worst and typical frames, the
+contact sheet, and the command end to end with tracking replaced by a written result."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+import torch
+from depthmocap.runtime.export import ResultWriter
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
+from depthmocap.shared.recording import RecordingWriter
+from depthmocap.train.evaluation import metrics as m
+from depthmocap.train.evaluation import overlay_sheet as sheet
+from depthmocap.train.evaluation import real_benchmark as rb
+from depthmocap.train.evaluation import silhouette_check as sil
+
+NAMES = ("head", "l_wrist")
+
+
+def _scored(name: str, errors_cm: list[list[float]], status=None, fps=10.0) -> rb.Scored:
+    norm = np.asarray(errors_cm, dtype=np.float64) / 100
+    status = status or {"tracked": len(norm), "detected": 0, "lost": 0}
+    report = {"status_counts": status, "fps": fps}
+    frame_mm = m.per_frame_error_mm(norm) + 10  # raw: 1 cm more than normalized
+    return rb.Scored(name, name.split("_")[0], report, norm, frame_mm, NAMES)
+
+
+def test_pooling_over_joint_estimates_and_frames_golden():
+    a = _scored("a05_s1_t1", [[2, 4], [2, 30]], fps=10.0)
+    b = _scored("a05_s2_t1", [[6, 8], [np.nan, np.nan]], {"tracked": 1, "detected": 0, "lost": 1},
+                fps=20.0)  # fmt: skip
+    p = rb.pooled([a, b])
+    assert p["recordings"] == 2 and p["frames"] == 4
+    assert p["normalized_mean_mm"] == pytest.approx(
+        1e3 * (0.02 + 0.04 + 0.02 + 0.3 + 0.06 + 0.08) / 6
+    )
+    assert p["within_10cm_pct"] == pytest.approx(100 * 5 / 6)
+    # Frame 1 of a (30 cm) and the frame without a pose fail: 2 of 4 frames.
+    assert p["frames_beyond_20cm_pct"] == pytest.approx(50.0)
+    assert p["lost_pct"] == pytest.approx(25.0) and p["detected_pct"] == 0.0
+    assert p["fps"] == pytest.approx(4 / (2 / 10 + 2 / 20))  # frames over seconds, not a mean
+    j = rb.per_joint([a, b])
+    assert j["l_wrist"]["beyond_20cm_pct"] == pytest.approx(100 / 3)
+    assert j["head"]["within_10cm_pct"] == 100.0
+
+
+def test_worst_and_typical_frames():
+    a = _scored("a05_s1_t1", [[2, 4], [2, 30], [1, 20]])
+    b = _scored("a05_s2_t1", [[6, 8], [np.nan, np.nan]])
+    c = _scored("a22_s1_t1", [[3, 3], [5, 1], [9, 9]])
+    worst = rb.worst_frames([a, b, c], 2)
+    assert worst == [
+        {"recording": "a05_s1_t1", "frame": 1, "joint": "l_wrist", "distance_mm": 300.0},
+        {"recording": "a22_s1_t1", "frame": 2, "joint": "head", "distance_mm": 90.0},
+    ]
+    typical = rb.typical_frames([a, b, c])
+    # a05's frame maxima: 4, 30, 20, 8 cm (and a frame without a pose): median 14, nearest 20.
+    assert typical[0] == {"recording": "a05_s1_t1", "frame": 2, "joint": "l_wrist",
+                          "distance_mm": pytest.approx(200.0)}  # fmt: skip
+    assert typical[1] == {"recording": "a22_s1_t1", "frame": 1, "joint": "head",
+                          "distance_mm": pytest.approx(50.0)}  # fmt: skip
+
+
+def test_sheet_pieces():
+    intr = Intrinsics(320, 240, 285.63, 285.63, 159.0, 120.0)
+    px = sheet.project(np.array([[0.0, 0.0, 2.0], [0.5, -0.25, 2.0], [0, 0, -1.0]]), intr)
+    np.testing.assert_allclose(px[:2], [[159.0, 120.0], [159 + 71.4075, 120 - 35.70375]])
+    assert np.isnan(px[2]).all()  # behind the camera
+    image = np.zeros((240, 320, 3), np.uint8)
+    drawn = sheet.draw_reference(image, px[:2], ("pelvis", "neck"), "neck", px[:2])
+    assert tuple(drawn[120, 159]) == sheet.REFERENCE_BGR and not image.any()
+    crop = sheet.crop_around(drawn, np.array([[310.0, 230.0]]), (150, 200))
+    assert crop.shape == (200, 150, 3)  # kept inside the image near its corner
+    tile = sheet.caption(crop, ["line one", "line two"], 2)
+    assert tile.shape == (400 + 32, 300, 3)
+    assert sheet.tile_sheet([tile] * 3, 2).shape == (2 * 432 + 2, 2 * 300 + 2, 3)
+
+
+def test_silhouette_check():
+    intr = Intrinsics(320, 240, 285.63, 285.63, 159.0, 120.0)
+    body = np.zeros((240, 320), bool)
+    body[100:140, 150:170] = True  # columns 150-169
+    at = lambda u, v: np.array([(u - 159.0) * 2.0 / 285.63, (v - 120.0) * 2.0 / 285.63, 2.0])  # noqa: E731
+    assert sil.on_body(body, at(160, 120), intr)
+    assert sil.on_body(body, at(172, 120), intr)  # 3 px slack
+    assert not sil.on_body(body, at(173, 120), intr)
+    assert not sil.on_body(body, at(400, 120), intr) and not sil.on_body(body, -at(160, 120), intr)
+    assert [sil.classify(r, o) for r, o in ((1, 1), (0, 1), (1, 0), (0, 0))] == list(sil.SIDES)
+
+
+FRAMES = 6
+CAM = Intrinsics(320, 240, 285.63, 285.63, 159.0, 120.0)
+
+
+def _write_take(root, name: str, wrist_off: float):
+    """A recording with a reference skeleton (our joints, the left wrist ``wrist_off`` m off
+    in frame 3) and a tracked result with overlays, as runtime-track would leave them."""
+    q = rest_pose(FRAMES, root_position=(0.0, 0.1, 2.8), dtype=torch.float64).numpy()
+    joints = named_joint_positions(
+        forward_kinematics(torch.as_tensor(q), BodyShape.default(torch.float64))
+    ).numpy()
+    reference = joints.copy()
+    reference[3, sk.JOINT_NAMES.index("l_wrist"), 2] += wrist_off
+    with RecordingWriter(root / "data" / name, CAM, fps=30.0, source="test") as w:
+        for _ in range(FRAMES):
+            w.write_frame(np.full((CAM.height, CAM.width), 2800, np.uint16))
+        w.write_reference(reference, sk.JOINT_NAMES, "Test tracker (another tracker)",
+                          [(n, n) for n in sk.JOINT_NAMES])  # fmt: skip
+    result = root / "out" / "results" / name
+    with ResultWriter(result, BodyShape.default(), 30.0, CAM, "hybrid", "test") as w:
+        for i in range(FRAMES):
+            w.write_frame(i, i / 30, "tracked", joints[i], q[i], {})
+    (result / "overlays").mkdir()
+    for i in range(FRAMES):
+        cv2.imwrite(str(result / "overlays" / f"{i:06d}.png"), np.zeros((240, 320, 3), np.uint8))
+
+
+def test_benchmark_end_to_end_without_tracking(tmp_path, monkeypatch, capsys):
+    _write_take(tmp_path, "a05_s1_t1", 0.6)
+    _write_take(tmp_path, "a22_s1_t1", 0.0)
+    monkeypatch.setattr(rb, "_track", lambda *a: pytest.fail("complete results are reused"))
+    args = ["--data", str(tmp_path / "data"), "--out", str(tmp_path / "out"),
+            "--typical-sheet", str(tmp_path / "typical.png")]  # fmt: skip
+    assert rb.main(args) == 0
+    printed = capsys.readouterr().out
+    assert "not ground truth" in printed and "| a05 throw | 1 | 6 |" in printed
+    assert "| a22 jog in place | 1 | 6 |" in printed and "| **all** | 2 | 12 |" in printed
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["all"]["frames_beyond_20cm_pct"] == pytest.approx(100 / 12)
+    # The whole image is "body" here: both wrists project onto it.
+    assert report["all"]["beyond_20cm_frames_by_side"]["both_on_body"] == 1
+    assert "| **all** | 1 | 0.0% | 0.0% | 0.0% | 100.0% |" in printed
+    worst = report["worst_frames"][0]
+    assert (worst["recording"], worst["frame"], worst["joint"]) == ("a05_s1_t1", 3, "l_wrist")
+    assert worst["distance_mm"] == pytest.approx(500.0)
+    assert set(report["per_recording"]) == {"a05_s1_t1", "a22_s1_t1"}
+    image = cv2.imread(str(tmp_path / "out" / "worst_frames.png"))
+    assert image is not None and image.shape[1] == 6 * 300 + 5 * 2
+    assert cv2.imread(str(tmp_path / "typical.png")) is not None
+
+
+def test_no_recordings_is_an_error(tmp_path, capsys):
+    assert rb.main(["--data", str(tmp_path), "--out", str(tmp_path / "out")]) == 2
+    assert capsys.readouterr().err.startswith("error: ")

@@ -1,0 +1,64 @@
+"""What a tracking result is compared with: a recording's ground truth, or failing that its
+reference skeleton (another tracker's estimate, e.g. the Kinect SDK's on real data).
+
+Both become a :class:`Truth` under our joint names, so the evaluation's matching, offset
+normalization and metrics are the same code for either; only the words differ: against a
+reference the figures are *agreement* with another tracker, not accuracy, and the report and
+the printed table say so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from depthmocap.shared.recording import Recording, RecordingError, mapped_reference
+
+__all__ = ["Truth", "GROUND_TRUTH", "REFERENCE", "recording_truth"]
+
+GROUND_TRUTH = "ground_truth"
+REFERENCE = "reference"
+
+
+@dataclass(frozen=True)
+class Truth:
+    """The joints a result is scored against.
+
+    Attributes:
+        kind: :data:`GROUND_TRUTH` or :data:`REFERENCE`.
+        joints: (F, J, 3) camera metres, F = the recording's frames.
+        joint_names: J names (ours for a reference, through its joint map).
+        q: (F, 34) poses of the ground truth, or None (a reference has none).
+        source: what produced them (``groundtruth.npz``, or the reference's own ``source``).
+        unmapped: the reference's joints with no counterpart among ours (not evaluated).
+    """
+
+    kind: str
+    joints: np.ndarray
+    joint_names: tuple[str, ...]
+    q: np.ndarray | None
+    source: str
+    unmapped: tuple[str, ...] = ()
+
+
+def recording_truth(rec: Recording) -> Truth:
+    """The recording's ground truth if it has one, else its reference.
+
+    Raises:
+        RecordingError: neither file, or a malformed one.
+    """
+    if rec.has_groundtruth:
+        gt = rec.groundtruth()
+        q = np.asarray(gt["q"], dtype=np.float64) if "q" in gt else None
+        names = tuple(str(n) for n in gt["joint_names"])
+        return Truth(GROUND_TRUTH, np.asarray(gt["joints"]), names, q, "groundtruth.npz")
+    if rec.has_reference:
+        ref = rec.reference()
+        joints, names = mapped_reference(ref)
+        mapped = {str(theirs) for theirs in np.asarray(ref["joint_map"])[:, 1]}
+        unmapped = tuple(str(n) for n in ref["joint_names"] if str(n) not in mapped)
+        return Truth(REFERENCE, joints, names, None, str(ref["source"]), unmapped)
+    raise RecordingError(
+        f"{rec.path}: recording has no ground truth (groundtruth.npz) and no reference "
+        "skeleton (reference.npz) to compare with"
+    )

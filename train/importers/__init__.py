@@ -1,0 +1,1 @@
+"""Importers of other people's depth data into the project's recordings (``train-import``)."""
