@@ -20,14 +20,18 @@ classes) **three times**, each time with another body and another camera:
   side. Camera heights and nominal distances are stratified draws over the whole protocol
   (Latin hypercube: one per equal stratum, shuffled). Uncut views see the whole motion: the
   camera moves, from its nominal distance, to the nearest distance (5 cm steps, within
-  ``distance``, 1.5-4.5 m) at which every vertex stays in the image and within the Kinect v1's
-  4.5 m range; a variant with no such distance is skipped (the two jog takes that run out to
-  5 m). Cut views leave part of the person out of the image: *feet*: a near camera (1.5-2 m)
-  whose image top passes just over the head and whose bottom edge crosses the person's axis at
-  ``feet_cut_height`` above the floor; *arm*: the uncut camera panned so that one image border
-  (left or right) lies ``arm_cut_border`` beyond the trunk's (head, neck, shoulders,
-  torso) outermost point on that side in the median frame: the arm on that side is cut
-  whenever it reaches out, and more of the person when they move towards that border.
+  ``distance``, 1.5-4.5 m) at which every vertex (every 20th, as for training frames) stays
+  in the image, ``margin_px`` from its border, and within the Kinect v1's 4.5 m range; a
+  variant with no such distance tries the other camera heights (0.1 m steps, nearest first),
+  then other yaws of its sector (5 degree steps, nearest first), and is skipped (listed in the
+  manifest) when none works. Cut views leave part of the person out of the image: *feet*: a
+  near camera (1.5-2 m) whose image top passes just over the head and whose bottom edge
+  crosses the person's axis at ``feet_cut_height`` above the floor (moved back only as far as
+  the person's width needs; a motion wider than any such view, a jog in a circle, is cut at
+  the sides too); *arm*: the uncut camera panned so that one image border (left or right)
+  lies ``arm_cut_border`` beyond the trunk's (head, neck, shoulders, torso) outermost point
+  on that side in the median frame: the arm on that side is cut whenever it reaches out, and
+  more of the person when they move towards that border.
 - **Frames**: the first ``max_frames`` (90) frames of each take at 30 fps (the takes are
   16-161 frames long): 6,816 frames for 120 variants before skips; the calibration T-pose
   recordings add ``calibration_frames`` (30) per body.
@@ -35,9 +39,11 @@ classes) **three times**, each time with another body and another camera:
 Everything is a pure function of :class:`BroadProtocolConfig` (and its ``seed``) and the clip
 names: :func:`protocol_variants` gives the same variants on every machine. What was rendered
 (the camera's actual distance, height and yaw read back from the recording, the body's
-stature, how much of the person the image cut) goes into each recording's ``protocol.json``
-and the output folder's ``manifest.json``. Changing anything here makes a new protocol
-version: bump :data:`PROTOCOL_VERSION` and say so in ``docs/protocol.md``.
+stature, how much of the person the image cut: the share of frames with a ground-truth joint
+outside the image and, per joint, the share of frames it is outside) goes into each
+recording's ``protocol.json`` and the output folder's ``manifest.json``. Changing anything
+here makes a new protocol version: bump :data:`PROTOCOL_VERSION` and say so in
+``docs/protocol.md``.
 """
 
 from __future__ import annotations
@@ -67,6 +73,7 @@ __all__ = [
     "motion_class",
     "protocol_variants",
     "variant_phenotype",
+    "body_stature",
     "camera_at",
     "place_camera",
     "recorded_camera",
@@ -380,6 +387,17 @@ def _feet_cut_distance(height: float, top: float, cut: float, half_v: float) -> 
     return 0.5 * (lo + hi)
 
 
+def _yaws(variant: Variant, cfg: BroadProtocolConfig) -> list[float]:
+    """The variant's yaw, then 5 degree steps of its view's sector, nearest first."""
+    if variant.view == "side":
+        lo, hi = cfg.side_yaw_deg
+        grid = np.concatenate([np.arange(lo, hi + 1e-9, 5.0), -np.arange(lo, hi + 1e-9, 5.0)])
+    else:
+        top = cfg.frontal_yaw_max_deg
+        grid = np.arange(-top, top + 1e-9, 5.0)
+    return [variant.yaw_deg, *grid[np.argsort(np.abs(grid - variant.yaw_deg), kind="stable")]]
+
+
 def place_camera(
     variant: Variant,
     cfg: BroadProtocolConfig,
@@ -409,14 +427,22 @@ def place_camera(
         d = max(lo, d if d is not None else lo)
         # Aim so that the image's top edge passes over the head; move back (less cut) only as
         # far as the person's width needs.
-        for dist in steps[steps >= d - 1e-9]:
-            pitch = math.atan2(h - top, dist) + half_v  # downwards, radians
-            cam = camera_at(dist, h, yaw, h - dist * math.tan(pitch), roll)
-            if _inside(cam.cam_from_world[0], hull, intr, 0.0, max_depth, rows=False):
-                return cam
-        raise OutOfRangeError(f"{variant.name}: no feet-cut camera fits the person's width")
+        # A motion wider than any such view (a jog in a circle) is cut at the sides too: the
+        # nearest distance that keeps it within the sensor's range.
+        for cols in (True, False):
+            for dist in steps[steps >= d - 1e-9]:
+                pitch = math.atan2(h - top, dist) + half_v  # downwards, radians
+                cam = camera_at(dist, h, yaw, h - dist * math.tan(pitch), roll)
+                if _inside(cam.cam_from_world[0], hull, intr, 0.0, max_depth, False, cols):
+                    return cam
+        raise OutOfRangeError(f"{variant.name}: no feet-cut camera keeps it within range")
     order = steps[np.argsort(np.abs(steps - variant.nominal_distance_m), kind="stable")]
-    for dist in order:
+    # The variant's camera height and yaw first; when no distance shows the motion from
+    # there, the nearest height (0.1 m steps within camera_height), then the nearest yaw
+    # (5 degree steps within the view's sector) that does.
+    grid = np.round(np.arange(cfg.camera_height[0], cfg.camera_height[1] + 1e-9, 0.1), 4)
+    heights = [h, *grid[np.argsort(np.abs(grid - h), kind="stable")]]
+    for yaw, h, dist in ((y, a, b) for y in _yaws(variant, cfg) for a in heights for b in order):
         cam = camera_at(float(dist), h, yaw, target, roll)
         if variant.cut == "arm":
             if not _inside(cam.cam_from_world[0], hull, intr, cfg.margin_px, max_depth, cols=False):
@@ -435,8 +461,8 @@ def place_camera(
         if _inside(cam.cam_from_world[0], hull, intr, cfg.margin_px, max_depth):
             return cam
     raise OutOfRangeError(
-        f"{variant.name}: no camera at {lo}-{hi} m keeps the whole motion in view within "
-        f"{max_depth} m"
+        f"{variant.name}: no camera at {lo}-{hi} m (any height) keeps the whole motion in "
+        f"view within {max_depth} m"
     )
 
 
@@ -485,6 +511,7 @@ def variant_record(variant: Variant, recording: Path) -> dict:
     names = list(sk.JOINT_NAMES)
     record = asdict(variant)
     record["frames"] = int(gt["joints"].shape[0])
+    record["stature_m"] = body_stature(variant.phenotype)
     record["camera"] = recorded_camera(gt["cam_from_world"])
     record["frames_cut_pct"] = round(100.0 * float(out.any(1).mean()), 2)
     record["joints_cut_pct"] = round(100.0 * float(out.mean()), 2)
@@ -492,6 +519,13 @@ def variant_record(variant: Variant, recording: Path) -> dict:
         n: round(100.0 * float(out[:, i].mean()), 1) for i, n in enumerate(names) if out[:, i].any()
     }
     return record
+
+
+def body_stature(phenotype: dict[str, float]) -> float:
+    """Standing height of the anny body of ``phenotype`` (its rest pose's vertical extent), m."""
+    from depthmocap.train.bodies.anny_body import make_body
+
+    return round(float(np.ptp(make_body(phenotype).vertices[:, 1])), 3)
 
 
 def load_manifest(folder: str | Path) -> dict:
@@ -577,7 +611,11 @@ def render_protocol(
                 continue
             done.write_text(json.dumps(variant_record(v, rec), indent=1))
             print(f"[{i + 1}/{len(variants)}] wrote {rec}", flush=True)
-        records.append(json.loads(done.read_text()))
+        record = json.loads(done.read_text())
+        if "stature_m" not in record:  # (recordings rendered before it was recorded)
+            record["stature_m"] = body_stature(v.phenotype)
+            done.write_text(json.dumps(record, indent=1))
+        records.append(record)
     path = write_manifest(out, cfg, records, skipped)
     print(f"{len(records)} recordings, {sum(r['frames'] for r in records)} frames, "
           f"{len(skipped)} skipped: {path}", flush=True)  # fmt: skip
