@@ -134,11 +134,16 @@ def run_config(
     device: str,
     mode_config: Path | None,
     tracker: dict | None = None,
+    reuse: bool = False,
 ) -> dict:
     """Track ``rec`` with configuration ``name`` and evaluate; returns the report.
 
     ``tracker``: settings merged into the hybrid's tracker settings (e.g. ``max_step_rad``).
+    ``reuse``: evaluate a complete result already in ``out`` instead of tracking again (to
+    resume an interrupted run of the same code and settings).
     """
+    if reuse and _complete_result(out / "result"):
+        return evaluate(rec, out / "result").report
     import yaml
 
     mode, body, overrides = CONFIGS[name]
@@ -161,6 +166,14 @@ def run_config(
         cmd += ["--config", str(cfg_path)]
     _run(cmd)
     return evaluate(rec, out / "result").report
+
+
+def _complete_result(result: Path) -> bool:
+    """Whether ``result`` holds a finished runtime-track result (summary.json complete)."""
+    try:
+        return json.loads((result / "summary.json").read_text()).get("complete") is True
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 def aggregate(reports: list[dict]) -> dict:
@@ -397,6 +410,12 @@ def main(argv: list[str] | None = None) -> int:
         help="run each hybrid configuration once per tracker trust region (max_step_rad, "
         "radians) and add the runs' mean (the README's three-run figures: 0.18 0.2 0.22)",
     )
+    p.add_argument(
+        "--reuse-results",
+        action="store_true",
+        help="evaluate the complete results already under --out instead of tracking those "
+        "recordings again: resumes an interrupted run (same code and settings only)",
+    )
     args = p.parse_args(argv)
     if args.trust_regions and not all(v > 0 and math.isfinite(v) for v in args.trust_regions):
         p.error(f"--trust-regions must be positive radians, got {args.trust_regions}")
@@ -441,7 +460,7 @@ def main(argv: list[str] | None = None) -> int:
                 for rec in recs:
                     reports.append(
                         run_config(name, rec, Path(args.out) / slug / rec.name, args.model,
-                                   args.device, args.mode_config, tracker)
+                                   args.device, args.mode_config, tracker, args.reuse_results)
                     )  # fmt: skip
             except RuntimeError as err:
                 print(f"| {row} | failed: {str(err).splitlines()[-1][:80]} |||||||")

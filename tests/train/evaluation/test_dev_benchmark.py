@@ -262,3 +262,25 @@ def test_broad_protocol_prints_the_headline_then_tables_per_group(tmp_path, caps
     ran.clear()
     assert main([*args, "--limit", "2"]) == 0
     assert ran == [("hybrid, default body", "r1"), ("hybrid, default body", "r2")]
+
+
+def test_reuse_results_evaluates_complete_results_and_tracks_the_rest(tmp_path, monkeypatch):
+    import json
+
+    import depthmocap.train.evaluation.dev_benchmark as bench
+
+    commands = []
+    monkeypatch.setattr(bench, "_run", commands.append)
+    monkeypatch.setattr(bench, "evaluate", lambda rec, result: type("E", (), {"report": {}})())
+    done, partial = tmp_path / "out" / "a", tmp_path / "out" / "b"
+    for out, complete in ((done, True), (partial, False)):
+        (out / "result").mkdir(parents=True)
+        (out / "result" / "summary.json").write_text(json.dumps({"complete": complete}))
+    cfg = tmp_path / "hybrid.yaml"
+    cfg.write_text("{}\n")
+    for out in (done, partial):
+        bench.run_config("hybrid, default body", tmp_path / out.name, out, "f.npz", "cpu", cfg,
+                         reuse=True)  # fmt: skip
+    assert len(commands) == 1 and str(partial / "result") in commands[0]
+    bench.run_config("hybrid, default body", tmp_path / "a", done, "f.npz", "cpu", cfg)
+    assert len(commands) == 2  # without reuse, tracked again
