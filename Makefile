@@ -4,7 +4,7 @@ PY := .venv/bin/python
 SETUP_STAMP := .venv/.setup-stamp
 export PYTHONUNBUFFERED := 1
 
-.PHONY: setup demo test lint format bench install-check clean synth dev-recordings dev-recordings-all train-forest train-forest-eval \
+.PHONY: setup demo test lint format bench install-check clean synth dev-recordings dev-recordings-all dev-protocol dev-protocol-eval train-forest train-forest-eval \
 	synth-calib train-forest-calib
 
 setup: ## create .venv, install system packages (root), torch and the project with all extras
@@ -47,6 +47,12 @@ dev-recordings: $(SETUP_STAMP) ## evaluation recordings from the HDM05 dev clips
 
 dev-recordings-all: $(SETUP_STAMP) ## every tracked dev take (39 clips, 2,433 frames) into data/dev_all, data/dev_all_calib
 	$(PY) -m depthmocap.train.evaluation.dev_recordings --all-clips --out data/dev_all
+
+dev-protocol: $(SETUP_STAMP) ## the frozen broad dev protocol (docs/protocol.md) into data/dev_broad, data/dev_broad_calib
+	$(PY) -m depthmocap.train.evaluation.dev_recordings --protocol broad --out data/dev_broad
+
+dev-protocol-eval: $(SETUP_STAMP) ## the fully automatic system (hybrid, default body) on data/dev_broad, per class too
+	$(PY) -m depthmocap.train.evaluation.dev_benchmark --protocol broad
 
 train-forest: $(SETUP_STAMP) ## the body-part forest from data/synth into models/forest.npz
 	$(PY) -m depthmocap.train.forest.train_cli --data data/synth --out models/forest.npz --config configs/forest.yaml

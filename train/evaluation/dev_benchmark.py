@@ -19,6 +19,14 @@ The tracker is chaotic where a limb is hidden: a small change anywhere moves a f
 a far arm across the 20 cm system-failure line, so one run's system failure varies by about
 half a percent. ``--trust-regions 0.18 0.2 0.22`` runs every hybrid configuration once per
 tracker trust region (``max_step_rad``) and adds the runs' mean as a row of its own.
+
+``--protocol broad`` evaluates the frozen broad dev protocol (``make dev-protocol``,
+:mod:`train.evaluation.protocol`, ``docs/protocol.md``): the recordings of
+``data/dev_broad/manifest.json`` (all of them, unless ``--limit``), by default only the
+headline row, ``hybrid, default body`` (the fully automatic system); rows that use the
+recording's true body or labels are marked as diagnostics. After the table come the same
+figures per motion class, per camera (frontal, side), per cut (uncut, feet, arm) and per
+body (sex, height class), frame-weighted within each group.
 """
 
 from __future__ import annotations
@@ -33,8 +41,10 @@ from pathlib import Path
 
 import numpy as np
 from depthmocap.shared.config import load_settings
+from depthmocap.shared.recording import Recording
 from depthmocap.train.evaluation.body_lengths import bone_length_errors, format_bone_length_errors
 from depthmocap.train.evaluation.evaluate import evaluate, format_failed_frames
+from depthmocap.train.evaluation.protocol import PROTOCOL_VERSION, load_manifest, manifest_groups
 
 # name -> (mode, body, settings overriding the mode's config). Bodies: "gt" (the rendered
 # body's skeleton), "default" (average adult), "personalized" (runtime-personalize on the same
@@ -124,11 +134,16 @@ def run_config(
     device: str,
     mode_config: Path | None,
     tracker: dict | None = None,
+    reuse: bool = False,
 ) -> dict:
     """Track ``rec`` with configuration ``name`` and evaluate; returns the report.
 
     ``tracker``: settings merged into the hybrid's tracker settings (e.g. ``max_step_rad``).
+    ``reuse``: evaluate a complete result already in ``out`` instead of tracking again (to
+    resume an interrupted run of the same code and settings).
     """
+    if reuse and _complete_result(out / "result"):
+        return evaluate(rec, out / "result").report
     import yaml
 
     mode, body, overrides = CONFIGS[name]
@@ -153,6 +168,14 @@ def run_config(
     return evaluate(rec, out / "result").report
 
 
+def _complete_result(result: Path) -> bool:
+    """Whether ``result`` holds a finished runtime-track result (summary.json complete)."""
+    try:
+        return json.loads((result / "summary.json").read_text()).get("complete") is True
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
 def aggregate(reports: list[dict]) -> dict:
     """Frame-weighted means of the metrics over recordings (None where all are None)."""
     out = {}
@@ -173,6 +196,48 @@ def mean_of_runs(aggs: list[dict]) -> dict:
         else float(np.mean([a[key] for a in aggs]))
         for key in METRICS
     }
+
+
+HEADLINE = "hybrid, default body"  # the fully automatic system: the broad protocol's headline
+
+
+def row_label(name: str) -> str:
+    """Configuration ``name`` as the broad protocol's tables show it: a row that reads the
+    recording's ground truth (its true body or its part labels) is marked as a diagnostic."""
+    _, body, overrides = CONFIGS[name]
+    if "labels_from_recording" in overrides:
+        return f"{name} (diagnostic: true body and labels)"
+    if body == "gt":
+        return f"{name} (diagnostic: true body)"
+    return name
+
+
+def group_aggregates(
+    per_recording: dict[str, dict], groups: dict[str, str]
+) -> dict[str, tuple[dict, int, int]]:
+    """Per group of ``groups`` (recording -> group): the frame-weighted :func:`aggregate` of
+    its recordings' reports, their number and their frames, groups sorted by name.
+    Recordings without a group, or not run, are left out."""
+    members: dict[str, list[dict]] = {}
+    for rec, report in per_recording.items():
+        if rec in groups:
+            members.setdefault(groups[rec], []).append(report)
+    return {
+        g: (aggregate(reps), len(reps), sum(int(r.get("frames") or 0) for r in reps))
+        for g, reps in sorted(members.items())
+    }
+
+
+def format_group_table(
+    grouping: str, row: str, mode: str, per_recording: dict[str, dict], groups: dict[str, str]
+) -> str:
+    """The table of table row ``row`` (a configuration of ``mode``) per group of
+    ``grouping``: one row per group."""
+    head = HEADER.replace("| configuration |", f"| {grouping} (recordings, frames) |", 1)
+    lines = [f"{row}, per {grouping}:", "", head]
+    for group, (agg, n, frames) in group_aggregates(per_recording, groups).items():
+        lines.append(format_row(f"{group} ({n}, {frames})", agg, mode))
+    return "\n".join(lines)
 
 
 def format_row(name: str, agg: dict, mode: str | None = None) -> str:
@@ -278,11 +343,56 @@ HEADER = (
 )
 
 
+def _protocol_recordings(
+    folder: Path, limit: int | None
+) -> tuple[list[Path], dict[str, dict[str, str]], str | None]:
+    """The broad protocol's recordings in ``folder`` (its manifest's, in order), their
+    groupings, and a problem that stops the run (None if none): no or a bad manifest, or
+    recordings missing (allowed with ``limit``, which takes the first ``limit`` present)."""
+    try:
+        manifest = load_manifest(folder)
+    except (FileNotFoundError, ValueError) as err:
+        return [], {}, str(err)
+    names = [r["name"] for r in manifest["recordings"]]
+    present = [folder / n for n in names if (folder / n / "groundtruth.npz").is_file()]
+    if limit:
+        present = present[:limit]
+    elif len(present) < len(names):
+        missing = len(names) - len(present)
+        return (
+            [],
+            {},
+            (
+                f"{folder}: {missing} of the manifest's {len(names)} recordings are missing (run "
+                "make dev-protocol to finish them, or --limit for a partial run)"
+            ),
+        )
+    return present, manifest_groups(manifest), None
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="train-dev-benchmark", description=__doc__.splitlines()[0])
-    p.add_argument("--recordings", default="data/dev", help="folder of dev recordings")
-    p.add_argument("--out", default="out/dev_benchmark", help="results and the JSON report")
-    p.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
+    p.add_argument(
+        "--recordings",
+        default=None,
+        help="folder of dev recordings (default: data/dev; data/dev_broad with --protocol broad)",
+    )
+    p.add_argument("--out", default=None, help="results and the JSON report (default: "
+                   "out/dev_benchmark; out/dev_broad with --protocol broad)")  # fmt: skip
+    p.add_argument(
+        "--configs",
+        nargs="+",
+        default=None,
+        choices=list(CONFIGS),
+        help=f"configurations to run (default: all; with --protocol broad: {HEADLINE!r})",
+    )
+    p.add_argument(
+        "--protocol",
+        choices=["dev", "broad"],
+        default="dev",
+        help="broad: every recording of the broad protocol's manifest, tables per motion "
+        "class, camera, cut and body too (docs/protocol.md)",
+    )
     p.add_argument("--model", default="models/forest.npz", help="forest for hybrid/detector")
     p.add_argument("--device", default="cpu", help="cpu or cuda")
     p.add_argument(
@@ -300,24 +410,48 @@ def main(argv: list[str] | None = None) -> int:
         help="run each hybrid configuration once per tracker trust region (max_step_rad, "
         "radians) and add the runs' mean (the README's three-run figures: 0.18 0.2 0.22)",
     )
+    p.add_argument(
+        "--reuse-results",
+        action="store_true",
+        help="evaluate the complete results already under --out instead of tracking those "
+        "recordings again: resumes an interrupted run (same code and settings only)",
+    )
     args = p.parse_args(argv)
     if args.trust_regions and not all(v > 0 and math.isfinite(v) for v in args.trust_regions):
         p.error(f"--trust-regions must be positive radians, got {args.trust_regions}")
     if args.mode_config is not None and not args.mode_config.is_file():
         p.error(f"--mode-config: no such file {args.mode_config}")
-    recs = sorted(d for d in Path(args.recordings).glob("*") if (d / "groundtruth.npz").is_file())
-    if args.limit:
-        recs = recs[: args.limit]
+    broad = args.protocol == "broad"
+    args.recordings = args.recordings or ("data/dev_broad" if broad else "data/dev")
+    args.out = args.out or ("out/dev_broad" if broad else "out/dev_benchmark")
+    configs = args.configs or ([HEADLINE] if broad else list(CONFIGS))
+    if broad:  # the headline row first
+        configs = sorted(configs, key=lambda n: n != HEADLINE)
+    groupings: dict[str, dict[str, str]] = {}
+    if broad:
+        recs, groupings, problem = _protocol_recordings(Path(args.recordings), args.limit)
+        if problem:
+            print(f"error: {problem}", file=sys.stderr)
+            return 2
+    else:
+        recs = sorted(
+            d for d in Path(args.recordings).glob("*") if (d / "groundtruth.npz").is_file()
+        )
+        if args.limit:
+            recs = recs[: args.limit]
     if not recs:
         print(f"no dev recordings in {args.recordings}: run `make dev-recordings`", file=sys.stderr)
         return 2
-    print(f"{len(recs)} dev recordings from {args.recordings}\n")
+    label = row_label if broad else str
+    frames = sum(len(Recording(r)) for r in recs) if broad else None
+    extent = f" ({frames} frames, broad protocol version {PROTOCOL_VERSION})" if broad else ""
+    print(f"{len(recs)} dev recordings from {args.recordings}{extent}\n")
     print(HEADER)
     results = {}
-    for name in args.configs:
-        runs = [(name, None)]
+    for name in configs:
+        runs = [(label(name), None)]
         if CONFIGS[name][0] == "hybrid" and args.trust_regions:
-            runs = [(f"{name} @ {v:g} rad", {"max_step_rad": v}) for v in args.trust_regions]
+            runs = [(f"{label(name)} @ {v:g} rad", {"max_step_rad": v}) for v in args.trust_regions]
         for row, tracker in runs:
             t0 = time.perf_counter()
             reports = []
@@ -326,21 +460,29 @@ def main(argv: list[str] | None = None) -> int:
                 for rec in recs:
                     reports.append(
                         run_config(name, rec, Path(args.out) / slug / rec.name, args.model,
-                                   args.device, args.mode_config, tracker)
+                                   args.device, args.mode_config, tracker, args.reuse_results)
                     )  # fmt: skip
             except RuntimeError as err:
                 print(f"| {row} | failed: {str(err).splitlines()[-1][:80]} |||||||")
                 continue
             agg = aggregate(reports)
             per_rec = dict(zip([r.name for r in recs], reports))
-            results[row] = {"mean": agg, "per_recording": per_rec}
+            results[row] = {"mean": agg, "per_recording": per_rec, "config": name}
             print(format_row(row, agg, CONFIGS[name][0]), flush=True)
             results[row]["seconds"] = time.perf_counter() - t0
         done = [results[row]["mean"] for row, _ in runs if row in results]
         if len(runs) > 1 and len(done) == len(runs):
-            row = f"{name}, mean of {len(done)}"
+            row = f"{label(name)}, mean of {len(done)}"
             results[row] = {"mean": mean_of_runs(done)}
             print(format_row(row, results[row]["mean"], CONFIGS[name][0]), flush=True)
+    for row, res in results.items():
+        for grouping, groups in groupings.items() if "per_recording" in res else ():
+            mode = CONFIGS[res["config"]][0]
+            print("\n" + format_group_table(grouping, row, mode, res["per_recording"], groups))
+            per_group = group_aggregates(res["per_recording"], groups)
+            res.setdefault("per_group", {})[grouping] = {
+                g: {"mean": a, "recordings": n, "frames": f} for g, (a, n, f) in per_group.items()
+            }
     for row, res in results.items():
         if "per_recording" in res:
             print("\n" + format_failures(row, res["per_recording"], res["mean"]))
@@ -348,7 +490,7 @@ def main(argv: list[str] | None = None) -> int:
     for row, res in results.items():
         if "per_recording" in res:
             print("  " + format_speed(row, res["per_recording"]))
-    kinds = {CONFIGS[n][1] for n in args.configs}
+    kinds = {CONFIGS[n][1] for n in configs}
     for kind, (errors, text) in body_length_reports(Path(args.out) / "bodies", recs, kinds).items():
         results[f"{kind} bodies"] = {"bone_length_errors": errors}
         print("\n" + text)

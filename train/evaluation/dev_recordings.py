@@ -10,6 +10,11 @@ evaluating skeleton calibration and personalization against the known body.
 ``--all-clips`` renders every dev take of the tracked motion classes instead (39 takes, 2,433
 frames, against the default set's 545), for failure rates too small for ten clips to measure:
 one failed frame of the default set moves the mean system failure by 0.1-0.5 points.
+
+``--protocol broad`` renders the broad dev protocol instead (:mod:`train.evaluation.protocol`,
+``docs/protocol.md``): every tracked dev take with three stratified bodies and cameras
+(frontal, side, cut), its spec from ``--protocol-config`` (default ``configs/dev_broad.yaml``),
+a ``manifest.json`` of what was rendered, and each body's T-pose in ``OUT_calib``.
 """
 
 from __future__ import annotations
@@ -67,14 +72,33 @@ def main(argv: list[str] | None = None) -> int:
         help="also render each dev body holding the calibration T-pose (1 s) here (default: "
         "OUT_calib, where the dev benchmark looks for it; '' for none)",
     )
+    p.add_argument(
+        "--protocol",
+        choices=["dev", "broad"],
+        default="dev",
+        help="dev: the recordings above; broad: the frozen broad protocol (docs/protocol.md)",
+    )
+    p.add_argument(
+        "--protocol-config",
+        type=Path,
+        default=None,
+        help="YAML spec of the broad protocol (default: configs/dev_broad.yaml if present, "
+        "else the built-in version-1 spec)",
+    )
     args = p.parse_args(argv)
     folder = Path(args.clips)
+    if args.protocol == "dev" and args.protocol_config is not None:
+        p.error("--protocol-config needs --protocol broad")
+    if args.protocol == "broad" and (args.all_clips or args.frames != 150):
+        p.error("--all-clips and --frames are set by the broad protocol's spec")
     if not folder.is_dir():
         print(f"error: {folder}: dev clips not found (../shared missing?)", file=sys.stderr)
         return 2
+    calibration_out = f"{args.out}_calib" if args.calibration_out is None else args.calibration_out
+    if args.protocol == "broad":
+        return _render_broad(args, folder, calibration_out)
     clips = all_dev_clips(folder) if args.all_clips else list(DEV_CLIPS)
     clips = clips[: args.count]
-    calibration_out = f"{args.out}_calib" if args.calibration_out is None else args.calibration_out
     recorded = []  # (seed, name) of the takes that have a recording
     for seed, name in enumerate(clips):
         out = Path(args.out) / Path(name).stem
@@ -97,6 +121,24 @@ def main(argv: list[str] | None = None) -> int:
         if not (out / "groundtruth.npz").is_file():
             render_sequence("t_pose", out, frames=30, seed=100 + seed, overwrite=True)
             print(f"wrote {out}")
+    return 0
+
+
+def _render_broad(args: argparse.Namespace, folder: Path, calibration_out: str) -> int:
+    from depthmocap.shared.config import ConfigError, load_config
+    from depthmocap.train.evaluation.protocol import BroadProtocolConfig, render_protocol
+
+    path = args.protocol_config
+    if path is None and Path("configs/dev_broad.yaml").is_file():
+        path = Path("configs/dev_broad.yaml")
+    try:
+        cfg = load_config(BroadProtocolConfig, path)
+        cfg.validate()
+    except ConfigError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    calib = Path(calibration_out) if calibration_out else None
+    render_protocol(cfg, folder, Path(args.out), calib, args.count)
     return 0
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -22,13 +23,16 @@ from depthmocap.shared import skeleton as sk
 from depthmocap.shared.camera import Intrinsics
 from depthmocap.shared.procedural_motion import MOTIONS, ground_poses, motion_poses
 from depthmocap.shared.recording import RecordingWriter
+from depthmocap.train.bodies.anny_body import AnnyBody, make_body
 from depthmocap.train.synth.frame import (
+    PlacedBody,
     SceneConfig,
     body_for_index,
     face_forward,
     place_on_floor,
     render_frame,
 )
+from depthmocap.train.synth.viewpoints import Viewpoints
 
 __all__ = ["OutOfRangeError", "sequence_poses", "render_sequence"]
 
@@ -75,11 +79,17 @@ def render_sequence(
     front_only: bool = True,
     progress: bool = False,
     require_in_range: bool = False,
+    phenotype: dict[str, float] | None = None,
+    camera: Callable[[PlacedBody, AnnyBody, Intrinsics, float], Viewpoints] | None = None,
 ) -> Path:
     """Render ``motion`` into the recording directory ``out``; returns its path.
 
     ``require_in_range``: raise :class:`OutOfRangeError` (writing nothing) when no sampled
     camera keeps the whole motion within the sensor's range, instead of rendering it anyway.
+    ``phenotype``: the anny body to render (default: the ``seed``-th random body).
+    ``camera``: chooses the viewpoint (N = 1) from the placed motion, the body, the
+    intrinsics and the sensor's range instead of the random draw (``front_only`` and the
+    config's viewpoint ranges are then unused); it may raise :class:`OutOfRangeError`.
     """
     from depthmocap.shared.sensor_noise import random_background_scene
     from depthmocap.train.bodies.posing import skeleton_body_of
@@ -90,7 +100,7 @@ def render_sequence(
     rng = np.random.default_rng([seed, 11])
     q_world, source = sequence_poses(motion, fps, frames, rng, asf)
     q_world = face_forward(q_world)
-    body = body_for_index(seed, 1_000_000 + seed)
+    body = body_for_index(seed, 1_000_000 + seed) if phenotype is None else make_body(phenotype)
     placed = place_on_floor(body, q_world, per_frame=False)
     skeleton_body = skeleton_body_of(body)
     # Ground-truth q: the skeleton fitted to the mesh's anatomical joints. The pose that drove
@@ -109,8 +119,8 @@ def render_sequence(
     # A capture session keeps the person inside the sensor's range, not only its field of view:
     # a clip that wanders beyond it (jogging in a circle) has no depth to track there.
     max_depth = cfg.noise.max_depth_m if cfg.noise.range_limit else float("inf")
-    view = None
-    for attempt in range(32):
+    view = None if camera is None else camera(placed, body, intr, max_depth)
+    for attempt in range(32 if view is None else 0):
         # Half the attempts keep the motion in range; a clip that cannot be is still rendered
         # (with a warning) so that it fits the field of view at least.
         in_range = max_depth if attempt < 16 else float("inf")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 from depthmocap.train.evaluation.dev_benchmark import (
     HEADER,
@@ -139,3 +140,147 @@ def test_speed_line_median_rate_worst_p95_and_weighted_latency():
     assert "95th-percentile frame time 90.0 ms" in line and "median 45.0" in line
     assert "mean latency 48.0 ms" in line
     assert "not recorded" in format_speed("old", {"a": {"frame_time_p50_ms": None}})
+
+
+# ---------------------------------------------------------------------------------------------
+# The broad protocol's tables (--protocol broad)
+
+
+def test_group_aggregates_weight_by_frames_and_skip_recordings_without_a_group():
+    from depthmocap.train.evaluation.dev_benchmark import group_aggregates
+
+    reports = {
+        "a": {"frames": 10, "mean_joint_error_mm": 10.0, "system_failure_pct": 0.0},
+        "b": {"frames": 30, "mean_joint_error_mm": 30.0, "system_failure_pct": 10.0},
+        "c": {"frames": 60, "mean_joint_error_mm": 50.0, "system_failure_pct": None},
+        "d": {"frames": 99, "mean_joint_error_mm": 99.0},  # not in any group
+    }
+    groups = {"a": "squat", "b": "squat", "c": "jog", "e": "hop"}  # e was not run
+    out = group_aggregates(reports, groups)
+    assert list(out) == ["jog", "squat"]  # sorted; no empty "hop"
+    squat, n, frames = out["squat"]
+    assert (n, frames) == (2, 40)
+    assert squat["mean_joint_error_mm"] == pytest.approx((10 * 10 + 30 * 30) / 40)
+    assert squat["system_failure_pct"] == pytest.approx(7.5)
+    assert out["jog"][0]["mean_joint_error_mm"] == 50.0
+    assert out["jog"][0]["system_failure_pct"] is None  # no run measured it
+
+
+def test_group_tables_and_diagnostic_labels():
+    from depthmocap.train.evaluation.dev_benchmark import format_group_table, row_label
+
+    assert row_label("hybrid, default body") == "hybrid, default body"
+    assert row_label("hybrid, calibrated body") == "hybrid, calibrated body"
+    assert row_label("hybrid") == "hybrid (diagnostic: true body)"
+    assert "diagnostic: true body and labels" in row_label("hybrid, ground-truth labels")
+    assert "diagnostic" in row_label("tracker")
+    reports = {"a": {"frames": 10, "mean_joint_error_mm": 41.0}, "b": {"frames": 5}}
+    text = format_group_table("camera", "hybrid, default body", "hybrid", reports,
+                              {"a": "side", "b": "frontal"})  # fmt: skip
+    lines = text.splitlines()
+    assert lines[0] == "hybrid, default body, per camera:"
+    assert lines[2].startswith("| camera (recordings, frames) |")
+    assert lines[2].count("|") == HEADER.splitlines()[0].count("|") == lines[-1].count("|")
+    assert lines[4].startswith("| frontal (1, 5) | n/a |")
+    assert lines[5].startswith("| side (1, 10) | 41.0 |")
+
+
+def _protocol_folder(tmp_path, names, version=1, render=None):
+    """A protocol folder with a manifest naming ``names`` and tiny recordings for ``render``."""
+    import json
+
+    from depthmocap.shared.camera import Intrinsics
+    from depthmocap.shared.recording import RecordingWriter
+
+    folder = tmp_path / "dev_broad"
+    folder.mkdir()
+    classes = {"r1": "squat", "r2": "squat", "r3": "jog"}
+    recs = [{"name": n, "motion_class": classes[n], "view": "side" if n == "r2" else "frontal",
+             "cut": "feet" if n == "r3" else "none", "sex": "female",
+             "height_class": "tall", "frames": 2} for n in names]  # fmt: skip
+    (folder / "manifest.json").write_text(json.dumps({"version": version, "recordings": recs}))
+    for n in names if render is None else render:
+        with RecordingWriter(folder / n, Intrinsics.kinect_v1(80), fps=30.0) as w:
+            for _ in range(2):
+                w.write_frame(np.zeros((60, 80), np.uint16))
+            w.write_groundtruth(np.zeros((2, 1, 3), np.float32), ["head"])
+    return folder
+
+
+@pytest.mark.parametrize(
+    "version, render, message",
+    [
+        (None, None, "no protocol manifest"),
+        (2, None, "this code reads version 1"),
+        (1, ["r1", "r3"], "1 of the manifest's 3 recordings are missing"),
+    ],
+)
+def test_broad_protocol_refuses_a_bad_or_incomplete_folder(
+    tmp_path, capsys, version, render, message
+):
+    folder = _protocol_folder(tmp_path, ["r1", "r2", "r3"], version or 1, render)
+    if version is None:
+        (folder / "manifest.json").unlink()
+    args = ["--protocol", "broad", "--recordings", str(folder), "--out", str(tmp_path / "out")]
+    assert main(args) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_broad_protocol_prints_the_headline_then_tables_per_group(tmp_path, capsys, monkeypatch):
+    import json
+
+    import depthmocap.train.evaluation.dev_benchmark as bench
+
+    folder = _protocol_folder(tmp_path, ["r1", "r2", "r3"])
+    errors = {"r1": 30.0, "r2": 60.0, "r3": 90.0}
+    ran = []
+
+    def fake_run(name, rec, out, *args):
+        ran.append((name, rec.name))
+        return {"frames": 2, "mean_joint_error_mm": errors[rec.name], "system_failure_pct": 0.0}
+
+    monkeypatch.setattr(bench, "run_config", fake_run)
+    out = tmp_path / "out"
+    args = ["--protocol", "broad", "--recordings", str(folder), "--out", str(out)]
+    assert main([*args, "--configs", "hybrid", "hybrid, default body"]) == 0
+    text = capsys.readouterr().out
+    assert "3 dev recordings from" in text and "(6 frames, broad protocol version 1)" in text
+    rows = [line for line in text.splitlines() if line.startswith("| hybrid")]
+    assert rows[0].startswith("| hybrid, default body | 60.0 |")  # the headline first
+    assert rows[1].startswith("| hybrid (diagnostic: true body) | 60.0 |")
+    assert "hybrid, default body, per motion class:" in text
+    assert "| jog (1, 2) | 90.0 |" in text and "| squat (2, 4) | 45.0 |" in text
+    assert "| cut (feet) (1, 2) | 90.0 |" in text and "| uncut (2, 4) | 45.0 |" in text
+    report = json.loads((out / "report.json").read_text())
+    per_class = report["hybrid, default body"]["per_group"]["motion class"]
+    assert per_class["squat"] == {
+        "mean": pytest.approx(per_class["squat"]["mean"]), "recordings": 2, "frames": 4
+    }  # fmt: skip
+    assert per_class["squat"]["mean"]["mean_joint_error_mm"] == 45.0
+    # By default only the headline runs; --limit takes the first recordings.
+    ran.clear()
+    assert main([*args, "--limit", "2"]) == 0
+    assert ran == [("hybrid, default body", "r1"), ("hybrid, default body", "r2")]
+
+
+def test_reuse_results_evaluates_complete_results_and_tracks_the_rest(tmp_path, monkeypatch):
+    import json
+
+    import depthmocap.train.evaluation.dev_benchmark as bench
+
+    commands = []
+    monkeypatch.setattr(bench, "_run", commands.append)
+    monkeypatch.setattr(bench, "evaluate", lambda rec, result: type("E", (), {"report": {}})())
+    done, partial = tmp_path / "out" / "a", tmp_path / "out" / "b"
+    for out, complete in ((done, True), (partial, False)):
+        (out / "result").mkdir(parents=True)
+        (out / "result" / "summary.json").write_text(json.dumps({"complete": complete}))
+    cfg = tmp_path / "hybrid.yaml"
+    cfg.write_text("{}\n")
+    for out in (done, partial):
+        bench.run_config("hybrid, default body", tmp_path / out.name, out, "f.npz", "cpu", cfg,
+                         reuse=True)  # fmt: skip
+    assert len(commands) == 1 and str(partial / "result") in commands[0]
+    bench.run_config("hybrid, default body", tmp_path / "a", done, "f.npz", "cpu", cfg)
+    assert len(commands) == 2  # without reuse, tracked again
