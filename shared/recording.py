@@ -415,6 +415,17 @@ class Recording:
         for i in range(len(self)):
             yield self.read_depth(i)
 
+    def _load_npz(self, path: Path, what: str) -> dict[str, np.ndarray]:
+        """Every array of the ``.npz`` at ``path`` (no pickles); a missing or unreadable file
+        is a :class:`RecordingError` naming ``what`` it should have held."""
+        if not path.is_file():
+            raise RecordingError(f"{self.path}: recording has no {what} ({path.name})")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                return {k: data[k] for k in data.files}
+        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as err:
+            raise RecordingError(f"{path}: unreadable ({err})") from None
+
     @property
     def has_groundtruth(self) -> bool:
         return (self.path / "groundtruth.npz").is_file()
@@ -424,13 +435,7 @@ class Recording:
         if self._gt is not None:
             return self._gt
         path = self.path / "groundtruth.npz"
-        if not path.is_file():
-            raise RecordingError(f"{self.path}: recording has no ground truth (groundtruth.npz)")
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                gt = {k: data[k] for k in data.files}
-        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as err:
-            raise RecordingError(f"{path}: unreadable ({err})") from None
+        gt = self._load_npz(path, "ground truth")
         if "joints" not in gt or "joint_names" not in gt:
             raise RecordingError(f"{path}: needs 'joints' and 'joint_names'")
         j = gt["joints"]
@@ -460,13 +465,7 @@ class Recording:
         if self._ref is not None:
             return self._ref
         path = self.path / "reference.npz"
-        if not path.is_file():
-            raise RecordingError(f"{self.path}: recording has no reference (reference.npz)")
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                ref = {k: data[k] for k in data.files}
-        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as err:
-            raise RecordingError(f"{path}: unreadable ({err})") from None
+        ref = self._load_npz(path, "reference")
         missing = [k for k in ("joints", "joint_names", "source", "joint_map") if k not in ref]
         if missing:
             raise RecordingError(f"{path}: needs {', '.join(repr(k) for k in missing)}")
