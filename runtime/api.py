@@ -70,7 +70,7 @@ class Tracker:
         segmentation: SegmentationConfig | None = None,
     ):
         self.device = pick_device(device)
-        self.body = body if isinstance(body, BodyShape) else load_body(_path(body))
+        self._body = body if isinstance(body, BodyShape) else load_body(_path(body))
         self.model = Path(model) if model is not None else DEFAULT_MODEL
         self.mode = mode
         check_model(self.model, mode)
@@ -110,6 +110,13 @@ class Tracker:
         )
         return estimate_frame(estimator, prepared)
 
+    @property
+    def body(self) -> BodyShape:
+        """The body in use: the given one, or the estimator's once it has found the person's
+        size (the hybrid's ``body_scale``)."""
+        found = getattr(self._estimator, "body", None)
+        return self._body if found is None else found
+
     def reset(self) -> None:
         """Forget the track: the next frame is found from scratch (a new person, a cut)."""
         if self._estimator is not None:
@@ -120,7 +127,7 @@ class Tracker:
         if self._estimator is None or intrinsics != self._intrinsics:
             try:
                 self._estimator = make_estimator(
-                    self.mode, self.model, self.body, intrinsics, self.device, self.settings
+                    self.mode, self.model, self._body, intrinsics, self.device, self.settings
                 )
             except TrackError:
                 raise

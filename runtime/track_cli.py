@@ -282,9 +282,12 @@ def _set_up(args: argparse.Namespace):
 
             view = LiveView(args.view or None)
         live = live_output_from_args(args, body, stream.fps)  # --vmc, --osc, --smooth
+        # The hybrid estimating the person's size rewrites body.json and motion.bvh with it.
+        body_may_change = args.mode == "hybrid" and mode_cfg.get("body_scale") is not None
         writer = ResultWriter(
-            args.output, body, stream.fps, stream.intrinsics, args.mode, stream.source
-        )
+            args.output, body, stream.fps, stream.intrinsics, args.mode, stream.source,
+            body_may_change=body_may_change,
+        )  # fmt: skip
         if live is not None:
             writer = live.wrap(writer)
     except BaseException as err:

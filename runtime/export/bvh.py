@@ -261,6 +261,9 @@ class BvhWriter:
         fps: stream frame rate (``Frame Time = 1 / fps``).
         units: ``"cm"`` (default), ``"m"`` or ``"mm"``.
         fsync: ``os.fsync`` after every frame as well as flushing.
+        keep_poses: keep every frame's pose so that :meth:`set_body` can rewrite the file
+            (272 bytes a frame, 29 MB for an hour at 30 frames/s; only when the body may
+            change during the run).
     """
 
     def __init__(
@@ -270,6 +273,7 @@ class BvhWriter:
         fps: float,
         units: str = "cm",
         fsync: bool = False,
+        keep_poses: bool = False,
     ) -> None:
         if units not in UNITS_PER_METRE:
             raise ValueError(f"units must be one of {sorted(UNITS_PER_METRE)}, got {units!r}")
@@ -283,9 +287,8 @@ class BvhWriter:
         self.fps = float(fps)
         self.frames = 0
         self._last: np.ndarray | None = None
-        # Every frame's pose, so a new body can rewrite the file (set_body): 272 bytes a
-        # frame, 29 MB for an hour at 30 frames/s.
-        self._poses: list[np.ndarray] = []
+        self.keep_poses = keep_poses
+        self._poses: list[np.ndarray] = []  # with keep_poses: every frame's pose
         self._last_q: np.ndarray | None = None
         self._file = open(self.path, "w+b")  # noqa: SIM115 (lives until close)
         self._write_head()
@@ -306,6 +309,8 @@ class BvhWriter:
         file and state stay. ``path``: where the file is now, if it was moved."""
         if self._file is None:
             raise ValueError(f"{self.path}: writer is closed")
+        if self.frames and not self.keep_poses:
+            raise ValueError(f"{self.path}: set_body after frames needs keep_poses=True")
         _check_body(body)
         path = self.path if path is None else Path(path)
         tmp = path.with_name(path.name + ".tmp")
@@ -337,7 +342,7 @@ class BvhWriter:
         :meth:`set_body` (None when rewriting the kept ones)."""
         if self._file is None:
             raise ValueError(f"{self.path}: writer is closed")
-        if poses is not None:
+        if poses is not None and self.keep_poses:
             self._poses.extend(poses)
         data = _format_rows(values)
         # Line first, then the count: an interrupt in between leaves one extra line that

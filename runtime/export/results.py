@@ -130,6 +130,8 @@ class ResultWriter:
         bvh_units: ``"cm"`` (default) or ``"m"``/``"mm"`` for ``motion.bvh``.
         fsync: ``os.fsync`` the per-frame files after every frame (power-loss safety).
         summary_interval_s: how often ``summary.json`` is refreshed while running.
+        body_may_change: the estimator may find a better body during the run
+            (:meth:`update_body`); the BVH writer then keeps the poses to rewrite.
 
     Attributes:
         extra: dict the caller may fill; it is stored under ``"extra"`` in the summary.
@@ -147,6 +149,7 @@ class ResultWriter:
         bvh_units: str = "cm",
         fsync: bool = False,
         summary_interval_s: float = 1.0,
+        body_may_change: bool = False,
     ) -> None:
         if not (math.isfinite(fps) and fps > 0):
             raise ValueError(f"fps must be positive, got {fps}")
@@ -175,8 +178,9 @@ class ResultWriter:
             body.save(self._dir / RESULT_FILES["body"])
             self._poses = PosesJsonlWriter(self._dir / RESULT_FILES["poses"], fsync=fsync)
             self._bvh = BvhWriter(
-                self._dir / RESULT_FILES["bvh"], body, self.fps, bvh_units, fsync=fsync
-            )
+                self._dir / RESULT_FILES["bvh"], body, self.fps, bvh_units, fsync=fsync,
+                keep_poses=body_may_change,
+            )  # fmt: skip
             self._write_summary(complete=False)
         except BaseException as err:
             self._discard()

@@ -161,3 +161,10 @@ def test_the_package_exports_resolve_and_import_lazily():
 
 def test_all_lists_exactly_the_lazy_exports():
     assert set(depthmocap.__all__) == {*depthmocap._EXPORTS, "__version__"}
+
+
+def test_the_body_in_use():
+    tracker = Tracker()
+    assert torch.equal(tracker.body.lengths, depthmocap.BodyShape.default().lengths)
+    tracker.track(np.zeros((240, 320), np.uint16))  # builds the estimator
+    assert tracker.body is tracker._estimator.body

@@ -307,7 +307,7 @@ def test_bvh_set_body_rewrites_as_if_known_from_the_start(tmp_path):
     q[1, 3:6] = [3.0, 0.2, 0.1]
     moved = tmp_path / "moved"
     moved.mkdir()
-    with BvhWriter(tmp_path / "a.bvh", body, 30.0) as w:
+    with BvhWriter(tmp_path / "a.bvh", body, 30.0, keep_poses=True) as w:
         w.write_pose(q[0])
         w.write_pose(None, 2)
         w.write_poses(q[1:2])
@@ -330,7 +330,7 @@ def test_bvh_set_body_failure_keeps_the_file(tmp_path):
     from depthmocap.shared.kinematics import rest_pose
 
     q = rest_pose(1, dtype=torch.float64).numpy()
-    with BvhWriter(tmp_path / "a.bvh", BodyShape.default(), 30.0) as w:
+    with BvhWriter(tmp_path / "a.bvh", BodyShape.default(), 30.0, keep_poses=True) as w:
         w.write_pose(q[0])
         before = (tmp_path / "a.bvh").read_bytes()
         with pytest.raises(OSError):
@@ -338,3 +338,35 @@ def test_bvh_set_body_failure_keeps_the_file(tmp_path):
         assert (tmp_path / "a.bvh").read_bytes() == before
         w.write_pose(q[0])  # still writing to the old file
     assert (tmp_path / "a.bvh").read_text().count("\n") == before.decode().count("\n") + 1
+
+
+def test_bvh_set_body_needs_the_poses_kept(tmp_path):
+    """Without keep_poses the writer holds no history (a long live capture stays small), so a
+    new body after the first frame is refused rather than written inconsistently."""
+    from depthmocap.shared.kinematics import rest_pose
+
+    q = rest_pose(1, dtype=torch.float64).numpy()
+    with BvhWriter(tmp_path / "a.bvh", BodyShape.default(), 30.0) as w:
+        w.set_body(BodyShape.default().scaled(1.1))  # before any frame: nothing to rewrite
+        w.write_pose(q[0])
+        assert w._poses == []
+        with pytest.raises(ValueError, match="keep_poses"):
+            w.set_body(BodyShape.default())
+
+
+def test_result_writer_update_body_rewrites_body_and_bvh(tmp_path):
+    from depthmocap.shared.kinematics import rest_pose
+
+    intr = Intrinsics.kinect_v1(160)
+    q = rest_pose(2, dtype=torch.float64).numpy()
+    bigger = BodyShape.default().scaled(1.1)
+    out = tmp_path / "res"
+    with ResultWriter(out, BodyShape.default(), 30.0, intr, "hybrid", "test",
+                      body_may_change=True) as w:  # fmt: skip
+        w.write_frame(0, 0.0, "tracked", None, q[0], {})
+        w.update_body(bigger)
+        w.write_frame(1, 1 / 30, "tracked", None, q[1], {})
+    assert torch.allclose(BodyShape.load(out / "body.json").lengths, bigger.lengths)
+    ref = tmp_path / "ref.bvh"
+    write_bvh(ref, q, bigger, 30.0)
+    assert (out / "motion.bvh").read_text() == ref.read_text()

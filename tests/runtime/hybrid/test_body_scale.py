@@ -80,3 +80,31 @@ def test_the_search_finds_the_size_of_a_rendered_person(one_thread, true_scale):
         return float(tracker.fit(frame.observation(tracker), q, None, 5).overlap)
 
     assert search.search(fit) == pytest.approx(true_scale, abs=0.03)
+
+
+@pytest.mark.slow
+def test_runtime_track_with_the_search_on(tmp_path, one_thread):
+    """End to end: the factor is reported, and body.json and the BVH's skeleton are the
+    scaled default body; a given body file switches the search off."""
+    import json
+
+    import depthmocap.runtime.track_cli as cli
+    from depthmocap.runtime.export.bvh import bvh_hierarchy
+
+    cfg = tmp_path / "scale.yaml"
+    cfg.write_text(
+        "body_scale: {samples: 2, every: 1, min_scale: 0.9, max_scale: 1.1, step: 0.1}\n"
+    )
+    out = tmp_path / "out"
+    assert cli.main(["-i", "demo", "-o", str(out), "--stop", "12", "-q", "--config", str(cfg)]) == 0
+    scale = json.loads((out / "summary.json").read_text())["extra"]["body_scale"]
+    assert 0.9 <= scale <= 1.1
+    body = BodyShape.load(out / "body.json")
+    torch.testing.assert_close(body.lengths, BodyShape.default().scaled(scale).lengths)
+    assert bvh_hierarchy(body.to(torch.float64)) in (out / "motion.bvh").read_text()
+    with_body = tmp_path / "with_body"
+    args = ["-i", "demo", "-o", str(with_body), "--stop", "4", "-q", "--config", str(cfg)]
+    assert cli.main([*args, "--body", str(out / "body.json")]) == 0
+    summary = json.loads((with_body / "summary.json").read_text())
+    assert summary["extra"]["body_scale"] is None
+    assert summary["extra"]["settings"]["body_scale"] is None
