@@ -34,7 +34,7 @@ from .estimator_setup import (
 )
 from .forest.inference import DEFAULT_MODEL
 from .frame import Frame
-from .segmentation import SegmentationConfig, segment_person
+from .segmentation import PersonSegmenter, SegmentationConfig
 from .streams import DepthFrame
 
 __all__ = ["Tracker", "TrackError", "PoseEstimate"]
@@ -78,6 +78,7 @@ class Tracker:
             load_mode_config(_path(config), preset, mode), mode, body is not None
         )
         self.segmentation = segmentation or SegmentationConfig()
+        self._segmenter = PersonSegmenter(self.segmentation)
         self._estimator: PoseEstimator | None = None
         self._intrinsics: Intrinsics | None = None
         self._next_index = 0
@@ -105,9 +106,7 @@ class Tracker:
             frame = self._wrap_array(frame, intrinsics, time)
         self._next_index = frame.index + 1
         estimator = self._estimator_for(frame.intrinsics)
-        prepared = Frame.from_depth(
-            frame, device=self.device, segment=lambda d, i: segment_person(d, i, self.segmentation)
-        )
+        prepared = Frame.from_depth(frame, device=self.device, segment=self._segmenter)
         return estimate_frame(estimator, prepared)
 
     @property
@@ -119,6 +118,7 @@ class Tracker:
 
     def reset(self) -> None:
         """Forget the track: the next frame is found from scratch (a new person, a cut)."""
+        self._segmenter.reset()
         if self._estimator is not None:
             self._estimator.reset()
 

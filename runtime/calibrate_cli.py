@@ -34,7 +34,7 @@ from .detector import (
 )
 from .detector.detect import detect_pose
 from .forest.inference import DEFAULT_CALIBRATION_MODEL, DEFAULT_MODEL
-from .segmentation import segment_person
+from .segmentation import PersonSegmenter
 from .streams import FrameRange, StreamError, open_stream
 
 # The training population's average body (written by
@@ -135,6 +135,7 @@ def run(args: argparse.Namespace) -> BodyShape:
         # Ground-truth labels serve both; forest labels: the general forest for the pose check.
         check_with_forest = args.labels == "forest" and not args.no_pose_check
         detect_labeler = _forest_labeler(args.detect_model, intr) if check_with_forest else None
+        segment_person = PersonSegmenter()
         for frame in stream:
             depth = depth_mm_to_metres(frame.depth_mm)
             mask = segment_person(depth, intr)

@@ -17,7 +17,7 @@ import numpy as np
 
 from .estimator import PoseEstimator, estimate_frame
 from .frame import Frame
-from .segmentation import SegmentationConfig, segment_person
+from .segmentation import PersonSegmenter, SegmentationConfig
 from .streams import DepthStream
 from .streams.latest_frame import LatestFrameReader, timed_frames
 
@@ -151,7 +151,7 @@ def track(
         frames written before are complete.
     """
     stats = stats if stats is not None else TrackStats()
-    seg_cfg = seg_cfg or SegmentationConfig()
+    segment = PersonSegmenter(seg_cfg or SegmentationConfig())
     t_begin = time.perf_counter()
     reader = (
         LatestFrameReader(stream, pace=not stream.is_live) if (realtime or stream.is_live) else None
@@ -161,9 +161,7 @@ def track(
     try:
         for frame, arrival in frames:
             t_frame = time.perf_counter()
-            prepared = Frame.from_depth(
-                frame, device=device, segment=lambda d, intr: segment_person(d, intr, seg_cfg)
-            )
+            prepared = Frame.from_depth(frame, device=device, segment=segment)
             est = estimate_frame(estimator, prepared)
             if getattr(estimator, "body", None) is not body:  # e.g. the person's size found
                 body = estimator.body

@@ -35,5 +35,12 @@ from .config import SegmentationConfig
 from .depth_range import depth_valid_mask
 from .floor import fit_floor_plane
 from .person import segment_person
+from .segmenter import PersonSegmenter
 
-__all__ = ["SegmentationConfig", "segment_person", "fit_floor_plane", "depth_valid_mask"]
+__all__ = [
+    "PersonSegmenter",
+    "SegmentationConfig",
+    "segment_person",
+    "fit_floor_plane",
+    "depth_valid_mask",
+]

@@ -82,3 +82,29 @@ class SegmentationConfig:
     max_height_m: float = field_doc(2.6, help="tallest plausible person (y extent), metres")
     max_depth_extent_m: float = field_doc(1.5, help="deepest plausible person (z extent), metres")
     seed: int = field_doc(0, help="seed of the RANSAC sampling (results are deterministic)")
+    keep_floor: bool = field_doc(
+        True,
+        help="in a stream, where a frame's floor fit fails, remove the previous frame's floor "
+        "if it still explains the floor points (a crouching person can hide most of it)",
+    )
+    person_max_solidity: float = field_doc(
+        0.8,
+        help="components filling at most this share of their convex hull count with their "
+        "full area when choosing the person (people: about 0.4-0.8)",
+    )
+    convex_solidity: float = field_doc(
+        0.9,
+        help="components at least this convex count with convex_weight of their area (boxes, "
+        "doors, cupboards project to convex shapes); linear in between",
+    )
+    convex_weight: float = field_doc(
+        0.05, help="weight of a convex component's area when choosing the person"
+    )
+    continuity_overlap: float = field_doc(
+        0.3,
+        help="in a stream, a component with at least this share of its pixels on the previous "
+        "frame's person is the same person",
+    )
+    continuity_gain: float = field_doc(
+        4.0, help="factor on the score of the previous frame's person (choices do not flip)"
+    )

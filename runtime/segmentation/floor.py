@@ -144,18 +144,55 @@ def fit_floor_plane(
     )
 
 
-def remove_floor(
-    z: np.ndarray, valid: np.ndarray, intr: Intrinsics, cfg: SegmentationConfig
+def _plane_holds(
+    pts: np.ndarray,
+    count: np.ndarray,
+    normal: np.ndarray,
+    centre: np.ndarray,
+    cfg: SegmentationConfig,
 ) -> np.ndarray:
-    """(B, H, W) valid pixels of depth ``z`` without those within the floor band."""
+    """(B,) bool: the planes (B, 3) still explain this frame's sampled points (B, N, 3) as a
+    floor: enough of them within the band, few below it."""
+    dist = ((pts - centre[:, None]) * normal[:, None]).sum(-1)
+    n = pts.shape[1]
+    return (
+        (count >= 50)
+        & (np.count_nonzero(np.abs(dist) < cfg.floor_band_m, axis=1) >= cfg.floor_min_support * n)
+        & (np.count_nonzero(dist < -cfg.floor_band_m, axis=1) <= cfg.floor_max_below * n)
+    )
+
+
+def remove_floor(
+    z: np.ndarray,
+    valid: np.ndarray,
+    intr: Intrinsics,
+    cfg: SegmentationConfig,
+    previous: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """(B, H, W) valid pixels of depth ``z`` without those within the floor band.
+
+    Args:
+        previous: the floor (normal (B, 3), centre (B, 3), found (B,)) of the previous frame
+            of a stream. Where this frame's fit fails (the person covers most of the floor in
+            view, crouching close to a low camera) and the previous floor still explains the
+            floor points, the previous one is removed: a camera does not move between frames.
+    Returns:
+        the valid pixels, and the floor used (normal, centre, found) for the next frame.
+    """
     b, h, w = z.shape
     rng = np.random.default_rng(cfg.seed)
     rows, cols, count = _sample_floor_pixels(valid, cfg, rng)
     zs = z[np.arange(b)[:, None], rows, cols].astype(np.float64)
     pts = np.stack([(cols - intr.cx) / intr.fx * zs, (rows - intr.cy) / intr.fy * zs, zs], -1)
     normal, centre, found = _fit_floor_np(pts, count, cfg, rng)
+    if previous is not None and cfg.keep_floor:
+        p_normal, p_centre, p_found = previous
+        reuse = ~found & p_found & _plane_holds(pts, count, p_normal, p_centre, cfg)
+        normal = np.where(reuse[:, None], p_normal, normal)
+        centre = np.where(reuse[:, None], p_centre, centre)
+        found = found | reuse
     if not found.any():
-        return valid
+        return valid, (normal, centre, found)
     # Height above the plane of every pixel: z * (n . ray) - n . centre, ray = (x/z, y/z, 1).
     n = normal.astype(np.float32)[:, :, None, None]
     ray_dot = (
@@ -165,4 +202,4 @@ def remove_floor(
     )  # (B, H, W)
     level = (normal * centre).sum(1).astype(np.float32)[:, None, None]
     floor = (z * ray_dot - level < cfg.floor_band_m) & found[:, None, None]
-    return valid & ~floor
+    return valid & ~floor, (normal, centre, found)

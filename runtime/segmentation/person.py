@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import torch
 from depthmocap.shared.camera import Intrinsics
@@ -19,19 +21,42 @@ from .components import (
 from .config import SegmentationConfig
 from .depth_range import valid_np
 from .floor import remove_floor
+from .selection import component_solidity, person_scores
 
-__all__ = ["segment_person"]
+__all__ = ["SegmentationMemory", "segment_person", "segment_person_in_stream"]
 
 
-def _segment_np(depth: np.ndarray, intr: Intrinsics, cfg: SegmentationConfig) -> np.ndarray:
-    """:func:`segment_person` on (B, H, W) float32 metres in numpy/OpenCV -> (B, H, W) bool."""
+@dataclass
+class SegmentationMemory:
+    """What one frame's segmentation leaves for the next frame of the same stream.
+
+    Attributes:
+        floor: the floor removed (normal (B, 3), centre (B, 3), found (B,)), or None.
+        mask: (B, H, W) bool, the person found.
+    """
+
+    floor: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+    mask: np.ndarray
+
+
+def _segment_np(
+    depth: np.ndarray,
+    intr: Intrinsics,
+    cfg: SegmentationConfig,
+    memory: SegmentationMemory | None = None,
+) -> tuple[np.ndarray, SegmentationMemory]:
+    """:func:`segment_person` on (B, H, W) float32 metres in numpy/OpenCV -> (B, H, W) bool,
+    and what the next frame of a stream needs to know (:class:`SegmentationMemory`)."""
     import cv2
 
     b, h, w = depth.shape
     valid = valid_np(depth, cfg)
     z_img = np.where(valid, depth, np.float32(0.0))
+    floor = None
     if cfg.remove_floor:
-        valid = remove_floor(z_img, valid, intr, cfg)
+        valid, floor = remove_floor(
+            z_img, valid, intr, cfg, None if memory is None else memory.floor
+        )
 
     r = max(cfg.merge_radius_px, 0)
     cv = Canvas(b, h, w, max(r, 1))
@@ -47,7 +72,7 @@ def _segment_np(depth: np.ndarray, intr: Intrinsics, cfg: SegmentationConfig) ->
     cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
     nearest = cv2.erode(np.where(valid, z, np.float32(np.inf)), cross)
     cut = (z - nearest > jump) & valid
-    count, labels = cv2.connectedComponents(
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(
         (valid & ~cut).view(np.uint8), connectivity=4, ltype=cv2.CV_32S
     )
     labels = labels.astype(np.intp)  # bincount and fancy indexing want intp
@@ -74,7 +99,16 @@ def _segment_np(depth: np.ndarray, intr: Intrinsics, cfg: SegmentationConfig) ->
         ~behind & (comp_area >= cfg.min_area_m2) & plausible_size(box_sizes(extent_box), cfg)
     )
     plausible[0] = False
-    score = np.where(plausible, comp_area, -1.0)
+    # Which plausible component is the person: by area, shape and continuity (.selection).
+    cand = np.flatnonzero(plausible)
+    previous_share = np.zeros(len(cand))
+    if memory is not None and memory.mask.shape == (b, h, w):
+        was_person = np.bincount(lf, cv.place(memory.mask).reshape(-1), minlength=count)
+        previous_share = was_person[cand] / np.maximum(comp_pixels[cand], 1)
+    score = np.full(count, -1.0)
+    score[cand] = person_scores(
+        comp_area[cand], component_solidity(labels, stats, cand, cv2), previous_share, cfg
+    )
     per_image = np.where(image_of[None] == np.arange(b)[:, None], score[None], -1.0)  # (B, C)
     best = per_image.argmax(1)
     in_person = np.zeros(count, dtype=bool)
@@ -86,24 +120,42 @@ def _segment_np(depth: np.ndarray, intr: Intrinsics, cfg: SegmentationConfig) ->
     # Add back cut pixels that join the person at a smooth step (self-occlusion inside it).
     smooth = (mask.reshape(-1)[nb] & (np.abs(step) <= jump_c)).any(1)
     mask.reshape(-1)[cut_px[smooth]] = True
-    return cv.images(mask)
+    mask = cv.images(mask)
+    return mask, SegmentationMemory(floor, mask.copy())
 
 
 def segment_person(
-    depth_m: torch.Tensor, intr: Intrinsics, cfg: SegmentationConfig | None = None
+    depth_m: torch.Tensor,
+    intr: Intrinsics,
+    cfg: SegmentationConfig | None = None,
+    memory: SegmentationMemory | None = None,
 ) -> torch.Tensor:
     """Mask of the person in depth frames (steps: :mod:`runtime.segmentation`).
 
     Runs on the CPU in numpy/OpenCV whatever the input device (single frames are far too
-    small for a GPU to pay off); the mask comes back on the input's device.
+    small for a GPU to pay off); the mask comes back on the input's device. For the frames of
+    a stream use :class:`~runtime.segmentation.segmenter.PersonSegmenter`, which carries the
+    floor and the person from frame to frame.
 
     Args:
         depth_m: (H, W) or (B, H, W) metric depth; 0 or NaN where there is no reading.
         intr: intrinsics of the H x W images.
         cfg: settings (defaults when None).
+        memory: the previous frame's :class:`SegmentationMemory` (the same batch size), or
+            None for images on their own.
     Returns:
         bool mask of the same shape as ``depth_m``; all False where no person is found.
     """
+    return segment_person_in_stream(depth_m, intr, cfg, memory)[0]
+
+
+def segment_person_in_stream(
+    depth_m: torch.Tensor,
+    intr: Intrinsics,
+    cfg: SegmentationConfig | None = None,
+    memory: SegmentationMemory | None = None,
+) -> tuple[torch.Tensor, SegmentationMemory]:
+    """:func:`segment_person`, also returning the memory to pass with the next frame."""
     cfg = cfg or SegmentationConfig()
     single = depth_m.ndim == 2
     depth = depth_m[None] if single else depth_m
@@ -113,5 +165,6 @@ def segment_person(
             f"got {tuple(depth_m.shape)}"
         )
     depth_np = np.ascontiguousarray(depth.detach().to("cpu", torch.float32).numpy())
-    mask = torch.from_numpy(_segment_np(depth_np, intr, cfg).copy()).to(depth_m.device)
-    return mask[0] if single else mask
+    mask_np, memory = _segment_np(depth_np, intr, cfg, memory)
+    mask = torch.from_numpy(mask_np.copy()).to(depth_m.device)
+    return (mask[0] if single else mask), memory

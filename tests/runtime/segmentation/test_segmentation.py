@@ -1,14 +1,27 @@
 """Person segmentation on synthetic scenes (person box + hand in front of a floor and a wall,
-with holes) and, when ../shared is present, on real Kinect v1 frames."""
+with holes) and, when ../shared is present, on real Kinect v1 frames; choosing the person
+among plausible components (shape, continuity) and what a stream carries between frames."""
 
 from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 import torch
-from depthmocap.runtime.segmentation import SegmentationConfig, fit_floor_plane, segment_person
+from depthmocap.runtime.segmentation import (
+    PersonSegmenter,
+    SegmentationConfig,
+    fit_floor_plane,
+    segment_person,
+)
+from depthmocap.runtime.segmentation.floor import remove_floor
+from depthmocap.runtime.segmentation.selection import (
+    component_solidity,
+    person_likeness,
+    person_scores,
+)
 from depthmocap.shared.camera import Intrinsics, depth_to_points
 
 INTR = Intrinsics.kinect_v1(320)
@@ -23,6 +36,8 @@ def scene(
     person_z: float = 2.5,
     floor: bool = True,
     arm_across: bool = False,
+    figure: bool = False,
+    objects: tuple = (),
 ):
     """Ray-cast a depth image (metres) and the true person pixels of a simple room.
 
@@ -30,7 +45,9 @@ def scene(
     y = 1, a wall at z = ``wall_z``, a person slab 0.5 m wide standing on the floor with its
     front at ``person_z``, a 12 cm hand held 40 cm in front of the chest. ``arm_across``: a
     forearm held 30 cm in front of the hips, the legs below it 8 cm behind the trunk (the
-    arm cuts them off from the trunk, and they are too large to count as a hand).
+    arm cuts them off from the trunk, and they are too large to count as a hand). ``figure``:
+    the person as head, trunk, arms held out and legs apart instead of a slab. ``objects``:
+    background slabs ``(z, (x0, x1), (y0, y1))``, e.g. a box standing on the floor.
     """
     u, v = np.meshgrid(np.arange(INTR.width), np.arange(INTR.height))
     d = np.stack([(u - INTR.cx) / INTR.fx, (v - INTR.cy) / INTR.fy, np.ones(u.shape)], -1)
@@ -55,14 +72,21 @@ def scene(
             boxes.append((person_z, (-0.25, 0.25), (-0.75, 0.2)))
             boxes.append((person_z + 0.08, (-0.25, 0.25), (0.2, CAM_HEIGHT)))
             boxes.append((person_z - 0.3, (-0.35, 0.35), (0.15, 0.25)))
+        elif person and figure:
+            boxes.append((person_z, (-0.1, 0.1), (-0.75, -0.5)))  # head
+            boxes.append((person_z, (-0.2, 0.2), (-0.5, 0.1)))  # trunk
+            boxes.append((person_z, (-0.55, 0.55), (-0.45, -0.37)))  # arms held out
+            boxes.append((person_z, (-0.2, -0.05), (0.1, CAM_HEIGHT)))  # legs
+            boxes.append((person_z, (0.05, 0.2), (0.1, CAM_HEIGHT)))
         elif person:
             boxes.append((person_z, (-0.25, 0.25), (-0.75, CAM_HEIGHT)))
         if person and hand:
             boxes.append((person_z - 0.4, (0.1, 0.22), (-0.1, 0.02)))
-        for z, (x0, x1), (y0, y1) in boxes:
-            t = z / dw[..., 2]
-            x, y = dw[..., 0] * t, dw[..., 1] * t
-            hit(t, (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1), 1)
+        for lab, slabs in ((1, boxes), (2, objects)):
+            for z, (x0, x1), (y0, y1) in slabs:
+                t = z / dw[..., 2]
+                x, y = dw[..., 0] * t, dw[..., 1] * t
+                hit(t, (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1), lab)
     depth = np.where(np.isfinite(depth), depth, 0.0)
     # World height above the floor, to know which person pixels are within the floor band.
     height = CAM_HEIGHT - (dw[..., 1] * depth)
@@ -192,3 +216,105 @@ def test_no_floor_plane_in_a_floorless_scene():
     points = depth_to_points(depth[None], INTR)
     _, _, found = fit_floor_plane(points, depth[None] > 0, SegmentationConfig())
     assert not found.any()
+
+
+# --- Choosing the person (selection) and the stream's memory (PersonSegmenter) ---
+
+# A box 0.55 m wide and 1.5 m high standing on the floor right of the person, nearer the
+# camera: a larger frontal area than the person's (0.83 against 0.62 m^2).
+BOX = (2.3, (0.7, 1.25), (CAM_HEIGHT - 1.5, CAM_HEIGHT))
+# A cupboard 0.65 m wide and 1.65 m high: larger than the slab person too (1.07 against 0.88).
+CUPBOARD = (2.3, (0.6, 1.25), (CAM_HEIGHT - 1.65, CAM_HEIGHT))
+
+
+def _solidity_of(image: np.ndarray) -> float:
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(image.astype(np.uint8), 4)
+    assert count == 2
+    return float(component_solidity(labels, stats, np.array([1]), cv2)[0])
+
+
+def test_solidity_golden_values():
+    rect = np.zeros((60, 80), bool)
+    rect[10:50, 20:60] = True
+    assert _solidity_of(rect) == pytest.approx(1.0, abs=0.02)
+    # An L of three 10 x 10 squares: hull = 20 x 20 square less a 10 x 10 half-square.
+    ell = np.zeros((40, 40), bool)
+    ell[10:30, 10:20] = True
+    ell[20:30, 20:30] = True
+    assert _solidity_of(ell) == pytest.approx(300 / 350, abs=0.03)
+    # A cross (a T-pose): far from convex.
+    cross = np.zeros((60, 60), bool)
+    cross[5:55, 27:33] = True
+    cross[20:26, 5:55] = True
+    assert _solidity_of(cross) < 0.5
+
+
+def test_likeness_ramp():
+    cfg = SegmentationConfig(person_max_solidity=0.8, convex_solidity=0.9, convex_weight=0.05)
+    got = person_likeness(np.array([0.5, 0.8, 0.85, 0.9, 1.0]), cfg)
+    np.testing.assert_allclose(got, [1.0, 1.0, 0.525, 0.05, 0.05])
+
+
+def test_scores_favour_the_previous_person():
+    cfg = SegmentationConfig(continuity_overlap=0.3, continuity_gain=4.0)
+    area, solidity = np.array([0.3, 0.8]), np.array([0.6, 0.6])
+    assert person_scores(area, solidity, np.zeros(2), cfg).argmax() == 1
+    assert person_scores(area, solidity, np.array([0.9, 0.0]), cfg).argmax() == 0
+    # Continuity does not save a candidate that is far worse (recovery from a wrong choice).
+    assert person_scores(np.array([0.05, 0.8]), solidity, np.array([0.9, 0.0]), cfg).argmax() == 1
+
+
+def test_a_larger_box_is_not_the_person():
+    depth, truth, height = scene(figure=True, hand=False, objects=(BOX,))
+    mask = segment_person(depth, INTR)
+    assert not (mask & ~truth).any(), "the box (or floor, wall) in the mask"
+    body = truth & torch.as_tensor(height > 0.08)
+    assert (mask & body).sum() / body.sum() > 0.99
+    # With shape ignored (every component equally person-like), the box would win.
+    flat = SegmentationConfig(convex_weight=1.0)
+    assert not (segment_person(depth, INTR, flat) & truth).any()
+
+
+def test_stream_keeps_its_person_when_a_larger_object_appears():
+    # A slab person (convex, as the box): on its own the larger box would be chosen.
+    alone, truth, _ = scene(hand=False)
+    both, _, _ = scene(hand=False, objects=(CUPBOARD,))
+    assert not (segment_person(both, INTR) & truth).any()
+    seg = PersonSegmenter()
+    assert (seg(alone, INTR) & truth).sum() > 0.9 * truth.sum()
+    assert torch.equal(seg(both, INTR), seg(alone, INTR) & truth)
+    seg.reset()  # a new start: the frame alone again
+    assert not (seg(both, INTR) & truth).any()
+
+
+def test_stream_keeps_the_floor_when_a_frame_fit_fails():
+    depth, truth, height = scene(hand=False)
+    z = depth.numpy()[None].astype(np.float32)
+    valid = z > 0
+    ok = SegmentationConfig()
+    kept, floor = remove_floor(z, valid, INTR, ok)
+    assert floor[2].all()
+    floor_px = valid & ~kept
+    assert floor_px.sum() > 1000
+    refused = SegmentationConfig(floor_min_depth_span_m=100.0)  # no fit passes its checks
+    none, (_, _, found) = remove_floor(z, valid, INTR, refused)
+    assert not found.any() and np.array_equal(none, valid)
+    again, (_, _, found) = remove_floor(z, valid, INTR, refused, floor)
+    assert found.all() and np.array_equal(again, kept)
+    # A previous floor that no longer explains the frame (the camera moved) is not used.
+    normal, centre, was = floor
+    moved = (normal, centre + 0.5 * normal, was)
+    _, (_, _, found) = remove_floor(z, valid, INTR, refused, moved)
+    assert not found.any()
+    off = SegmentationConfig(floor_min_depth_span_m=100.0, keep_floor=False)
+    _, (_, _, found) = remove_floor(z, valid, INTR, off, floor)
+    assert not found.any()
+
+
+def test_segmenter_forgets_on_another_camera():
+    alone, truth, _ = scene(hand=False)
+    both, _, _ = scene(hand=False, objects=(CUPBOARD,))
+    seg = PersonSegmenter()
+    seg(alone, INTR)
+    other = type(INTR)(INTR.width, INTR.height, INTR.fx, INTR.fy, INTR.cx + 0.5, INTR.cy)
+    assert not (seg(both, other) & truth).any()

@@ -1,0 +1,36 @@
+"""The person segmentation of a stream: :func:`segment_person` frame after frame, carrying
+the floor and the person over from one frame to the next (:mod:`.selection`, :mod:`.floor`)."""
+
+from __future__ import annotations
+
+import torch
+from depthmocap.shared.camera import Intrinsics
+
+from .config import SegmentationConfig
+from .person import SegmentationMemory, segment_person_in_stream
+
+__all__ = ["PersonSegmenter"]
+
+
+class PersonSegmenter:
+    """Segments the frames of one stream, in order.
+
+    Call it as ``segmenter(depth_m, intrinsics)`` (the signature of :func:`segment_person`);
+    :meth:`reset` forgets the previous frame (a cut, another camera, a new person).
+    """
+
+    def __init__(self, cfg: SegmentationConfig | None = None) -> None:
+        self.cfg = cfg or SegmentationConfig()
+        self._memory: SegmentationMemory | None = None
+        self._intrinsics: Intrinsics | None = None
+
+    def __call__(self, depth_m: torch.Tensor, intr: Intrinsics) -> torch.Tensor:
+        """(H, W) metres -> (H, W) bool person mask on the input's device."""
+        if intr != self._intrinsics:  # another camera: nothing carries over
+            self.reset()
+            self._intrinsics = intr
+        mask, self._memory = segment_person_in_stream(depth_m, intr, self.cfg, self._memory)
+        return mask
+
+    def reset(self) -> None:
+        self._memory = None
