@@ -24,7 +24,13 @@ from depthmocap.shared.body import BodyShape
 from depthmocap.shared.recording import Recording, RecordingError
 from depthmocap.shared.resources import CONFIGS_DIR
 
-from .calibration import CalibrationConfig, CalibrationError, ReferencePoseWatcher, calibrate_body
+from .calibration import (
+    CalibrationConfig,
+    CalibrationError,
+    ReferencePoseWatcher,
+    calibrate_body,
+    person_stature,
+)
 from .cli_common import add_frame_range_args, add_source_args, check_output_file, report_error
 from .detector import (
     DetectorConfig,
@@ -117,6 +123,26 @@ def _labeler(args, intr):
     return lambda index: torch.from_numpy(rec.read_labels(index).astype("int64"))
 
 
+def _sized_template(template: BodyShape, depth, mask, intr, floor) -> BodyShape:
+    """The template scaled to the person's stature in this frame (the pose check's detector
+    fits a body of the person's size; runtime.calibration.pose_check)."""
+    stature = person_stature(depth, mask, intr, floor)
+    if stature is None:
+        return template
+    return template.scaled(stature / float(template.stature()))
+
+
+def _refine(body: BodyShape, intr, depth, mask, iterations: int):
+    """Wei's refinement of a detection: a few tracker iterations on this frame."""
+    from .tracker.tracker import Tracker
+
+    if iterations <= 0:
+        return None
+    tracker = Tracker(body, intr)
+    obs = tracker.observe(depth, mask)
+    return lambda q: tracker.fit(obs, q, None, iterations)
+
+
 def run(args: argparse.Namespace) -> BodyShape:
     if args.frames < 1:
         raise CalibrateError(f"--frames must be >= 1, got {args.frames}")
@@ -127,7 +153,7 @@ def run(args: argparse.Namespace) -> BodyShape:
         except (FileNotFoundError, ValueError) as err:
             raise CalibrateError(str(err)) from None
     cfg = CalibrationConfig(hold_frames=args.frames, length_scale=args.length_scale)
-    det_cfg = DetectorConfig(refine_iterations=0)
+    det_cfg = DetectorConfig()
     watcher = ReferencePoseWatcher(cfg)
     with open_stream(args.input, frame_range=FrameRange(args.start, args.stop)) as stream:
         intr = stream.intrinsics
@@ -152,8 +178,14 @@ def run(args: argparse.Namespace) -> BodyShape:
                 det_labels = (
                     labels if detect_labeler is None else labels_from(detect_labeler(depth, mask))
                 )
-                det = detect_pose(depth, det_labels, intr, template, det_cfg, mask=mask)
-                watcher.update(det.q if det.found else None, depth, labels)
+                floor = segment_person.floor
+                body = _sized_template(template, depth, mask, intr, floor)
+                det = detect_pose(
+                    depth, det_labels, intr, body, det_cfg, mask=mask,
+                    refine=_refine(body, intr, depth, mask, det_cfg.refine_iterations),
+                )  # fmt: skip
+                up = None if floor is None else floor[0]
+                watcher.update(det.q if det.found else None, depth, labels, up, body)
             if not args.quiet:
                 print(f"frame {frame.index}: held {len(watcher.frames)}/{args.frames}",
                       file=sys.stderr)  # fmt: skip

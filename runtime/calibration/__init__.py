@@ -4,13 +4,12 @@ from .calibrate import (
     SYMMETRIC_PAIRS,
     CalibrationConfig,
     CalibrationError,
-    ReferencePoseWatcher,
     calibrate_body,
-    is_reference_pose,
     measure_bones,
     reference_pose,
 )
 from .cylinder_ransac import CylinderFit, fit_cylinder
+from .pose_check import ReferencePoseWatcher, is_reference_pose, person_stature
 
 __all__ = [
     "CalibrationConfig",
@@ -21,6 +20,7 @@ __all__ = [
     "calibrate_body",
     "fit_cylinder",
     "is_reference_pose",
+    "person_stature",
     "measure_bones",
     "reference_pose",
 ]

@@ -49,8 +49,6 @@ __all__ = [
     "reference_pose",
     "measure_bones",
     "calibrate_body",
-    "is_reference_pose",
-    "ReferencePoseWatcher",
     "SYMMETRIC_PAIRS",
 ]
 
@@ -83,6 +81,11 @@ class CalibrationConfig:
     )
     hold_frames: int = field_doc(
         10, help="automatic mode: frames the reference pose must be held (consecutively)"
+    )
+    hold_misses: int = field_doc(
+        2,
+        help="automatic mode: a hold survives this many frames in a row whose detection "
+        "misses the pose (a glitch of the detector, not the person moving); they are not used",
     )
     seed: int = field_doc(0, help="seed of the RANSAC sampling")
     length_scale: str = field_doc(
@@ -265,45 +268,3 @@ def calibrate_body(
         chest_tilt=template.chest_tilt,
         clavicle_rest=template.clavicle_rest,  # the T-pose lifts the shoulders: cannot show it
     ).to(dtype=torch.float32)
-
-
-def is_reference_pose(q: torch.Tensor, cfg: CalibrationConfig | None = None) -> bool:
-    """Whether pose q (34,) is the reference pose: arm / leg angles and facing the camera."""
-    from depthmocap.shared.so3 import rotvec_to_matrix
-
-    cfg = cfg or CalibrationConfig()
-    ref = reference_pose(cfg, dtype=torch.float64)
-    q = q.detach().double().cpu()
-    limb_dofs = ("humerus_abd", "humerus_flex", "radius_flex", "femur_flex", "femur_abd")
-    names = [f"{s}_{n}" for s in "lr" for n in (*limb_dofs, "tibia_flex")]
-    idx = [_D[n] for n in names]
-    if float((q[idx] - ref[idx]).abs().max()) > math.radians(cfg.pose_tolerance_deg):
-        return False
-    rel = rotvec_to_matrix(q[None, 3:6])[0] @ rotvec_to_matrix(ref[None, 3:6])[0].T
-    angle = math.acos(max(-1.0, min(1.0, (float(torch.trace(rel)) - 1.0) / 2.0)))
-    return angle <= math.radians(cfg.facing_tolerance_deg)
-
-
-class ReferencePoseWatcher:
-    """Automatic mode: collects frames while the reference pose is held.
-
-    Feed every frame's detected pose with :meth:`update`; once the pose was held for
-    ``cfg.hold_frames`` consecutive frames, :attr:`ready` is True and :attr:`frames` holds
-    them (depth, labels). A frame out of the pose starts the count again.
-    """
-
-    def __init__(self, cfg: CalibrationConfig | None = None) -> None:
-        self.cfg = cfg or CalibrationConfig()
-        self.frames: list[tuple[torch.Tensor, torch.Tensor]] = []
-
-    @property
-    def ready(self) -> bool:
-        return len(self.frames) >= self.cfg.hold_frames
-
-    def update(self, q: torch.Tensor | None, depth_m: torch.Tensor, labels: torch.Tensor) -> bool:
-        """Add one frame; returns :attr:`ready`."""
-        if q is not None and is_reference_pose(q, self.cfg):
-            self.frames.append((depth_m, labels))
-        else:
-            self.frames.clear()
-        return self.ready

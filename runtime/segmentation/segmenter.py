@@ -32,5 +32,14 @@ class PersonSegmenter:
         mask, self._memory = segment_person_in_stream(depth_m, intr, self.cfg, self._memory)
         return mask
 
+    @property
+    def floor(self) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """The floor removed from the last frame: (unit up normal (3,), a point on it (3,)),
+        camera frame, float64; None when no floor was found (or no frame seen)."""
+        floor = None if self._memory is None else self._memory.floor
+        if floor is None or not bool(floor[2][0]):
+            return None
+        return torch.as_tensor(floor[0][0]), torch.as_tensor(floor[1][0])
+
     def reset(self) -> None:
         self._memory = None

@@ -105,9 +105,14 @@ def test_reference_pose_detection():
     d = torch.zeros(2, 2)
     ref = reference_pose(cfg)
     assert [watcher.update(ref, d, d) for _ in range(2)] == [False, False]
-    watcher.update(None, d, d)  # out of the pose: count restarts
+    for _ in range(cfg.hold_misses + 1):  # out of the pose for longer than a glitch
+        watcher.update(None, d, d)
     assert [watcher.update(ref, d, d) for _ in range(3)] == [False, False, True]
     assert len(watcher.frames) == 3
+    # A miss or two (a detector glitch) neither counts nor breaks the hold.
+    glitch = ReferencePoseWatcher(cfg)
+    got = [glitch.update(q, d, d) for q in (ref, None, None, ref, ref)]
+    assert got == [False, False, False, False, True] and len(glitch.frames) == 3
 
 
 def _write_recording(path, poses, body):
