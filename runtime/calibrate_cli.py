@@ -153,7 +153,7 @@ def run(args: argparse.Namespace) -> BodyShape:
         except (FileNotFoundError, ValueError) as err:
             raise CalibrateError(str(err)) from None
     cfg = CalibrationConfig(hold_frames=args.frames, length_scale=args.length_scale)
-    det_cfg = DetectorConfig()
+    det_cfg = DetectorConfig(refine_iterations=cfg.check_refine_iterations)
     watcher = ReferencePoseWatcher(cfg)
     with open_stream(args.input, frame_range=FrameRange(args.start, args.stop)) as stream:
         intr = stream.intrinsics

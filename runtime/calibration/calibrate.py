@@ -82,6 +82,12 @@ class CalibrationConfig:
     hold_frames: int = field_doc(
         10, help="automatic mode: frames the reference pose must be held (consecutively)"
     )
+    check_refine_iterations: int = field_doc(
+        8,
+        help="automatic mode: tracker iterations refining each detection of the pose check "
+        "(Wei refines tracking detections with 3; a small, far person's limb directions need "
+        "more to fall within pose_tolerance_deg)",
+    )
     hold_misses: int = field_doc(
         2,
         help="automatic mode: a hold survives this many frames in a row whose detection "
