@@ -1,13 +1,16 @@
 """How often the person segmentation misses the person, on recordings with true labels.
 
-    python -m depthmocap.bench.segmentation_accuracy --recordings data/dev_broad [--every 1]
+    python -m depthmocap.bench.segmentation_accuracy --recordings data/dev_broad [--every 1] \
+        [--segmentation-config YAML]
 
 Each recording is segmented twice: frame by frame as one stream (:class:`PersonSegmenter`, what
 ``runtime-track`` does) and every frame on its own (:func:`segment_person`, no memory). A frame
 *misses* when the mask and the true person pixels (the recording's labels) overlap less than
 half (intersection over union below 0.5: another object, or nothing, was taken for the
 person); frames where the person is out of view are counted apart. Prints the totals and the
-recordings with a miss.
+recordings with a miss. The segmentation before the person was chosen by shape and
+continuity is the single-image figure with ``convex_weight: 1.0`` (every component counts
+with its whole area, the largest wins).
 """
 
 from __future__ import annotations
@@ -57,7 +60,17 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--recordings", type=Path, required=True, help="folder of recordings")
     p.add_argument("--every", type=int, default=1, help="evaluate every k-th frame")
+    p.add_argument(
+        "--segmentation-config", type=Path, help="YAML of SegmentationConfig keys (default: none)"
+    )
     args = p.parse_args(argv)
+    from depthmocap.shared.config import ConfigError, load_config
+
+    try:
+        cfg = load_config(SegmentationConfig, args.segmentation_config)
+    except (ConfigError, OSError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     folders = sorted(d for d in args.recordings.iterdir() if (d / "meta.json").is_file())
     if not folders:
         print(f"error: no recordings in {args.recordings}", file=sys.stderr)
@@ -72,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
         if not rec.has_labels:
             print(f"error: {d} has no labels to check against", file=sys.stderr)
             return 2
-        r = segmentation_misses(rec, args.every)
+        r = segmentation_misses(rec, args.every, cfg)
         seen = r["in_view"]
         miss = {k: int((r[k][seen] < MISS_IOU).sum()) for k in ("stream", "single")}
         totals["frames"] += int(seen.sum())

@@ -40,3 +40,21 @@ def test_a_rendered_person_is_found_and_an_empty_frame_not_counted(tmp_path, cap
     assert "2 frames with the person in view (1 without" in out
     assert "stream 0 frames (0.00%)" in out
     assert main(["--recordings", str(tmp_path)]) == 2  # no recordings directly in it
+
+
+def test_settings_from_yaml_and_bad_ones(tmp_path, capsys):
+    body = BodyShape.default()
+    render = render_body(rest_pose(1, (0.0, 0.0, 2.5)), body, INTR)
+    path = tmp_path / "recs" / "person"
+    with RecordingWriter(path, INTR) as w:
+        w.write_frame(
+            (render.depth[0].numpy() * 1000).round().astype(np.uint16),
+            part_labels(render, body)[0].numpy().astype(np.uint8),
+        )
+    good = tmp_path / "largest.yaml"
+    good.write_text("convex_weight: 1.0\n")
+    assert main(["--recordings", str(tmp_path / "recs"), "--segmentation-config", str(good)]) == 0
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("no_such_key: 1\n")
+    assert main(["--recordings", str(tmp_path / "recs"), "--segmentation-config", str(bad)]) == 2
+    assert "no_such_key" in capsys.readouterr().err
