@@ -56,9 +56,19 @@ class FailureThresholds:
         "model exceeds this, mm: a limb left behind (not in Wei; None: no such test)",
     )
 
+    lost_overlap: float | None = field_doc(
+        None,
+        "a frame whose chosen fit (kept track or refined detection) overlaps the observed "
+        "silhouette less than this is reported lost and the track restarts: the model "
+        "explains almost none of what was segmented, so it is not the person's pose (not in "
+        "Wei; None: never)",
+    )
+
     def __post_init__(self) -> None:
         # badness divides by the thresholds; a NaN would silently switch a test off.
         _check(self.epsilon1_cm > 0, "epsilon1_cm must be > 0", self.epsilon1_cm)
+        lo = self.lost_overlap
+        _check(lo is None or 0 <= lo < 1, "lost_overlap must be in [0, 1) or None", lo)
         _check(0 <= self.epsilon2 < 1, "epsilon2 must be in [0, 1)", self.epsilon2)
         e3 = self.epsilon3_mm
         _check(e3 is None or e3 > 0, "epsilon3_mm must be > 0 or None", e3)

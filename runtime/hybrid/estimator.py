@@ -11,7 +11,8 @@ Per frame (a :class:`~runtime.frame.Frame` with a person in it):
 4. A failed (or rechecked) fit goes to the detector; :func:`~runtime.hybrid.policy.choose`
    keeps the track ("tracked", flagged ``kept_over_detector`` or ``rechecked``) or takes the
    detection ("detected"). A detection that finds nobody leaves the frame "lost" and the next
-   frame starts afresh.
+   frame starts afresh. So does a frame whose chosen fit explains almost none of the
+   silhouette (overlap below ``failure.lost_overlap``): it is not the person's pose.
 
 One tracker serves the tracking, every refit and the detector's refinement, all on the frame's
 one observation. The forest's labels are computed once per frame, when first needed (every
@@ -162,6 +163,16 @@ class HybridEstimator:
         if self.arm_search is not None:
             self.arm_search = ArmSearch(self.cfg.arm_search, body)
 
+    def _unsupported(self, overlap: float) -> bool:
+        """The fit explains too little of the silhouette to be the person's pose."""
+        limit = self.cfg.failure.lost_overlap
+        return limit is not None and not overlap >= limit  # NaN is unsupported too
+
+    def _lose(self, errors: dict) -> PoseEstimate:
+        """A frame without a usable pose: reported lost, the next frame starts afresh."""
+        self.reset()
+        return lost(**errors)
+
     def _detected(self, det: DetectionResult, errors: dict) -> PoseEstimate:
         errors["labelled_pixels"] = float(det.labelled_pixels)
         if not det.found:
@@ -170,6 +181,8 @@ class HybridEstimator:
         errors["ik_rms_m"] = det.ik_rms
         if det.refined is not None:
             errors.update(det.refined.signals.as_errors())
+            if self._unsupported(det.refined.signals.overlap):
+                return self._lose({**errors, "unsupported": 1.0})
         q = det.q.detach()
         self.state.q_prev, self.state.q_prev2 = q, None
         return PoseEstimate(
@@ -223,6 +236,8 @@ class HybridEstimator:
             self.arm_search.reset()
         state.turned_round = decision.turned_round
         if decision.keep_track:
+            if self._unsupported(res.signals.overlap):
+                return self._lose({**errors, "unsupported": 1.0})
             kept = {"kept_over_detector": 1.0} if verdict.failed else {"rechecked": 1.0}
             return self._tracked(res, {**errors, **kept}, frame)
         return self._detected(det, failed)

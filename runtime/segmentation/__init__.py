@@ -18,17 +18,25 @@ Steps (all batched over (B, H, W) images; device and dtype follow the input):
 4. Connected components (OpenCV, 4-connectivity, all images of the batch in one call, stacked
    with a blank row between them). Components of implausible size for a person (metric width,
    height, depth extent) or too small a metric area are dropped; the largest remaining one by
-   metric area (sum of z^2 / (fx fy)) is the person. A component seen partly behind a large
-   nearer one (the wall or a second person behind the subject) is background and never
-   chosen. Small components just in front of the person (hands, foreshortened forearms)
-   join it, and cut pixels that touch the person at a smooth depth step (self-occlusion
-   edges inside the body) are added back.
+   metric area (sum of z^2 / (fx fy)) is the person, its area weighted by how little convex
+   it is (a box, a door or a cupboard projects to a convex shape, a person does not) and, in
+   a stream, favouring the component where the previous frame's person was
+   (:mod:`.selection`). A component seen partly behind a large nearer one (the wall or a
+   second person behind the subject) is background and never chosen. Small components just
+   in front of the person (hands, foreshortened forearms) join it, and cut pixels that touch
+   the person at a smooth depth step (self-occlusion edges inside the body) are added back.
+
+A stream's frames go through :class:`PersonSegmenter`, which carries the previous frame's
+person and floor over (:class:`~.person.SegmentationMemory`): where a frame's floor fit fails
+(a crouching person hiding most of the floor) the previous floor is removed if it still
+explains the floor points.
 
 An image with no plausible component gives an empty mask: the caller reports the frame as lost.
 
 Modules: :mod:`.config` (the settings), :mod:`.depth_range` (step 1), :mod:`.floor` (step 2),
 :mod:`.components` and :mod:`.canvas` (step 4 and the batch as one OpenCV image),
-:mod:`.person` (the steps in order, and :func:`segment_person`).
+:mod:`.selection` (which component is the person), :mod:`.person` (the steps in order, and
+:func:`segment_person`), :mod:`.segmenter` (a stream's segmentation).
 """
 
 from .config import SegmentationConfig

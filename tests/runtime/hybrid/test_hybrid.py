@@ -60,7 +60,8 @@ def cfg_of(**flat) -> HybridConfig:
     threshold means that mechanism is off, as the scenarios were first written. Fixed
     choices (runtime.hybrid.arm_search's and policy's constants) are set with
     :func:`constants`."""
-    failure = {k: flat.pop(k) for k in ("epsilon1_cm", "epsilon2", "epsilon3_mm") if k in flat}
+    failure = {k: flat.pop(k) for k in ("epsilon1_cm", "epsilon2", "epsilon3_mm", "lost_overlap")
+               if k in flat}  # fmt: skip
     if "epsilon3_mm" in failure:
         failure["epsilon3_mm"] = _off(failure["epsilon3_mm"])
     keep = {k: flat.pop(k) for k in ("compare_all_tests", "max_turn_rad", "recheck_badness")
@@ -239,6 +240,33 @@ def test_failure_thresholds():
     assert failed(paper, math.nan, 0.95)  # a NaN signal fails
 
 
+@pytest.mark.parametrize("lost_overlap, status", [(None, "tracked"), (0.4, "tracked"),
+                                                 (0.6, "lost")])  # fmt: skip
+def test_a_kept_fit_that_explains_too_little_is_lost(scene, lost_overlap, status):
+    """The track fails (overlap 0.5 under epsilon2 0.9), the detector's refit is no better
+    (the fake track's surface error is 0): kept, unless its overlap is under lost_overlap."""
+    q, depth, labels, mask = scene
+    tracker = FakeTracker(low_overlap_calls={2}, surface_mm=0.0)
+    est, _ = make_hybrid(scene, tracker, 1, keep_better=True, lost_overlap=lost_overlap)
+    got = [estimate_frame(est, frame_of(depth, i, mask)) for i in range(4)]
+    assert [e.status for e in got] == ["detected", "tracked", status, "detected" if
+                                       status == "lost" else "tracked"]  # fmt: skip
+    if status == "lost":
+        assert got[2].errors["unsupported"] == 1.0 and got[2].joints is None
+
+
+def test_a_detection_that_explains_too_little_is_lost(scene):
+    q, depth, labels, mask = scene
+    est, _ = make_hybrid(scene, FakeTracker(), 2, lost_overlap=0.0)
+    assert estimate_frame(est, frame_of(depth, 0, mask)).status == "detected"
+    strict, _ = make_hybrid(scene, FakeTracker(), 2, lost_overlap=0.999)
+    first = estimate_frame(strict, frame_of(depth, 0, mask))
+    assert first.status == "lost" and first.errors["unsupported"] == 1.0
+    assert strict.state.q_prev is None
+    with pytest.raises(ValueError, match="lost_overlap"):
+        FailureThresholds(lost_overlap=1.5)
+
+
 @pytest.mark.parametrize("tracker_surface_mm, status", [(1e4, "detected"), (0.0, "tracked")])
 def test_keep_better_takes_the_pose_with_the_smaller_surface_error(
     scene, tracker_surface_mm, status
@@ -415,7 +443,7 @@ def test_the_shipped_preset_is_a_tree_of_values():
     from depthmocap.shared.config import load_settings
 
     cfg = config_from_mapping(load_settings("configs/hybrid.yaml"))
-    assert cfg.failure == FailureThresholds(3.0, 0.7, 80.0)
+    assert cfg.failure == FailureThresholds(3.0, 0.7, 80.0, lost_overlap=0.3)
     assert cfg.keep_better == KeepBetterConfig(True, 1.6, 2.4)
     assert cfg.arm_search.badness == 1.9 and cfg.arm_search.misplaced.conflict == 0.7
     assert cfg.tracker.use_labels and cfg.tracker.use_collision
