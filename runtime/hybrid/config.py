@@ -181,7 +181,7 @@ class ArmSearchConfig:
 
 
 def _shipped_failure() -> FailureThresholds:
-    return FailureThresholds(epsilon1_cm=3.0, epsilon2=0.7, epsilon3_mm=80.0)
+    return FailureThresholds(epsilon1_cm=3.0, epsilon2=0.7, epsilon3_mm=80.0, lost_overlap=0.3)
 
 
 def _shipped_keep_better() -> KeepBetterConfig:
@@ -218,9 +218,10 @@ class HybridConfig:
         default_factory=_shipped_arm_search,
     )
     body_scale: BodyScaleConfig | None = field_doc(
-        None,
-        "estimate the person's size from the first tracked frames when no body file is given "
-        "(None: off; runtime-track and depthmocap.Tracker switch it off when given a body)",
+        help="estimate the person's size from the first tracked frames when no body file is "
+        "given (None: off; runtime-track and depthmocap.Tracker switch it off when given a "
+        "body; shipped on: broad protocol 77.9 -> 73.2 mm, docs/experiments.md)",
+        default_factory=BodyScaleConfig,
     )
     labels_from_recording: str | None = field_doc(
         None,

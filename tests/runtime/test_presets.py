@@ -21,8 +21,8 @@ def test_the_default_preset_is_what_hybrid_config_defaults_to():
 
 def test_wei2012_is_the_paper():
     cfg = hybrid_config(preset_settings("wei2012"))
-    assert cfg.failure == FailureThresholds(2.5, 0.9, None)
-    assert cfg.keep_better is None and cfg.arm_search is None
+    assert cfg.failure == FailureThresholds(2.5, 0.9, None) and cfg.failure.lost_overlap is None
+    assert cfg.keep_better is None and cfg.arm_search is None and cfg.body_scale is None
     assert not cfg.tracker.use_labels and not cfg.tracker.use_collision
     assert cfg.detector.label_smoothing_window == 1
 
@@ -30,7 +30,7 @@ def test_wei2012_is_the_paper():
 def test_a_partial_config_changes_only_what_it_names():
     cfg = hybrid_config({"failure": {"epsilon1_cm": 4.0}, "arm_search": None})
     shipped = HybridConfig()
-    assert cfg.failure == FailureThresholds(4.0, shipped.failure.epsilon2, 80.0)
+    assert cfg.failure == FailureThresholds(4.0, shipped.failure.epsilon2, 80.0, lost_overlap=0.3)
     assert cfg.arm_search is None and cfg.keep_better == shipped.keep_better
 
 

@@ -56,9 +56,10 @@ def test_collects_every_kth_frame_then_searches_once():
     assert search.kept == []  # once found, no more frames are kept
 
 
-def test_off_by_default_and_on_by_config():
-    assert HybridConfig().body_scale is None
+def test_on_in_the_shipped_system_and_off_by_config():
+    assert HybridConfig().body_scale == BodyScaleConfig()
     assert hybrid_config({"body_scale": {}}).body_scale == BodyScaleConfig()
+    assert hybrid_config({"body_scale": None}).body_scale is None
 
 
 @pytest.mark.slow
