@@ -111,11 +111,9 @@ def _fit_floor_np(
     found = (
         (span >= cfg.floor_min_depth_span_m)
         & (gap <= cfg.floor_max_depth_gap_m)
-        & (count >= 50)
-        & (n_in >= cfg.floor_min_support * n)
+        & _supported(best_dist, count, cfg)
         & (-refined[:, 1] >= cos_max)
         & hyp_ok[rows, best]
-        & (np.count_nonzero(best_dist < -cfg.floor_band_m, axis=1) <= cfg.floor_max_below * n)
     )
     return refined, centre, found
 
@@ -144,22 +142,24 @@ def fit_floor_plane(
     )
 
 
-def _plane_holds(
-    pts: np.ndarray,
-    count: np.ndarray,
-    normal: np.ndarray,
-    centre: np.ndarray,
-    cfg: SegmentationConfig,
-) -> np.ndarray:
-    """(B,) bool: the planes (B, 3) still explain this frame's sampled points (B, N, 3) as a
-    floor: enough of them within the band, few below it."""
-    dist = ((pts - centre[:, None]) * normal[:, None]).sum(-1)
-    n = pts.shape[1]
+def _supported(dist: np.ndarray, count: np.ndarray, cfg: SegmentationConfig) -> np.ndarray:
+    """(B,) bool: a plane at signed distances ``dist`` (B, N) from the sampled points, drawn
+    from ``count`` (B,) candidates, is a floor's: enough points within the band, few below
+    it (nothing stands under a floor)."""
+    n = dist.shape[1]
     return (
         (count >= 50)
         & (np.count_nonzero(np.abs(dist) < cfg.floor_band_m, axis=1) >= cfg.floor_min_support * n)
         & (np.count_nonzero(dist < -cfg.floor_band_m, axis=1) <= cfg.floor_max_below * n)
     )
+
+
+def _plane_holds(
+    pts: np.ndarray, count: np.ndarray, normal: np.ndarray, centre: np.ndarray,
+    cfg: SegmentationConfig,
+) -> np.ndarray:  # fmt: skip
+    """(B,) bool: the planes (B, 3) still explain this frame's sampled points (B, N, 3)."""
+    return _supported(((pts - centre[:, None]) * normal[:, None]).sum(-1), count, cfg)
 
 
 def remove_floor(
