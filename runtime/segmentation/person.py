@@ -50,6 +50,8 @@ def _segment_np(
     import cv2
 
     b, h, w = depth.shape
+    if memory is not None and memory.mask.shape != (b, h, w):
+        memory = None  # another batch or image size: nothing carries over
     valid = valid_np(depth, cfg)
     z_img = np.where(valid, depth, np.float32(0.0))
     floor = None
@@ -102,7 +104,7 @@ def _segment_np(
     # Which plausible component is the person: by area, shape and continuity (.selection).
     cand = np.flatnonzero(plausible)
     previous_share = np.zeros(len(cand))
-    if memory is not None and memory.mask.shape == (b, h, w):
+    if memory is not None:
         was_person = np.bincount(lf, cv.place(memory.mask).reshape(-1), minlength=count)
         previous_share = was_person[cand] / np.maximum(comp_pixels[cand], 1)
     score = np.full(count, -1.0)

@@ -318,3 +318,15 @@ def test_segmenter_forgets_on_another_camera():
     seg(alone, INTR)
     other = type(INTR)(INTR.width, INTR.height, INTR.fx, INTR.fy, INTR.cx + 0.5, INTR.cy)
     assert not (seg(both, other) & truth).any()
+
+
+def test_memory_of_another_batch_or_size_is_ignored():
+    from depthmocap.runtime.segmentation.person import segment_person_in_stream
+
+    alone, truth, _ = scene(hand=False)
+    _, memory = segment_person_in_stream(torch.stack([alone, alone]), INTR)
+    single = segment_person(alone, INTR)
+    assert torch.equal(segment_person(alone, INTR, memory=memory), single)
+    small = Intrinsics.kinect_v1(160)
+    _, other = segment_person_in_stream(torch.zeros(small.height, small.width), small)
+    assert torch.equal(segment_person(alone, INTR, memory=other), single)
