@@ -64,6 +64,8 @@ def main(argv: list[str] | None = None) -> int:
         "--segmentation-config", type=Path, help="YAML of SegmentationConfig keys (default: none)"
     )
     args = p.parse_args(argv)
+    if args.every < 1:
+        p.error("--every must be >= 1")
     from depthmocap.shared.config import ConfigError, load_config
 
     try:

@@ -58,3 +58,11 @@ def test_settings_from_yaml_and_bad_ones(tmp_path, capsys):
     bad.write_text("no_such_key: 1\n")
     assert main(["--recordings", str(tmp_path / "recs"), "--segmentation-config", str(bad)]) == 2
     assert "no_such_key" in capsys.readouterr().err
+
+
+def test_every_must_be_positive(tmp_path):
+    import pytest
+
+    with pytest.raises(SystemExit) as err:
+        main(["--recordings", str(tmp_path), "--every", "0"])
+    assert err.value.code == 2

@@ -112,7 +112,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.bodies < 1 or args.frames < 1 or not 0 <= args.max_yaw <= 90:
+        parser.error("--bodies and --frames must be >= 1 and --max-yaw within 0-90 degrees")
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
     for i, phenotype in enumerate(check_phenotypes(args.bodies, args.seed)):

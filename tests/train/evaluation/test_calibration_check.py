@@ -30,3 +30,13 @@ def test_two_bodies_are_accepted_and_calibrated(tmp_path, capsys):
         assert abs(r["stature_m"] - r["true_stature_m"]) < 0.1
         assert r["length_error_cm"] < 3.0
     assert "accepted 2 of 2 bodies" in capsys.readouterr().out
+
+
+def test_bad_options_are_refused(tmp_path, capsys):
+    import pytest
+
+    for argv in (["--bodies", "0"], ["--frames", "0"], ["--max-yaw", "120"]):
+        with pytest.raises(SystemExit) as err:
+            main([*argv, "--out", str(tmp_path)])
+        assert err.value.code == 2
+    assert "--bodies and --frames" in capsys.readouterr().err
