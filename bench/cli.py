@@ -75,11 +75,19 @@ def main(argv: list[str] | None = None) -> None:
         default=120,
         help="frames of the whole-hybrid timing (0: skip it)",
     )
+    parser.add_argument(
+        "--hybrid-recordings",
+        type=Path,
+        help="also time the whole hybrid end to end on every recording in this folder "
+        "(pooled median, 95th percentile, mean, replayed latency; then each recording)",
+    )
     args = parser.parse_args(argv)
     if args.hybrid_frames < 0:
         parser.error(f"--hybrid-frames must be >= 0, got {args.hybrid_frames}")
-    if args.recordings is not None and not args.recordings.is_dir():
-        parser.error(f"--recordings {args.recordings}: no such folder")
+    for flag, folder in (("--recordings", args.recordings),
+                         ("--hybrid-recordings", args.hybrid_recordings)):  # fmt: skip
+        if folder is not None and not folder.is_dir():
+            parser.error(f"{flag} {folder}: no such folder")
     torch.set_num_threads(args.threads)
     devices = ["cpu", "cuda"] if args.device == "all" else [args.device]
     devices = [d for d in devices if d == "cpu" or torch.cuda.is_available()]
@@ -100,6 +108,14 @@ def main(argv: list[str] | None = None) -> None:
                 f"{args.hybrid_source}: per frame, as runtime-track runs it without its files =="
             )
             _print_rows(hybrid_rows(args.hybrid_source, dev, args.hybrid_frames))
+        if args.hybrid_recordings is not None:
+            from .hybrid import recordings_rows
+
+            print(
+                f"\n== the whole hybrid on {name} (shipped preset, default body), every "
+                f"recording in {args.hybrid_recordings}, end to end per frame =="
+            )
+            _print_rows(recordings_rows(args.hybrid_recordings, dev))
         if args.recordings is not None:
             from .tracker import recording_rows
 

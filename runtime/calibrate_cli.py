@@ -140,7 +140,7 @@ def _refine(body: BodyShape, intr, depth, mask, iterations: int):
         return None
     tracker = Tracker(body, intr)
     obs = tracker.observe(depth, mask)
-    return lambda q: tracker.fit(obs, q, None, iterations)
+    return lambda starts: tracker.fit_starts(obs, starts, iterations)
 
 
 def run(args: argparse.Namespace) -> BodyShape:

@@ -67,8 +67,9 @@ ORIENTATION_STARTS = 4
 # third, unused), every start with its own prior reference.
 ARM_STARTS = 2
 
-# A start pose (34,) -> the tracker's few-iteration refinement of the frame from it.
-Refine = Callable[[torch.Tensor], "TrackResult"]
+# Start poses (K, 34) -> the tracker's few-iteration refinement of the frame from each, in
+# order (one batched fit: ``Tracker.fit_starts``).
+Refine = Callable[[torch.Tensor], "list[TrackResult]"]
 
 __all__ = ["DetectionResult", "DetectorError", "Refine", "detect_pose", "labels_from", "Detector"]
 
@@ -202,9 +203,9 @@ def detect_pose(
         cfg: settings (defaults when None).
         q_hint: (34,) an extra IK start (e.g. the last good pose), optional.
         mask: (H, W) bool person mask; labels outside it are ignored.
-        refine: the tracker's refinement of this frame from a pose (Wei: three iterations),
-            applied to the IK pose and its limb swaps when given; the caller binds it to the
-            frame (its observation, labels and iteration count).
+        refine: the tracker's refinement of this frame from K poses (Wei: three
+            iterations), applied to the IK pose and its limb swaps at once when given; the
+            caller binds it to the frame (its observation, labels and iteration count).
         generator: random source of the RANSAC (default: seeded from ``cfg.seed``).
     Returns:
         :class:`DetectionResult`.
@@ -276,8 +277,7 @@ def detect_pose(
         # The forest confuses left and right limbs (about a fifth of forearm and shank pixels),
         # which IK turns into crossed legs or arms; refine the pose with each pair of limbs
         # swapped too and keep the one that explains the depth best.
-        for cand in limb_swaps(q_ik):
-            res = refine(cand)
+        for res in refine(torch.stack(limb_swaps(q_ik))):
             if refined is None or (res.depth_error_cm, -res.overlap) < (
                 refined.depth_error_cm,
                 -refined.overlap,

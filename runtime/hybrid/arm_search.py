@@ -69,8 +69,9 @@ MISPLACED_MIN_POINTS = 20
 # in profile, but a lost arm laid on the other one is misplaced all the same).
 OTHER_ARM_COUNTS = True
 
-# A start pose (34,) -> the tracker's refit of the frame from it.
-Refit = Callable[[torch.Tensor], TrackResult]
+# Start poses (K, 34) -> the tracker's refit of the frame from each, in order (one batched
+# fit: ``Tracker.fit_starts``).
+Refit = Callable[[torch.Tensor], list[TrackResult]]
 
 
 @dataclass
@@ -123,13 +124,13 @@ class ArmSearch:
         badness_of: Callable[[FitSignals], float],
     ) -> SearchResult:
         """Search every suspect arm of ``track`` (whose badness is ``badness``) on ``frame``
-        with its part ``labels`` (H, W); ``refit`` fits the frame from a start pose."""
+        with its part ``labels`` (H, W); ``refit`` fits the frame from each of K start poses
+        (one batched fit per arm)."""
         best, searched = None, 0
         for suspect in self._suspects(frame, labels, track):
             searched += 1
             found = None
-            for start in arm_candidates(track.q, suspect.side):
-                r = refit(start)
+            for r in refit(arm_candidates(track.q, suspect.side)):
                 b = badness_of(r.signals)
                 if b < badness and self._accepts(suspect, r.q):
                     found, badness = r, b

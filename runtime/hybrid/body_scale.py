@@ -70,38 +70,43 @@ def peak_of(scales: np.ndarray, score: np.ndarray) -> float:
 
 
 class BodyScaleSearch:
-    """Collects tracked frames of a stream, then finds the factor on the default body.
+    """Refits tracked frames of a stream at every candidate size, then picks the factor on
+    the default body.
 
-    ``offer(frame, q)`` after each tracked frame; when :attr:`ready`, ``search(fit)`` with
-    ``fit(body, frame, q) -> overlap`` (the caller's tracker refit of one frame) returns the
-    factor. A search runs once per estimator.
+    ``offer(frame, q, fit)`` after each tracked frame: every ``cfg.every``-th is refitted at
+    once at all S candidate sizes, ``fit(bodies, frame, q) -> (S,) overlaps`` with
+    ``bodies`` the default body scaled by each factor (a batch of S: one batched fit), so
+    the cost is spread over the first tracked frames instead of stalling one. The call that
+    completes ``cfg.samples`` frames returns the factor (also :attr:`scale`); a search runs
+    once per estimator.
     """
 
     def __init__(self, cfg: BodyScaleConfig, body: BodyShape) -> None:
         self.cfg, self.body = cfg, body
-        self.kept: list[tuple[object, torch.Tensor]] = []
+        self.factors = cfg.scales()
+        self.bodies = body.scaled(torch.as_tensor(self.factors, dtype=body.lengths.dtype))
+        self._score = np.zeros(len(self.factors))
+        self.samples = 0  # frames refitted so far
         self._seen = 0
-        self.scale: float | None = None  # the result, once searched
+        self.scale: float | None = None  # the result, once found
 
-    @property
-    def ready(self) -> bool:
-        return self.scale is None and len(self.kept) >= self.cfg.samples
-
-    def offer(self, frame, q: torch.Tensor) -> None:
-        """A tracked frame and its pose; every ``cfg.every``-th is kept until there are
-        ``cfg.samples``."""
-        if self.scale is not None or len(self.kept) >= self.cfg.samples:
-            return
-        if self._seen % self.cfg.every == 0:
-            self.kept.append((frame, q.detach().clone()))
+    def offer(
+        self, frame, q: torch.Tensor, fit: Callable[[BodyShape, object, torch.Tensor], object]
+    ) -> float | None:
+        """A tracked frame and its pose (34,); returns the factor on the call that finds it,
+        None otherwise."""
+        if self.scale is not None:
+            return None
+        take = self._seen % self.cfg.every == 0
         self._seen += 1
-
-    def search(self, fit: Callable[[BodyShape, object, torch.Tensor], float]) -> float:
-        """The factor whose refits overlap the silhouettes best; frees the kept frames."""
-        scales = self.cfg.scales()
-        score = np.array(
-            [np.mean([fit(self.body.scaled(float(s)), f, q) for f, q in self.kept]) for s in scales]
-        )
-        self.scale = peak_of(scales, score)
-        self.kept = []
+        if not take:
+            return None
+        overlaps = np.asarray(fit(self.bodies, frame, q.detach()), dtype=np.float64)
+        if overlaps.shape != self._score.shape:
+            raise ValueError(f"fit returned {overlaps.shape} overlaps for {self._score.shape}")
+        self._score += overlaps
+        self.samples += 1
+        if self.samples < self.cfg.samples:
+            return None
+        self.scale = peak_of(self.factors, self._score / self.samples)
         return self.scale

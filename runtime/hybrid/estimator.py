@@ -83,7 +83,7 @@ class HybridEstimator:
         self.scale_search = (
             None if cfg.body_scale is None else BodyScaleSearch(cfg.body_scale, tracker.body)
         )
-        self._candidate: tuple | None = None  # (body, tracker) of the size search
+        self._sizes: Tracker | None = None  # the size search's tracker of all candidates
 
     @property
     def body(self):
@@ -115,6 +115,12 @@ class HybridEstimator:
         obs = frame.observation(self.tracker, self._tracker_labels(frame))
         return self.tracker.fit(obs, start, before, iterations)
 
+    def _fit_starts(self, frame: Frame, starts: torch.Tensor,
+                    iterations: int | None = None) -> list[TrackResult]:  # fmt: skip
+        """Refits of ``frame`` from each of the (K, 34) ``starts``, in one batched fit."""
+        obs = frame.observation(self.tracker, self._tracker_labels(frame))
+        return self.tracker.fit_starts(obs, starts, iterations)
+
     def _joints(self, q: torch.Tensor) -> np.ndarray:
         body = self.tracker.body
         kin = forward_kinematics(q[None].to(body.lengths), body)
@@ -125,7 +131,7 @@ class HybridEstimator:
         labels = frame.labels(self.label_source)
         hint = self.state.q_prev  # one more IK start, used only if it fits the centroids best
         k = self.detector.cfg.refine_iterations
-        refine = None if k <= 0 else (lambda q: self._fit(frame, q, None, k))
+        refine = None if k <= 0 else (lambda starts: self._fit_starts(frame, starts, k))
         return self.detector.detect(frame.depth_m, labels, frame.mask, q_hint=hint, refine=refine)
 
     # ---- estimates, each updating the track ----
@@ -137,25 +143,27 @@ class HybridEstimator:
             q.cpu().double().numpy(), self._joints(q), "tracked", errors, observed=observed_of(res)
         )
         if self.scale_search is not None:
-            self.scale_search.offer(frame, q)
-            if self.scale_search.ready:
-                self._use_body(self.body.scaled(self.scale_search.search(self._refit_overlap)))
+            scale = self.scale_search.offer(frame, q, self._size_overlaps)
+            if scale is not None:
+                self._use_body(self.body.scaled(scale))
         return estimate
 
-    def _refit_overlap(self, body, frame: Frame, q: torch.Tensor) -> float:
-        """Silhouette overlap of ``frame`` refitted from ``q`` with ``body`` (a candidate of
-        the size search; one tracker per candidate body, its observations cached)."""
-        if self._candidate is None or self._candidate[0] is not body:
-            t = self.tracker
-            self._candidate = (body, Tracker(body, t.intr, t.cfg, device=t.device, dtype=t.dtype))
-        tracker, k = self._candidate[1], self.cfg.body_scale.iterations
-        obs = frame.observation(tracker, self._tracker_labels(frame))
-        return float(tracker.fit(obs, q, None, k).overlap)
+    def _size_overlaps(self, bodies, frame: Frame, q: torch.Tensor) -> np.ndarray:
+        """(S,) silhouette overlaps of ``frame`` refitted from ``q`` with each of the S
+        candidate ``bodies`` of the size search, in one batched fit on the frame's
+        observation (the observation does not depend on the body)."""
+        t = self.tracker
+        if self._sizes is None:
+            self._sizes = Tracker(bodies, t.intr, t.cfg, device=t.device, dtype=t.dtype)
+        obs = frame.observation(t, self._tracker_labels(frame))
+        starts = q[None].expand(bodies.lengths.shape[0], -1)
+        fits = self._sizes.fit_starts(obs, starts, self.cfg.body_scale.iterations)
+        return np.array([r.overlap for r in fits])
 
     def _use_body(self, body) -> None:
         """Track and detect with ``body`` from now on; the track goes on from its pose."""
         t, d = self.tracker, self.detector
-        self._candidate = None
+        self._sizes = None
         self.tracker = Tracker(body, t.intr, t.cfg, device=t.device, dtype=t.dtype)
         detector = Detector(body, d.intr, d.cfg, device=d.device, dtype=d.dtype)
         detector.generator.set_state(d.generator.get_state())
@@ -209,7 +217,7 @@ class HybridEstimator:
                 frame.labels(self.label_source),
                 res,
                 badness,
-                lambda q: self._fit(frame, q),
+                lambda starts: self._fit_starts(frame, starts),
                 cfg.failure.badness,
             )
             if found.best is not None:

@@ -36,7 +36,7 @@ MIN_COSINE = 0.2
 
 def depth_rows(render: BodyRender, obs: Observation, regions: Regions, cfg: TrackerConfig) -> Rows:
     """Linearized depth-term rows for (a strided subsample of) the pixels in G."""
-    idx, _, ratio = sample_pixels(regions.good, MAX_DEPTH_PIXELS)
+    idx, _, ratio = sample_pixels(regions.good, MAX_DEPTH_PIXELS, render.depth.dtype)
     points, segment = rendered_points(render, idx, obs.intr)
     b, v, u = idx.unbind(1)
     normal = (

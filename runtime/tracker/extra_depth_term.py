@@ -35,7 +35,7 @@ from depthmocap.shared import skeleton as sk
 from .config import TrackerConfig
 from .gauss_newton import Rows
 from .observation import Observation
-from .regions import Regions, rendered_points, sample_pixels
+from .regions import Regions, batch_slots, rendered_points, sample_pixels
 
 __all__ = [
     "MAX_EXTRA_POINTS",
@@ -94,9 +94,6 @@ def observed_candidates(obs: Observation, max_count: int) -> ObservedCandidates:
     return ObservedCandidates(b, obs.points[b, v, u])
 
 
-_POSE_SHIFT_M = 1000.0
-
-
 def closest_points(
     query: torch.Tensor,
     query_batch: torch.Tensor,
@@ -107,25 +104,33 @@ def closest_points(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Index of each query's closest candidate of the same pose within the depth gate.
 
+    Queries and candidates are grouped by pose (:func:`~runtime.tracker.regions.batch_slots`)
+    and compared within their pose only, so B poses cost B times one pose's (n, m) distance
+    table, not a (B n, B m) one.
+
     Args:
         query: (N, 3); cand: (M, 3); *_batch: pose index of each.
     Returns:
         index (N,) into cand, and found (N,) bool (eligible match within max_distance).
     """
-    if cand.shape[0] == 0 or query.shape[0] == 0:
-        n = query.shape[0]
-        return torch.zeros(n, dtype=torch.long, device=query.device), torch.zeros(
-            n, dtype=torch.bool, device=query.device
-        )
-    norms = (query * query).sum(-1)[:, None] + (cand * cand).sum(-1)[None]
-    d2 = torch.addmm(norms, query, cand.T, alpha=-2.0)
-    # Poses kept apart by depth: each pose's z moves by far more than any gate, so one
-    # (N, M) test covers both conditions (float32 keeps 0.1 mm at a 1 km shift).
-    qz = query[:, 2] + _POSE_SHIFT_M * query_batch.to(query.dtype)
-    cz = cand[:, 2] + _POSE_SHIFT_M * cand_batch.to(cand.dtype)
-    d2.masked_fill_((qz[:, None] - cz[None]).abs_() > depth_gate, float("inf"))
-    best, index = d2.min(1)
-    return index, best <= max_distance * max_distance
+    n = query.shape[0]
+    index = torch.zeros(n, dtype=torch.long, device=query.device)
+    found = torch.zeros(n, dtype=torch.bool, device=query.device)
+    if cand.shape[0] == 0 or n == 0:
+        return index, found
+    B = int(torch.maximum(query_batch.max(), cand_batch.max())) + 1
+    q_slot, q_real = batch_slots(query_batch, B)  # (B, K), (B, K)
+    c_slot, c_real = batch_slots(cand_batch, B)  # (B, L), (B, L)
+    q, c = query[q_slot], cand[c_slot]  # (B, K, 3), (B, L, 3)
+    norms = (q * q).sum(-1)[:, :, None] + (c * c).sum(-1)[:, None, :]
+    d2 = torch.baddbmm(norms, q, c.transpose(1, 2), alpha=-2.0)  # (B, K, L)
+    far = (q[:, :, 2, None] - c[:, None, :, 2]).abs_() > depth_gate
+    d2.masked_fill_(far | ~c_real[:, None, :], float("inf"))
+    best, local = d2.min(2)  # (B, K)
+    rows = q_slot[q_real]
+    index[rows] = c_slot.gather(1, local)[q_real]
+    found[rows] = (best <= max_distance * max_distance)[q_real]
+    return index, found
 
 
 def _dilate(mask: torch.Tensor, radius: int) -> torch.Tensor:
@@ -183,7 +188,7 @@ def extra_rows(
         b3 = b3 & ~_dilate(render.mask, m)
         near_good = _dilate(regions.good, m)
         front, behind = front & ~near_good, behind & ~near_good
-    q_idx, _, q_ratio = sample_pixels(b1 | front, half)
+    q_idx, _, q_ratio = sample_pixels(b1 | front, half, dtype)
     q_pts, q_seg = rendered_points(render, q_idx, intr)
     j, found = closest_points(
         q_pts,
@@ -197,10 +202,10 @@ def extra_rows(
     off_r = torch.where(found[:, None], target - q_pts, torch.zeros_like(q_pts))
     dist_r = torch.where(found, off_r.norm(dim=-1), torch.full_like(q_pts[:, 0], cfg.depth_gate_m))
     error.index_add_(0, q_idx[:, 0], dist_r * q_ratio)
-    count.index_add_(0, q_idx[:, 0], torch.full_like(dist_r, q_ratio))
+    count.index_add_(0, q_idx[:, 0], q_ratio)
 
     # Types 2 and 4: observed point -> closest rendered point (a model point to pull).
-    o_idx, _, o_ratio = sample_pixels(b3 | behind, half)
+    o_idx, _, o_ratio = sample_pixels(b3 | behind, half, dtype)
     b, v, u = o_idx.unbind(1)
     o_pts = obs.points[b, v, u]
     c_idx, _, _ = sample_pixels(render.mask, MAX_CANDIDATES)
@@ -215,7 +220,7 @@ def extra_rows(
         found_o, off_o.norm(dim=-1), torch.full_like(o_pts[:, 0], cfg.depth_gate_m)
     )
     error.index_add_(0, b, dist_o * o_ratio)
-    count.index_add_(0, b, torch.full_like(dist_o, o_ratio))
+    count.index_add_(0, b, o_ratio)
 
     points = torch.cat([q_pts, model])
     segment = torch.cat([q_seg, model_seg])

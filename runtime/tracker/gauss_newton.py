@@ -22,6 +22,8 @@ from depthmocap.shared import skeleton as sk
 from depthmocap.shared.kinematics import Kinematics, clamp_to_limits, pose_update
 from depthmocap.shared.least_squares import damped, solve, solve_with_fixed
 
+from .regions import batch_slots
+
 __all__ = [
     "Rows",
     "cat_rows",
@@ -71,11 +73,11 @@ def rows_jacobian(kin: Kinematics, rows: Rows) -> torch.Tensor:
     table = torch.cat([axes, moments], -1).reshape(B * 31, 6)
     g = rows.direction
     lever = torch.cat([torch.linalg.cross(rows.points, g, dim=-1), g], -1)  # (N, 6)
-    rot = (lever @ table.T).reshape(-1, B, 31)
     if B == 1:
-        rot = rot[:, 0]
-    else:
-        rot = rot.gather(1, rows.batch[:, None, None].expand(-1, 1, 31))[:, 0]
+        rot = lever @ table.T
+    else:  # each row against its own pose's table only: N x 31, not N x B 31
+        table = table.reshape(B, 31, 6).index_select(0, rows.batch)  # (N, 31, 6)
+        rot = (table @ lever[:, :, None])[..., 0]
     affects = torch.as_tensor(sk.DOF_AFFECTS_SEGMENT, dtype=g.dtype, device=g.device)
     return torch.cat([g, rot], 1) * affects.index_select(0, rows.segment)
 
@@ -94,11 +96,13 @@ def normal_equations(
     res = rows.residual * rows.weight
     if batch_size == 1:
         jt = jac.T[None]
-    else:
-        onehot = rows.batch[None] == torch.arange(batch_size, device=jac.device)[:, None]
-        jt = jac.T[None] * onehot[:, None].to(jac.dtype)  # (B, 34, N)
+    else:  # rows grouped by pose, zero-padded: (B, K, 34), not a (B, 34, N) mask product
+        slot, real = batch_slots(rows.batch, batch_size)
+        jac = jac[slot] * real[..., None]
+        res = res[slot] * real
+        jt = jac.transpose(1, 2)
     hess = (jt @ jac).double()
-    grad = (jt @ res[:, None])[..., 0].double()
+    grad = (jt @ res[..., None])[..., 0].double()
     return hess, grad
 
 

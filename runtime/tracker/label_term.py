@@ -72,7 +72,7 @@ def label_rows(
     ``obs.labels``; no rows without it)."""
     labels = obs.labels if obs.labels is not None else torch.full_like(obs.depth, -1).long()
     use = obs.valid & (labels >= sk.FIRST_LIMB_SEGMENT)
-    idx, _, ratio = sample_pixels(use, MAX_LABEL_PIXELS)
+    idx, _, ratio = sample_pixels(use, MAX_LABEL_PIXELS, obs.points.dtype)
     b, v, u = idx.unbind(1)
     points, segment = obs.points[b, v, u], labels[b, v, u]
     rot, origin = geom.frames(kin)

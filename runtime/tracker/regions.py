@@ -17,7 +17,14 @@ from depthmocap.shared.camera import Intrinsics
 
 from .observation import Observation
 
-__all__ = ["Regions", "classify", "sample_pixels", "pixel_rays", "rendered_points"]
+__all__ = [
+    "Regions",
+    "classify",
+    "sample_pixels",
+    "batch_slots",
+    "pixel_rays",
+    "rendered_points",
+]
 
 
 @dataclass
@@ -56,27 +63,57 @@ def classify(render: BodyRender, obs: Observation, gate_m: float, occlusion: boo
     return Regions(good, rendered & ~obs.silhouette, front, behind, valid & ~rendered, diff)
 
 
-def sample_pixels(mask: torch.Tensor, max_count: int) -> tuple[torch.Tensor, int, float]:
-    """About ``max_count`` of the True pixels, on a fixed pseudo-random lattice.
+def sample_pixels(
+    mask: torch.Tensor, max_count: int, dtype: torch.dtype = torch.float32
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """About ``max_count`` of the True pixels of each of the B masks, on a fixed pseudo-random
+    lattice.
 
-    With s = ceil(count / max_count), a pixel is kept when a hash of its (v, u) is 0 modulo
-    s, so the kept set depends on the pixel, not on how many True pixels precede it: between
-    Gauss-Newton iterations the region masks change a little and the samples stay put (taking
-    every s-th True pixel instead moved every sample after the first change, and the
-    iterations never settled).
+    With s = ceil(count / max_count) for a mask's count of True pixels, a pixel is kept when
+    a hash of its (v, u) is 0 modulo s, so the kept set depends on the pixel, not on how many
+    True pixels precede it: between Gauss-Newton iterations the region masks change a little
+    and the samples stay put (taking every s-th True pixel instead moved every sample after
+    the first change, and the iterations never settled). The cap is per mask, so a batch of B
+    poses on the same frame samples each exactly as a batch of one would.
 
+    Args:
+        mask: (B, H, W) bool; max_count: the cap per mask (<= 0: keep every pixel).
     Returns:
-        (N, 3) int64 rows (b, v, u); the number of True pixels; their ratio to the N kept
-        (each kept pixel stands for that many), 1.0 when nothing is dropped.
+        (N, 3) int64 rows (b, v, u), sorted by b; (B,) int64 count of True pixels per mask;
+        (N,) ``dtype`` ratio of each kept pixel's mask count to its kept count (each kept pixel
+        stands for that many), 1 where nothing is dropped.
     """
     idx = mask.nonzero()
-    total = idx.shape[0]
-    if total > max_count > 0:
-        stride = -(-total // max_count)
+    B = mask.shape[0]
+    total = torch.bincount(idx[:, 0], minlength=B)
+    if max_count > 0 and idx.shape[0] > max_count:
+        stride = ((total + max_count - 1) // max_count).clamp_min(1)
         key = (idx[:, 2] * 73856093) ^ (idx[:, 1] * 19349663)
-        idx = idx[key % stride == 0]
-    ratio = total / max(1, idx.shape[0])
+        idx = idx[key % stride[idx[:, 0]] == 0]
+        kept = torch.bincount(idx[:, 0], minlength=B)
+        ratio = (total.to(dtype) / kept.clamp_min(1).to(dtype))[idx[:, 0]]
+    else:
+        ratio = torch.ones(idx.shape[0], dtype=dtype, device=mask.device)
     return idx, total, ratio
+
+
+def batch_slots(batch: torch.Tensor, size: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Rows grouped by their batch index, padded: for rows with pose indices ``batch`` (N,)
+    in [0, size), a (size, K) table of row indices (K: the largest group) and a (size, K)
+    bool mask of the real entries (padding points at row 0). Lets per-pose work on a
+    batch's rows run as one (size, K, ...) tensor op without pairing rows of different
+    poses (one host sync for K)."""
+    n = batch.shape[0]
+    counts = torch.bincount(batch, minlength=size)
+    width = int(counts.max()) if n else 0
+    order = torch.argsort(batch, stable=True)
+    start = torch.cumsum(counts, 0) - counts
+    sorted_batch = batch[order]
+    pos = torch.arange(n, device=batch.device) - start[sorted_batch]
+    slots = torch.full((size, width), -1, dtype=torch.long, device=batch.device)
+    slots[sorted_batch, pos] = order
+    real = slots >= 0
+    return slots.clamp_min(0), real
 
 
 def pixel_rays(idx: torch.Tensor, intr: Intrinsics, dtype: torch.dtype) -> torch.Tensor:

@@ -31,7 +31,7 @@ from .depth_term import depth_error_sum
 from .extra_depth_term import ExtraResult
 from .joint_support import joint_support_cm2
 from .observation import Observation
-from .regions import Regions, sample_pixels
+from .regions import Regions, batch_slots, sample_pixels
 
 __all__ = [
     "LIMB_SEGMENTS",
@@ -107,10 +107,10 @@ def surface_error_quantile(
     if idx.shape[0] == 0:
         return obs.depth.new_zeros(B, dtype=torch.float64)
     b, v, u = idx.unbind(1)
-    pts = obs.points[b, v, u]
-    dist = surface_distance(pts[None].expand(B, -1, -1), render.kin, body)  # (B, N)
-    own = b[None] == torch.arange(B, device=b.device)[:, None]
-    dist = torch.where(own, dist, torch.full_like(dist, float("nan")))
+    slot, real = batch_slots(b, B)  # each pose's own points only: (B, K)
+    pts = obs.points[b, v, u][slot]
+    dist = surface_distance(pts, render.kin, body)  # (B, K)
+    dist = torch.where(real, dist, torch.full_like(dist, float("nan")))
     q = torch.nanquantile(dist.double(), level, dim=1) * 1e3
     return torch.nan_to_num(q, nan=0.0)
 

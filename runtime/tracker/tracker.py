@@ -50,7 +50,15 @@ from .shoulder_branch import align_branch, move_to_roomier_branch
 from .signals import FitSignals, FrameSignals, frame_signals
 from .silhouette_term import silhouette_rows
 
-__all__ = ["TrackerError", "TrackResult", "FrameFit", "fit_frames", "Tracker", "track_sequence"]
+__all__ = [
+    "TrackerError",
+    "TrackResult",
+    "FrameFit",
+    "fit_frames",
+    "expand_observation",
+    "Tracker",
+    "track_sequence",
+]
 
 
 # Constants of the tracker that were settings once (issue 34): the values they were tuned to,
@@ -127,14 +135,16 @@ class FrameFit:
     """Batched result of :func:`fit_frames`.
 
     Attributes:
-        q: (B, 34); signals: per-pose signals at q; iterations: iterations run (all poses
-        iterate together); converged: (B,) bool.
+        q: (B, 34); signals: per-pose signals at q; iterations: iterations the batch ran;
+        converged: (B,) bool; steps: (B,) int64 Gauss-Newton steps each pose took (a pose
+        that has converged stops moving while the others iterate on).
     """
 
     q: torch.Tensor
     signals: FrameSignals
     iterations: int
     converged: torch.Tensor
+    steps: torch.Tensor | None = None
 
 
 def _small(dq: torch.Tensor) -> torch.Tensor:
@@ -152,6 +162,14 @@ def fit_frames(
 ) -> FrameFit:
     """Gauss-Newton fit of B poses to B observed frames.
 
+    Each pose is fitted as it would be alone: pixel sampling caps and closest points are per
+    pose, and a pose whose stop test passes keeps its result while the others iterate on, its
+    rendering held at the pose of its last step, so that its failure signals are those it
+    would have had alone. B starts on one frame (:func:`expand_observation`) thus cost one
+    batched fit instead of B, with the same results up to rounding (a rounding difference
+    can move a pixel where two capsules meet to the other segment, which moves a badly
+    constrained angle by a few hundredths of a radian).
+
     Args:
         obs: working-resolution observation (batch B).
         q_prev, q_prev2: (B, 34) poses of the two previous frames (q_prev2 may be None: the
@@ -165,11 +183,13 @@ def fit_frames(
     q = q_prev.clone()  # Wei starts each frame from the previous pose
     observed = observed_candidates(obs, MAX_CANDIDATES) if cfg.use_extra_depth else None
     converged = torch.zeros(B, dtype=torch.bool, device=q.device)
+    steps = torch.zeros(B, dtype=torch.long, device=q.device)
     geom = segment_geometry(body, q)
     iterations = 0
     last = None
+    q_cast = q  # the poses rendered: q, but a converged pose's last step's start
     for _ in range(cfg.iterations):
-        render = render_body(q, body, obs.intr, geom=geom, details=False)
+        render = render_body(q_cast, body, obs.intr, geom=geom, details=False)
         regions = classify(render, obs, cfg.depth_gate_m, cfg.occlusion_handling)
         extra = extra_rows(render, obs, regions, observed, cfg, B) if observed is not None else None
         rows = []
@@ -191,17 +211,21 @@ def fit_frames(
             h, g = normal_equations(render.kin, contact, B, columns)
             hess, grad = hess + h, grad + g
         if cfg.use_prior:
-            diag, rhs, _ = prior_system(q, q_pred, cfg.sigma_prior_rad, cfg.sigma_prior_m)
+            diag, rhs, _ = prior_system(q_cast, q_pred, cfg.sigma_prior_rad, cfg.sigma_prior_m)
             hess = hess + torch.diag_embed(diag.double())
             grad = grad + rhs.double()
-        dq = limit_step(solve_step(hess, grad, q, cfg.damping), cfg.max_step_rad)
-        q = apply_step(q, dq)
+        dq = limit_step(solve_step(hess, grad, q_cast, cfg.damping), cfg.max_step_rad)
+        dq = torch.where(converged[:, None], torch.zeros_like(dq), dq)
+        q = torch.where(converged[:, None], q, apply_step(q_cast, dq))
         iterations += 1
-        converged = _small(dq)
+        steps += (~converged).long()
+        small = _small(dq)
         if iterations > 1:
             # Not after the first step: the failure signals come from this iteration's
             # rendering, which then would still show the previous frame's pose.
-            converged = converged | (predicted_decrease(hess, dq) < STOP_DECREASE)
+            small = small | (predicted_decrease(hess, dq) < STOP_DECREASE)
+        q_cast = torch.where((converged | small)[:, None], q_cast, q)
+        converged = converged | small
         last = (render, regions, extra)
         if bool(converged.all()):
             break
@@ -215,7 +239,17 @@ def fit_frames(
         cands = observed if observed is not None else observed_candidates(obs, MAX_CANDIDATES)
         extra = extra_rows(render, obs, regions, cands, cfg, B)
     signals = frame_signals(render, obs, regions, extra, body, cfg)
-    return FrameFit(q, signals, iterations, converged)
+    return FrameFit(q, signals, iterations, converged, steps)
+
+
+def expand_observation(obs: Observation, size: int) -> Observation:
+    """A batch-1 observation as a batch of ``size`` views of it (no copies), for fitting one
+    frame from several starts in one :func:`fit_frames` call."""
+    if obs.depth.shape[0] != 1:
+        raise TrackerError(f"expand_observation needs a batch of 1, got {obs.depth.shape[0]}")
+    fields = {f.name: getattr(obs, f.name) for f in dataclasses.fields(obs) if f.name != "intr"}
+    views = {k: None if v is None else v.expand(size, *v.shape[1:]) for k, v in fields.items()}
+    return Observation(obs.intr, **views)
 
 
 class Tracker:
@@ -324,17 +358,39 @@ class Tracker:
         )
         qp = q_prev.to(device=self.device, dtype=self.dtype)[None]
         qp2 = None if q_prev2 is None else q_prev2.to(device=self.device, dtype=self.dtype)[None]
-        fit = fit_frames(obs, qp, qp2, self.body, cfg)
+        return self._result(fit_frames(obs, qp, qp2, self.body, cfg), 0)
+
+    def fit_starts(
+        self, obs: Observation, starts: torch.Tensor, iterations: int | None = None
+    ) -> list[TrackResult]:
+        """Fit one frame's observation (batch 1) from each of the K ``starts`` (K, 34), with
+        no motion predicted (as :meth:`fit` without ``q_prev2``), in one batched fit: the
+        same results as K calls of :meth:`fit` at a fraction of their cost (the refits of
+        the arm search and the detector's refinement). A tracker of a batch of K bodies
+        fits start k with body k (the size search's candidates)."""
+        if starts.dim() != 2 or starts.shape[1] != sk.NUM_DOFS:
+            raise TrackerError(f"starts must be (K, {sk.NUM_DOFS}), got {tuple(starts.shape)}")
+        K = starts.shape[0]
+        if K == 0:
+            return []
+        cfg = (
+            self.cfg if iterations is None else dataclasses.replace(self.cfg, iterations=iterations)
+        )
+        q0 = starts.to(device=self.device, dtype=self.dtype)
+        fit = fit_frames(expand_observation(obs, K), q0, None, self.body, cfg)
+        return [self._result(fit, k) for k in range(K)]
+
+    def _result(self, fit: FrameFit, k: int) -> TrackResult:
         s = fit.signals
         return TrackResult(
-            q=fit.q[0],
-            depth_error_cm=float(s.depth_error_cm[0]),
-            overlap=float(s.overlap[0]),
-            surface_error_q97_mm=float(s.surface_error_q97_mm[0]),
-            iterations=fit.iterations,
-            converged=bool(fit.converged[0]),
-            limb_visibility=s.limb_visibility[0],
-            observed=observed_joints(s.joint_support_cm2[0], self.cfg.observed_joint_area_cm2),
+            q=fit.q[k],
+            depth_error_cm=float(s.depth_error_cm[k]),
+            overlap=float(s.overlap[k]),
+            surface_error_q97_mm=float(s.surface_error_q97_mm[k]),
+            iterations=fit.iterations if fit.steps is None else int(fit.steps[k]),
+            converged=bool(fit.converged[k]),
+            limb_visibility=s.limb_visibility[k],
+            observed=observed_joints(s.joint_support_cm2[k], self.cfg.observed_joint_area_cm2),
         )
 
 

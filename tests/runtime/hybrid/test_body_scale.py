@@ -38,22 +38,23 @@ def test_peak_of_a_parabola_is_its_vertex():
     assert peak_of(scales, step) == pytest.approx(0.98)
 
 
-def test_collects_every_kth_frame_then_searches_once():
+def test_refits_every_kth_frame_at_all_sizes_then_stops():
     body = BodyShape.default()
     search = BodyScaleSearch(BodyScaleConfig(samples=3, every=2), body)
-    for i in range(10):
-        search.offer(f"frame{i}", torch.full((34,), float(i)))
-    assert [f for f, _ in search.kept] == ["frame0", "frame2", "frame4"] and search.ready
-    # A fit whose overlap peaks at the body 8% taller than the default.
     stature = float(body.stature())
+    seen = []
 
-    def fit(candidate, frame, q):
-        return -((float(candidate.stature()) / stature - 1.08) ** 2)
+    def fit(bodies, frame, q):  # overlap peaking at the body 8% taller than the default
+        seen.append(frame)
+        return -((bodies.stature().numpy() / stature - 1.08) ** 2)
 
-    assert search.search(fit) == pytest.approx(1.08, abs=1e-6)
-    assert not search.ready and search.kept == []
-    search.offer("late", torch.zeros(34))
-    assert search.kept == []  # once found, no more frames are kept
+    found = [search.offer(f"frame{i}", torch.full((34,), float(i)), fit) for i in range(10)]
+    assert seen == ["frame0", "frame2", "frame4"]  # refitted as they come, no stall at the end
+    assert found[:4] == [None] * 4 and found[5:] == [None] * 5
+    assert found[4] == pytest.approx(1.08, abs=1e-6) and search.scale == found[4]
+    assert search.bodies.lengths.shape == (len(search.factors), 15)
+    with pytest.raises(ValueError, match="overlaps"):
+        BodyScaleSearch(BodyScaleConfig(), body).offer("f", torch.zeros(34), lambda *a: [1.0])
 
 
 def test_on_in_the_shipped_system_and_off_by_config():
@@ -66,21 +67,25 @@ def test_on_in_the_shipped_system_and_off_by_config():
 @pytest.mark.parametrize("true_scale", [0.9, 1.1])
 def test_the_search_finds_the_size_of_a_rendered_person(one_thread, true_scale):
     """Frames rendered from the default body scaled by ``true_scale``, tracked poses given;
-    the search with the tracker's refits recovers the factor."""
+    the search with the tracker's batched refits recovers the factor."""
     default = BodyShape.default()
     person = default.scaled(true_scale)
     truth = camera_motion("walk", 24, seed=0, body=person).float()
     depth = render_body(truth, person, INTR).depth
     search = BodyScaleSearch(BodyScaleConfig(samples=6, every=4), default)
-    for i in range(len(truth)):
-        search.offer(Frame(i, i / 30, depth[i], depth[i] > 0, INTR), truth[i])
     trackers: dict = {}
 
-    def fit(body, frame, q):
-        tracker = trackers.setdefault(id(body), (body, Tracker(body, INTR)))[1]
-        return float(tracker.fit(frame.observation(tracker), q, None, 5).overlap)
+    def fit(bodies, frame, q):  # as the hybrid does: one batched fit of all sizes
+        tracker = trackers.setdefault("sizes", Tracker(bodies, INTR))
+        starts = q[None].expand(bodies.lengths.shape[0], -1)
+        return [r.overlap for r in tracker.fit_starts(frame.observation(tracker), starts, 5)]
 
-    assert search.search(fit) == pytest.approx(true_scale, abs=0.03)
+    found = [
+        search.offer(Frame(i, i / 30, depth[i], depth[i] > 0, INTR), truth[i], fit)
+        for i in range(len(truth))
+    ]
+    assert found[20] == pytest.approx(true_scale, abs=0.03)  # the 6th frame taken, every 4th
+    assert [f for f in found if f is not None] == [found[20]]
 
 
 @pytest.mark.slow

@@ -57,7 +57,8 @@ def _off(value):
 def cfg_of(**flat) -> HybridConfig:
     """The settings tree from the scenarios' flat names (``keep_better=True`` and its keys,
     ``arm_search_badness`` and the ``*arm*`` keys, ``misplaced_arm_*``); an infinite
-    threshold means that mechanism is off, as the scenarios were first written. Fixed
+    threshold means that mechanism is off, as the scenarios were first written, and so is
+    the size search unless ``body_scale`` is given. Fixed
     choices (runtime.hybrid.arm_search's and policy's constants) are set with
     :func:`constants`."""
     failure = {k: flat.pop(k) for k in ("epsilon1_cm", "epsilon2", "epsilon3_mm", "lost_overlap")
@@ -84,6 +85,7 @@ def cfg_of(**flat) -> HybridConfig:
         misplaced_cfg = None if misplaced is None else MisplacedArmConfig(**misplaced)
         search = ArmSearchConfig(badness=badness, misplaced=misplaced_cfg, **arm)
     keep_cfg = KeepBetterConfig(**keep) if flat.pop("keep_better", False) else None
+    flat.setdefault("body_scale", None)  # the size search has its own tests (test_body_scale)
     return HybridConfig(
         failure=FailureThresholds(**failure), keep_better=keep_cfg, arm_search=search, **flat
     )
@@ -135,6 +137,11 @@ class ScriptedTracker:
         if iterations is not None:
             return self.real.fit(obs[0], q_prev, q_prev2, iterations)
         return self.step(None, None, q_prev, q_prev2, labels=obs[1])
+
+    def fit_starts(self, obs, starts, iterations=None):
+        if iterations is not None:
+            return self.real.fit_starts(obs[0], starts, iterations)
+        return [self.step(None, None, q, None, labels=obs[1]) for q in starts]
 
 
 class FakeTracker(ScriptedTracker):

@@ -76,3 +76,19 @@ class TestClosestPoints:
         cb = torch.tensor([0, 1, 0, 0])
         idx, found = closest_points(query, qb, cand, cb, depth_gate=0.08, max_distance=0.3)
         assert idx[:2].tolist() == [0, 1] and found.tolist() == [True, True, False]
+
+    def test_poses_never_match_each_other(self):
+        """Each query is matched within its own pose only, whatever the distances, and a
+        pose without candidates finds nothing."""
+        gen = torch.Generator().manual_seed(0)
+        query, cand = torch.rand(30, 3, generator=gen), torch.rand(50, 3, generator=gen)
+        qb = torch.randint(0, 3, (30,), generator=gen)
+        cb = torch.randint(0, 2, (50,), generator=gen)  # pose 2 has no candidates
+        idx, found = closest_points(query, qb, cand, cb, depth_gate=10.0, max_distance=10.0)
+        for n in range(30):
+            own = (cb == qb[n]).nonzero()[:, 0]
+            if own.numel() == 0:
+                assert not found[n]
+                continue
+            best = own[(cand[own] - query[n]).norm(dim=-1).argmin()]
+            assert found[n] and int(idx[n]) == int(best)

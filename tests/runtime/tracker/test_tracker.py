@@ -107,6 +107,55 @@ class TestTrackSequence:
         assert float(_joint_error_mm(q.cpu(), truth, body).mean()) < 5.0
 
 
+class TestFitStarts:
+    @staticmethod
+    def _starts(truth: torch.Tensor, count: int, seed: int) -> torch.Tensor:
+        gen = torch.Generator().manual_seed(seed)
+        starts = truth[0][None] + 0.08 * torch.randn(count, 34, generator=gen).to(truth)
+        starts[:, :3] = truth[1, :3] + 0.03 * torch.randn(count, 3, generator=gen).to(truth)
+        starts[0] = truth[1]  # converges at once: must not move while the others iterate
+        return starts
+
+    def test_one_step_equals_each_start_alone(self, render_sequence):
+        """Per-pose sampling caps and closest points: one batched step is each start's own
+        step to rounding."""
+        body, truth, depth, mask = render_sequence("wave", 2, torch.float64)
+        tracker = Tracker(body, INTR, TrackerConfig(iterations=1), dtype=torch.float64)
+        obs = tracker.observe(depth[1], mask[1])
+        starts = self._starts(truth, 5, 3)
+        for start, res in zip(starts, tracker.fit_starts(obs, starts), strict=True):
+            alone = tracker.fit(obs, start)
+            torch.testing.assert_close(res.q, alone.q, atol=1e-9, rtol=0)
+            assert res.overlap == pytest.approx(alone.overlap, abs=1e-12)
+            assert res.depth_error_cm == pytest.approx(alone.depth_error_cm, abs=1e-9)
+
+    def test_batched_starts_fit_like_one_at_a_time(self, render_sequence):
+        """Whole fits: a converged start keeps its result and the signals of its own last
+        step; the others land where they would alone, within the tracker's own sensitivity
+        to rounding (a 1e-6 rad nudge of a start moves its fit's joints by up to ~1.5 cm)."""
+        body, truth, depth, mask = render_sequence("wave", 2, torch.float64)
+        tracker = Tracker(body, INTR, dtype=torch.float64)
+        obs = tracker.observe(depth[1], mask[1])
+        starts = self._starts(truth, 4, 3)
+        batched = tracker.fit_starts(obs, starts)
+        alone = [tracker.fit(obs, start) for start in starts]
+        joints = [
+            named_joint_positions(forward_kinematics(torch.stack([r.q for r in rs]), body))
+            for rs in (batched, alone)
+        ]
+        assert float((joints[0] - joints[1]).norm(dim=-1).max()) < 0.02
+        same = [k for k in range(4) if float((batched[k].q - alone[k].q).abs().max()) < 1e-6]
+        assert 0 in same and len(same) >= 2
+        for k in same:  # identical fits report identical signals and steps
+            assert batched[k].iterations == alone[k].iterations
+            assert batched[k].overlap == pytest.approx(alone[k].overlap, abs=1e-9)
+            assert batched[k].depth_error_cm == pytest.approx(alone[k].depth_error_cm, abs=1e-6)
+        assert batched[0].iterations < max(r.iterations for r in batched)
+        assert tracker.fit_starts(obs, starts[:0]) == []
+        with pytest.raises(TrackerError, match="starts"):
+            tracker.fit_starts(obs, starts[0])
+
+
 class TestTrackerStep:
     def test_empty_observation_neither_crashes_nor_gives_nan(self, render_sequence):
         body, truth, depth, mask = render_sequence("wave", 2)
