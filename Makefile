@@ -68,7 +68,7 @@ train-forest-eval: $(SETUP_STAMP) ## accuracy of models/forest.npz on the dev re
 	$(PY) -m depthmocap.train.forest.eval_cli --model models/forest.npz --data data/dev --out out/forest_eval
 
 bench: $(SETUP_STAMP) ## speed figures, then the accuracy table on data/dev (printed, never asserted)
-	$(PY) -m depthmocap.bench $(if $(wildcard data/dev),--recordings data/dev,)
+	$(PY) -m depthmocap.bench $(if $(wildcard data/dev),--recordings data/dev --hybrid-recordings data/dev,)
 	@if [ -d data/dev ]; then $(PY) -m depthmocap.train.evaluation.dev_benchmark --recordings data/dev; \
 	else echo "accuracy table skipped: no data/dev (run make dev-recordings)"; fi
 

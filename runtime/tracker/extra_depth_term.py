@@ -119,14 +119,21 @@ def closest_points(
     if cand.shape[0] == 0 or n == 0:
         return index, found
     B = int(torch.maximum(query_batch.max(), cand_batch.max())) + 1
-    q_slot, q_real = batch_slots(query_batch, B)  # (B, K), (B, K)
-    c_slot, c_real = batch_slots(cand_batch, B)  # (B, L), (B, L)
-    q, c = query[q_slot], cand[c_slot]  # (B, K, 3), (B, L, 3)
+    c_real = None
+    if B == 1:  # one pose: no grouping to do
+        q, c = query[None], cand[None]
+    else:
+        q_slot, q_real = batch_slots(query_batch, B)  # (B, K), (B, K)
+        c_slot, c_real = batch_slots(cand_batch, B)  # (B, L), (B, L)
+        q, c = query[q_slot], cand[c_slot]  # (B, K, 3), (B, L, 3)
     norms = (q * q).sum(-1)[:, :, None] + (c * c).sum(-1)[:, None, :]
     d2 = torch.baddbmm(norms, q, c.transpose(1, 2), alpha=-2.0)  # (B, K, L)
-    far = (q[:, :, 2, None] - c[:, None, :, 2]).abs_() > depth_gate
-    d2.masked_fill_(far | ~c_real[:, None, :], float("inf"))
-    best, local = d2.min(2)  # (B, K)
+    # Padding candidates get an infinite depth, so the depth gate drops them too.
+    cz = c[..., 2] if c_real is None else c[..., 2].masked_fill(~c_real, float("inf"))
+    far = (q[:, :, 2, None] - cz[:, None, :]).abs_() > depth_gate
+    best, local = d2.masked_fill_(far, float("inf")).min(2)  # (B, K)
+    if B == 1:
+        return local[0], best[0] <= max_distance * max_distance
     rows = q_slot[q_real]
     index[rows] = c_slot.gather(1, local)[q_real]
     found[rows] = (best <= max_distance * max_distance)[q_real]

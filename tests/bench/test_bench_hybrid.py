@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from depthmocap.bench.cli import main
 from depthmocap.bench.hybrid import benchmark_hybrid, hybrid_rows
 
@@ -26,3 +27,42 @@ def test_rows_and_the_one_command(one_thread, capsys, monkeypatch):
     main(["--device", "cpu", "--hybrid-frames", "2", "--threads", "1"])
     out = capsys.readouterr().out
     assert "the whole hybrid on CPU" in out and "95th-percentile frame" in out
+
+
+def test_paced_latency_replays_a_camera_where_the_newest_frame_wins():
+    from depthmocap.bench.hybrid import paced_latency
+
+    # Every frame faster than the camera: each waits for nothing, none skipped.
+    assert paced_latency(np.full(5, 10.0), fps=30.0) == (10.0, 0.0)
+    # 50 ms frames, a camera frame every 33.3 ms: frame 0 is done at 50 ms, frame 1 (arrived
+    # at 33.3) at 100, when frame 3 arrives: frame 2 is skipped; frame 3 is done at 150,
+    # frame 4 (133.3) at 200, frame 5 (166.7) at 250.
+    latency, skipped = paced_latency(np.full(6, 50.0), fps=30.0)
+    period = 1000.0 / 30.0
+    done_at = {0: 50.0, 1: 100.0, 3: 150.0, 4: 200.0, 5: 250.0}
+    expected = np.mean([t - i * period for i, t in done_at.items()])
+    assert latency == pytest.approx(expected) and skipped == pytest.approx(1 / 6)
+    assert np.isnan(paced_latency(np.zeros(0))[0])
+
+
+def test_recordings_rows_time_every_recording(tmp_path, one_thread):
+    """The whole hybrid on a folder of recordings: pooled rows, then one per recording; a
+    folder that is itself a recording counts as one."""
+    from depthmocap.bench.hybrid import recordings_in, recordings_rows
+    from depthmocap.runtime.streams import open_stream
+    from depthmocap.shared.recording import RecordingWriter
+
+    for name in ("b", "a"):
+        with open_stream("demo") as stream:
+            frames = [f for _, f in zip(range(2), stream, strict=False)]
+        with RecordingWriter(tmp_path / name, frames[0].intrinsics, fps=30.0, source="t") as w:
+            for f in frames:
+                w.write_frame(f.depth_mm)
+    (tmp_path / "notes").mkdir()
+    assert [p.name for p in recordings_in(tmp_path)] == ["a", "b"]
+    assert recordings_in(tmp_path / "a") == [tmp_path / "a"]
+    rows = recordings_rows(tmp_path, "cpu")
+    assert rows[0][0] == "median frame (2 recordings, 4 frames)"
+    assert [r[0].strip() for r in rows[-2:]] == ["a", "b"]
+    assert all(r[1] > 0 for r in rows)
+    assert recordings_rows(tmp_path / "notes", "cpu") == []
