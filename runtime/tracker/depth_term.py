@@ -36,7 +36,7 @@ MIN_COSINE = 0.2
 
 def depth_rows(render: BodyRender, obs: Observation, regions: Regions, cfg: TrackerConfig) -> Rows:
     """Linearized depth-term rows for (a strided subsample of) the pixels in G."""
-    idx, _, ratio = sample_pixels(regions.good, MAX_DEPTH_PIXELS, render.depth.dtype)
+    idx, _, ratio = sample_pixels(regions.good, MAX_DEPTH_PIXELS)
     points, segment = rendered_points(render, idx, obs.intr)
     b, v, u = idx.unbind(1)
     normal = (
@@ -47,7 +47,7 @@ def depth_rows(render: BodyRender, obs: Observation, regions: Regions, cfg: Trac
     ray_len = points.norm(dim=-1) / points[:, 2].clamp_min(1e-9)  # |d| with d_z = 1
     cosine = (normal * points).sum(-1) / points.norm(dim=-1).clamp_min(1e-9)  # < 0: facing
     keep = cosine.abs() >= MIN_COSINE
-    weight = keep.to(points.dtype) * (ratio**0.5 / cfg.sigma_depth_m)
+    weight = keep.to(points.dtype) * (ratio**0.5 / cfg.sigma_depth_m).to(points.dtype)
     # d(depth)/dp = n / (n . d); scaled by |cos| = -(n . d) / |d|: g = -n / |d|.
     direction = -normal / ray_len[:, None]
     residual = regions.depth_diff[b, v, u] * cosine.abs()

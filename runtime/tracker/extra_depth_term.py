@@ -195,7 +195,8 @@ def extra_rows(
         b3 = b3 & ~_dilate(render.mask, m)
         near_good = _dilate(regions.good, m)
         front, behind = front & ~near_good, behind & ~near_good
-    q_idx, _, q_ratio = sample_pixels(b1 | front, half, dtype)
+    q_idx, _, q_ratio64 = sample_pixels(b1 | front, half)
+    q_ratio = q_ratio64.to(dtype)
     q_pts, q_seg = rendered_points(render, q_idx, intr)
     j, found = closest_points(
         q_pts,
@@ -212,7 +213,8 @@ def extra_rows(
     count.index_add_(0, q_idx[:, 0], q_ratio)
 
     # Types 2 and 4: observed point -> closest rendered point (a model point to pull).
-    o_idx, _, o_ratio = sample_pixels(b3 | behind, half, dtype)
+    o_idx, _, o_ratio64 = sample_pixels(b3 | behind, half)
+    o_ratio = o_ratio64.to(dtype)
     b, v, u = o_idx.unbind(1)
     o_pts = obs.points[b, v, u]
     c_idx, _, _ = sample_pixels(render.mask, MAX_CANDIDATES)
@@ -233,7 +235,8 @@ def extra_rows(
     segment = torch.cat([q_seg, model_seg])
     batch = torch.cat([q_idx[:, 0], b])
     offset = torch.cat([off_r, off_o])
-    weight = torch.cat([found * q_ratio**0.5, found_o * o_ratio**0.5]).to(dtype)
+    root = (q_ratio64**0.5).to(dtype), (o_ratio64**0.5).to(dtype)
+    weight = torch.cat([found * root[0], found_o * root[1]]).to(dtype)
     sigma = weight.new_tensor([SIGMA_EXTRA_TORSO_M, cfg.sigma_extra_m])
     weight = weight / sigma[(segment >= sk.FIRST_LIMB_SEGMENT).long()]
     # One row per camera axis.

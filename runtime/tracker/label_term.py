@@ -72,7 +72,7 @@ def label_rows(
     ``obs.labels``; no rows without it)."""
     labels = obs.labels if obs.labels is not None else torch.full_like(obs.depth, -1).long()
     use = obs.valid & (labels >= sk.FIRST_LIMB_SEGMENT)
-    idx, _, ratio = sample_pixels(use, MAX_LABEL_PIXELS, obs.points.dtype)
+    idx, _, ratio = sample_pixels(use, MAX_LABEL_PIXELS)
     b, v, u = idx.unbind(1)
     points, segment = obs.points[b, v, u], labels[b, v, u]
     rot, origin = geom.frames(kin)
@@ -83,5 +83,5 @@ def label_rows(
     )
     surface = points - signed[:, None] * direction
     keep = (signed.abs() < LABEL_GATE_M).to(points.dtype)
-    weight = keep * (ratio**0.5 / cfg.sigma_label_m)
+    weight = keep * (ratio**0.5 / cfg.sigma_label_m).to(points.dtype)
     return Rows(b, surface, segment, direction, signed, weight)

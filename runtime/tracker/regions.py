@@ -64,7 +64,7 @@ def classify(render: BodyRender, obs: Observation, gate_m: float, occlusion: boo
 
 
 def sample_pixels(
-    mask: torch.Tensor, max_count: int, dtype: torch.dtype = torch.float32
+    mask: torch.Tensor, max_count: int
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """About ``max_count`` of the True pixels of each of the B masks, on a fixed pseudo-random
     lattice.
@@ -80,8 +80,10 @@ def sample_pixels(
         mask: (B, H, W) bool; max_count: the cap per mask (<= 0: keep every pixel).
     Returns:
         (N, 3) int64 rows (b, v, u), sorted by b; (B,) int64 count of True pixels per mask;
-        (N,) ``dtype`` ratio of each kept pixel's mask count to its kept count (each kept pixel
-        stands for that many), 1 where nothing is dropped.
+        (N,) float64 ratio of each kept pixel's mask count to its kept count (each kept pixel
+        stands for that many), 1 where nothing is dropped. Callers turn a weight made from it
+        into their dtype last, so one pose's rows are those of a Python-float ratio to the
+        bit.
     """
     idx = mask.nonzero()
     B = mask.shape[0]
@@ -91,9 +93,9 @@ def sample_pixels(
         key = (idx[:, 2] * 73856093) ^ (idx[:, 1] * 19349663)
         idx = idx[key % stride[idx[:, 0]] == 0]
         kept = torch.bincount(idx[:, 0], minlength=B)
-        ratio = (total.to(dtype) / kept.clamp_min(1).to(dtype))[idx[:, 0]]
+        ratio = (total.double() / kept.clamp_min(1).double())[idx[:, 0]]
     else:
-        ratio = torch.ones(idx.shape[0], dtype=dtype, device=mask.device)
+        ratio = torch.ones(idx.shape[0], dtype=torch.float64, device=mask.device)
     return idx, total, ratio
 
 

@@ -48,7 +48,7 @@ def silhouette_boundary(mask: torch.Tensor) -> torch.Tensor:
 def silhouette_rows(render: BodyRender, obs: Observation, cfg: TrackerConfig) -> Rows:
     """Rows for the rendered boundary pixels that lie outside the observed silhouette."""
     outside = silhouette_boundary(render.mask) & (obs.distance > 0)
-    idx, _, ratio = sample_pixels(outside, MAX_SILHOUETTE_PIXELS, render.depth.dtype)
+    idx, _, ratio = sample_pixels(outside, MAX_SILHOUETTE_PIXELS)
     points, segment = rendered_points(render, idx, obs.intr)
     b, v, u = idx.unbind(1)
     dist = obs.distance[b, v, u]
@@ -59,6 +59,6 @@ def silhouette_rows(render: BodyRender, obs: Observation, cfg: TrackerConfig) ->
     # d(dist)/dp = grad_u * du/dp + grad_v * dv/dp with the pinhole projection's derivatives.
     gu, gv = grad[:, 0] * fx * inv_z, grad[:, 1] * fy * inv_z
     direction = torch.stack([gu, gv, -(gu * x + gv * y) * inv_z], -1)
-    weight = ratio**0.5 / cfg.sigma_silhouette_px
+    weight = (ratio**0.5 / cfg.sigma_silhouette_px).to(dist.dtype)
     residual = -(dist - SILHOUETTE_DEADZONE_PX).clamp_min(0)
     return Rows(b, points, segment, direction, residual, weight)
