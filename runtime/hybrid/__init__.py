@@ -19,6 +19,7 @@ from depthmocap.runtime.frame import LabelSource
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.camera import Intrinsics
 from depthmocap.shared.config import as_config
+from depthmocap.shared.joint_offsets import JointOffsets
 
 from .config import (
     ArmSearchConfig,
@@ -89,7 +90,25 @@ def create_estimator(
     except TrackerError as err:
         raise HybridError(str(err)) from None
     detector = Detector(body, intrinsics, cfg.detector, device=device)
-    return HybridEstimator(labels, detector, tracker, cfg)
+    offsets = None if cfg.joint_offsets is None else load_offsets(cfg.joint_offsets)
+    return HybridEstimator(labels, detector, tracker, cfg, offsets)
+
+
+def load_offsets(name: str) -> JointOffsets:
+    """The joint-offsets file ``name`` (relative: under the shipped models/ folder).
+
+    Raises:
+        HybridError: missing, unreadable, or of another format or version.
+    """
+    from depthmocap.shared.joint_offsets import JointOffsetsError, load_joint_offsets
+    from depthmocap.shared.resources import MODELS_DIR
+
+    path = Path(name)
+    path = path if path.is_absolute() else MODELS_DIR / path
+    try:
+        return load_joint_offsets(path)
+    except JointOffsetsError as err:
+        raise HybridError(f"joint_offsets: {err}") from None
 
 
 def recording_labels(path: Path) -> LabelSource:

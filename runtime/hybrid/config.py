@@ -223,6 +223,13 @@ class HybridConfig:
         "body; shipped on: broad protocol 77.9 -> 73.2 mm, docs/experiments.md)",
         default_factory=BodyScaleConfig,
     )
+    joint_offsets: str | None = field_doc(
+        "joint_offsets.json",
+        "move each output joint by its learned offset from the model's (shared.joint_offsets): "
+        "a file, relative paths under the shipped models/ folder (None: the model's own "
+        "joints; runtime-track and depthmocap.Tracker switch it off when given a body, "
+        "whose joints the offsets were not fitted for)",
+    )
     labels_from_recording: str | None = field_doc(
         None,
         "a synthetic recording whose ground-truth part labels stand in for the forest's "

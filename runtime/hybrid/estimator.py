@@ -29,6 +29,7 @@ from depthmocap.runtime.detector import DetectionResult, Detector
 from depthmocap.runtime.estimator import PoseEstimate, lost, observed_of
 from depthmocap.runtime.frame import Frame, LabelSource
 from depthmocap.runtime.tracker.tracker import Tracker, TrackResult
+from depthmocap.shared.joint_offsets import JointOffsets, offset_joints
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
 from depthmocap.shared.so3 import rotvec_to_matrix
 
@@ -70,12 +71,20 @@ class HybridEstimator:
         detector: the pose detector (its refinement runs on ``tracker``).
         tracker: the one tracker of the stream.
         cfg: the settings.
+        offsets: where the output joints sit relative to the model's
+            (``shared.joint_offsets``), or None: the model's own joints.
     """
 
     def __init__(
-        self, labels: LabelSource, detector: Detector, tracker: Tracker, cfg: HybridConfig
+        self,
+        labels: LabelSource,
+        detector: Detector,
+        tracker: Tracker,
+        cfg: HybridConfig,
+        offsets: JointOffsets | None = None,
     ) -> None:
         self.label_source, self.detector, self.tracker, self.cfg = labels, detector, tracker, cfg
+        self.offsets = offsets
         self.arm_search = (
             None if cfg.arm_search is None else ArmSearch(cfg.arm_search, tracker.body)
         )
@@ -122,9 +131,16 @@ class HybridEstimator:
         return self.tracker.fit_starts(obs, starts, iterations)
 
     def _joints(self, q: torch.Tensor) -> np.ndarray:
+        """(J, 3) output joints of pose ``q`` (34,): the model's, moved by the offsets."""
         body = self.tracker.body
         kin = forward_kinematics(q[None].to(body.lengths), body)
-        return named_joint_positions(kin)[0].detach().cpu().double().numpy()
+        joints = named_joint_positions(kin)
+        if self.offsets is not None:
+            o = self.offsets
+            scale = body.stature() / o.reference_stature_m
+            offsets = torch.as_tensor(o.offsets_m).to(joints)
+            joints = offset_joints(joints, kin.rotations, offsets, scale)
+        return joints[0].detach().cpu().double().numpy()
 
     def _run_detector(self, frame: Frame) -> DetectionResult:
         """The detector on ``frame``, refined on the shared tracker; changes no state."""

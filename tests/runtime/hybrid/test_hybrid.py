@@ -58,7 +58,7 @@ def cfg_of(**flat) -> HybridConfig:
     """The settings tree from the scenarios' flat names (``keep_better=True`` and its keys,
     ``arm_search_badness`` and the ``*arm*`` keys, ``misplaced_arm_*``); an infinite
     threshold means that mechanism is off, as the scenarios were first written, and so is
-    the size search unless ``body_scale`` is given. Fixed
+    the size search and the joint offsets unless given. Fixed
     choices (runtime.hybrid.arm_search's and policy's constants) are set with
     :func:`constants`."""
     failure = {k: flat.pop(k) for k in ("epsilon1_cm", "epsilon2", "epsilon3_mm", "lost_overlap")
@@ -86,6 +86,7 @@ def cfg_of(**flat) -> HybridConfig:
         search = ArmSearchConfig(badness=badness, misplaced=misplaced_cfg, **arm)
     keep_cfg = KeepBetterConfig(**keep) if flat.pop("keep_better", False) else None
     flat.setdefault("body_scale", None)  # the size search has its own tests (test_body_scale)
+    flat.setdefault("joint_offsets", None)  # the model's joints: the scenes render the model
     return HybridConfig(
         failure=FailureThresholds(**failure), keep_better=keep_cfg, arm_search=search, **flat
     )
@@ -675,7 +676,8 @@ def test_labels_from_a_recording_stand_in_for_the_forest(scene, tmp_path):
         model_path=None, body=BODY, intrinsics=INTR,
         config={"labels_from_recording": str(tmp_path / "rec"),
                 "detector": {"refine_iterations": 2},
-                "tracker": {"use_labels": True, "iterations": 3}},
+                "tracker": {"use_labels": True, "iterations": 3},
+                "joint_offsets": None},  # the scene is the model: its own joints are true
     )  # fmt: skip
     outs = [estimate_frame(est, frame_of(depth, i, mask)) for i in range(3)]
     assert [o.status for o in outs] == ["detected", "tracked", "tracked"]
@@ -815,3 +817,46 @@ def test_other_arm_labels_count_against_an_arm_unless_swaps_are_forgiven(
     out = _second_frame_with_labels(scene, tracker, cfg, seen)
     assert (out.errors.get("arms_searched") == 1.0) == searched
     assert len(tracker.starts) == (8 if searched else 0)
+
+
+def test_joint_offsets_move_the_output_joints_only(scene, tmp_path):
+    """The shipped offsets move each output joint by its segment-frame offset, scaled by the
+    body's stature; the pose is the one without them. A missing file is a clear error."""
+    from depthmocap.runtime.hybrid import HybridError
+    from depthmocap.shared.joint_offsets import JointOffsets, save_joint_offsets
+
+    q, depth, labels, mask = scene
+    _write_recording(tmp_path / "rec", depth, labels, 2)
+    offsets = np.zeros((16, 3))
+    offsets[2] = [0.0, 0.1, 0.0]  # the spine joint 10 cm along its segment's y
+    save_joint_offsets(tmp_path / "o.json", JointOffsets(offsets, float(BODY.stature()) / 2))
+    runs = {}
+    for name in (None, str(tmp_path / "o.json")):
+        est = create_estimator(
+            model_path=None, body=BODY, intrinsics=INTR,
+            config={"labels_from_recording": str(tmp_path / "rec"), "body_scale": None,
+                    "joint_offsets": name},
+        )  # fmt: skip
+        runs[name] = [estimate_frame(est, frame_of(depth, i, mask)) for i in range(2)]
+    for plain, moved in zip(runs[None], runs[str(tmp_path / "o.json")], strict=True):
+        np.testing.assert_array_equal(plain.q, moved.q)
+        shift = moved.joints - plain.joints
+        assert np.abs(np.delete(shift, 2, axis=0)).max() < 1e-9
+        assert np.linalg.norm(shift[2]) == pytest.approx(0.2, abs=1e-5)  # 10 cm x stature 2
+    with pytest.raises(HybridError, match="joint_offsets.*no such"):
+        create_estimator(
+            model_path=None, body=BODY, intrinsics=INTR,
+            config={"labels_from_recording": str(tmp_path / "rec"),
+                    "joint_offsets": str(tmp_path / "missing.json")},
+        )  # fmt: skip
+
+
+def test_the_shipped_offsets_load_and_a_body_file_switches_them_off():
+    from depthmocap.runtime.estimator_setup import settings_for_body
+    from depthmocap.runtime.hybrid import load_offsets
+
+    assert HybridConfig().joint_offsets == "joint_offsets.json"
+    assert load_offsets("joint_offsets.json").offsets_m.shape == (16, 3)
+    with_body = settings_for_body({"body_scale": {}}, "hybrid", body_given=True)
+    assert with_body["joint_offsets"] is None and with_body["body_scale"] is None
+    assert settings_for_body({}, "hybrid", body_given=False) == {}

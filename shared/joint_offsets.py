@@ -1,0 +1,155 @@
+"""Where the output joints sit relative to the model's: a learned offset per joint.
+
+The cylinder model's joints are its segments' pivots (``kinematics.named_joint_positions``);
+the joints a user expects are a motion-capture skeleton's (HDM05's: the spine joint higher on
+the back, the hips wider and further forward, ...). Tracking puts the model where the depth
+is, so the difference is a systematic offset in each joint's own segment frame: 20 mm to
+9 cm on the dev recordings, most of the gap between raw and offset-normalized error.
+
+:func:`offset_joints` moves each joint by its offset, turned with its segment and scaled with
+the body's stature; the offsets are fitted from tracked synthetic recordings with ground truth
+(``train-fit-joint-offsets``) and shipped as ``models/joint_offsets.json``:
+
+    {"format": "depthmocap-joint-offsets", "version": 1, "joint_names": [16 names],
+     "reference_stature_m": 1.7, "offsets_m": [[x, y, z] x 16], "fitted_on": "...",
+     "frames": 2847}
+
+``offsets_m`` are in metres, in the frame of each joint's segment (``skeleton.JOINT_SEGMENT``),
+for a body of ``reference_stature_m``; a body of another stature gets them scaled by the ratio.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from . import skeleton as sk
+
+__all__ = [
+    "FORMAT",
+    "VERSION",
+    "JointOffsets",
+    "JointOffsetsError",
+    "load_joint_offsets",
+    "offset_joints",
+    "save_joint_offsets",
+]
+
+FORMAT = "depthmocap-joint-offsets"
+VERSION = 1
+
+
+class JointOffsetsError(ValueError):
+    """A joint-offsets file that is missing, unreadable, of another format or version, or
+    inconsistent."""
+
+
+@dataclass
+class JointOffsets:
+    """Per-joint offsets (module docstring).
+
+    Attributes:
+        offsets_m: (J, 3) metres in each joint's segment frame, J = ``len(JOINT_NAMES)``.
+        reference_stature_m: the stature the offsets are for.
+        fitted_on: what they were fitted on (free text, for the record).
+        frames: how many frames they were fitted on.
+    """
+
+    offsets_m: np.ndarray
+    reference_stature_m: float
+    fitted_on: str = ""
+    frames: int = 0
+    extra: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.offsets_m = np.asarray(self.offsets_m, dtype=np.float64)
+        J = len(sk.JOINT_NAMES)
+        if self.offsets_m.shape != (J, 3) or not np.isfinite(self.offsets_m).all():
+            raise JointOffsetsError(
+                f"joint offsets must be {J} finite (x, y, z) rows, got {self.offsets_m.shape}"
+            )
+        ok = math.isfinite(self.reference_stature_m) and self.reference_stature_m > 0
+        if not ok:
+            raise JointOffsetsError(
+                f"reference_stature_m must be positive, got {self.reference_stature_m}"
+            )
+
+    def to_json_dict(self) -> dict:
+        return {
+            "format": FORMAT,
+            "version": VERSION,
+            "joint_names": list(sk.JOINT_NAMES),
+            "reference_stature_m": float(self.reference_stature_m),
+            "offsets_m": np.round(self.offsets_m, 6).tolist(),
+            "fitted_on": self.fitted_on,
+            "frames": int(self.frames),
+            **self.extra,
+        }
+
+
+def save_joint_offsets(path: str | Path, offsets: JointOffsets) -> None:
+    """Write ``offsets`` as JSON (atomically: a reader never sees half a file)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(offsets.to_json_dict(), indent=1) + "\n")
+    tmp.replace(path)
+
+
+def load_joint_offsets(path: str | Path) -> JointOffsets:
+    """Read a joint-offsets file.
+
+    Raises:
+        JointOffsetsError: missing or unreadable file, another format or version, joint names
+            other than this build's, or bad values.
+    """
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise JointOffsetsError(f"{path}: no such joint-offsets file") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise JointOffsetsError(f"{path}: not a readable joint-offsets file ({err})") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise JointOffsetsError(f"{path}: not a {FORMAT} file")
+    if data.get("version") != VERSION:
+        raise JointOffsetsError(
+            f"{path}: joint-offsets version {data.get('version')!r}, this build reads {VERSION}"
+        )
+    if data.get("joint_names") != list(sk.JOINT_NAMES):
+        raise JointOffsetsError(f"{path}: its joints are not this build's {list(sk.JOINT_NAMES)}")
+    known = {"format", "version", "joint_names", "reference_stature_m", "offsets_m"}
+    try:
+        return JointOffsets(
+            np.asarray(data.get("offsets_m"), dtype=np.float64),
+            float(data.get("reference_stature_m")),
+            str(data.get("fitted_on", "")),
+            int(data.get("frames", 0)),
+            {k: v for k, v in data.items() if k not in known | {"fitted_on", "frames"}},
+        )
+    except (TypeError, ValueError) as err:
+        raise JointOffsetsError(f"{path}: {err}") from None
+
+
+def offset_joints(
+    joints: torch.Tensor, rotations: torch.Tensor, offsets: torch.Tensor, scale: torch.Tensor
+) -> torch.Tensor:
+    """The model's joints moved by their offsets.
+
+    Args:
+        joints: (B, J, 3) the model's named joints (``named_joint_positions``).
+        rotations: (B, S, 3, 3) segment rotations of the same poses (``Kinematics.rotations``).
+        offsets: (J, 3) metres in each joint's segment frame, for the reference stature.
+        scale: (B,) or () the body's stature over the reference stature.
+    Returns:
+        (B, J, 3) ``joints + scale R_seg(j) offsets_j``.
+    """
+    seg = torch.as_tensor(sk.JOINT_SEGMENT, dtype=torch.long, device=joints.device)
+    rot = rotations[:, seg]  # (B, J, 3, 3)
+    moved = (rot @ offsets.to(joints)[None, :, :, None])[..., 0]
+    return joints + torch.as_tensor(scale).to(joints).reshape(-1, 1, 1) * moved
