@@ -43,3 +43,46 @@ def test_cli_errors(tmp_path, capsys):
     assert main([*args, "--out", str(tmp_path / "o.json")]) == 2
     assert "no results" in capsys.readouterr().err
     assert not (tmp_path / "o.json").exists()
+
+
+def test_cli_fits_offsets_from_tracked_results(tmp_path, capsys):
+    """A recording whose ground truth is the model's joints moved by known offsets, and a
+    result holding the poses and the run's body: the CLI recovers the offsets (scaled by the
+    body's stature) and writes a file the runtime reads."""
+    import json
+
+    import torch
+    from depthmocap.shared.body import BodyShape
+    from depthmocap.shared.camera import Intrinsics
+    from depthmocap.shared.joint_offsets import load_joint_offsets, offset_joints
+    from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
+    from depthmocap.shared.recording import RecordingWriter
+
+    rng = np.random.default_rng(1)
+    body = BodyShape.default(torch.float64).scaled(1.1)
+    q = torch.zeros(6, sk.NUM_DOFS, dtype=torch.float64)
+    q[:, 2], q[:, 3] = 2.5, np.pi
+    q[:, 6:] = torch.from_numpy(rng.normal(0, 0.2, (6, sk.NUM_DOFS - 6)))
+    kin = forward_kinematics(q, body)
+    true = torch.from_numpy(rng.normal(0, 0.04, (J, 3)))
+    reference = float(BodyShape.default(torch.float64).stature())
+    scale = float(body.stature()) / reference
+    truth = offset_joints(named_joint_positions(kin), kin.rotations, true, torch.tensor(scale))
+    intr = Intrinsics.kinect_v1(80)
+    with RecordingWriter(tmp_path / "recs" / "take", intr, fps=30.0, source="t") as w:
+        for _ in range(6):
+            w.write_frame(np.zeros((intr.height, intr.width), np.uint16))
+        w.write_groundtruth(truth.numpy(), list(sk.JOINT_NAMES), q=q.numpy())
+    result = tmp_path / "results" / "take" / "result"
+    result.mkdir(parents=True)
+    body.save(result / "body.json")
+    lines = [{"frame": i, "status": "tracked", "q": q[i].tolist()} for i in range(6)]
+    lines.append({"frame": 6, "status": "lost", "q": None})
+    (result / "poses.jsonl").write_text("\n".join(json.dumps(x) for x in lines) + "\n")
+    out = tmp_path / "offsets.json"
+    args = ["--results", str(tmp_path / "results"), "--recordings", str(tmp_path / "recs")]
+    assert main([*args, "--out", str(out)]) == 0
+    assert "1 recordings, 6 frames" in capsys.readouterr().out
+    fitted = load_joint_offsets(out)
+    np.testing.assert_allclose(fitted.offsets_m, true.numpy(), atol=2e-4)
+    assert fitted.reference_stature_m == pytest.approx(reference) and fitted.frames == 6
