@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -64,7 +64,6 @@ class JointOffsets:
     reference_stature_m: float
     fitted_on: str = ""
     frames: int = 0
-    extra: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.offsets_m = np.asarray(self.offsets_m, dtype=np.float64)
@@ -88,7 +87,6 @@ class JointOffsets:
             "offsets_m": np.round(self.offsets_m, 6).tolist(),
             "fitted_on": self.fitted_on,
             "frames": int(self.frames),
-            **self.extra,
         }
 
 
@@ -123,14 +121,12 @@ def load_joint_offsets(path: str | Path) -> JointOffsets:
         )
     if data.get("joint_names") != list(sk.JOINT_NAMES):
         raise JointOffsetsError(f"{path}: its joints are not this build's {list(sk.JOINT_NAMES)}")
-    known = {"format", "version", "joint_names", "reference_stature_m", "offsets_m"}
     try:
         return JointOffsets(
             np.asarray(data.get("offsets_m"), dtype=np.float64),
             float(data.get("reference_stature_m")),
             str(data.get("fitted_on", "")),
             int(data.get("frames", 0)),
-            {k: v for k, v in data.items() if k not in known | {"fitted_on", "frames"}},
         )
     except (TypeError, ValueError) as err:
         raise JointOffsetsError(f"{path}: {err}") from None

@@ -85,6 +85,10 @@ class HybridEstimator:
     ) -> None:
         self.label_source, self.detector, self.tracker, self.cfg = labels, detector, tracker, cfg
         self.offsets = offsets
+        body = tracker.body  # a new body keeps its dtype and device (_use_body)
+        self._offsets_m = (
+            None if offsets is None else torch.as_tensor(offsets.offsets_m).to(body.lengths)
+        )
         self.arm_search = (
             None if cfg.arm_search is None else ArmSearch(cfg.arm_search, tracker.body)
         )
@@ -136,10 +140,8 @@ class HybridEstimator:
         kin = forward_kinematics(q[None].to(body.lengths), body)
         joints = named_joint_positions(kin)
         if self.offsets is not None:
-            o = self.offsets
-            scale = body.stature() / o.reference_stature_m
-            offsets = torch.as_tensor(o.offsets_m).to(joints)
-            joints = offset_joints(joints, kin.rotations, offsets, scale)
+            scale = body.stature() / self.offsets.reference_stature_m
+            joints = offset_joints(joints, kin.rotations, self._offsets_m, scale)
         return joints[0].detach().cpu().double().numpy()
 
     def _run_detector(self, frame: Frame) -> DetectionResult:

@@ -144,7 +144,7 @@ class FrameFit:
     signals: FrameSignals
     iterations: int
     converged: torch.Tensor
-    steps: torch.Tensor | None = None
+    steps: torch.Tensor
 
 
 def _small(dq: torch.Tensor) -> torch.Tensor:
@@ -215,7 +215,6 @@ def fit_frames(
             hess = hess + torch.diag_embed(diag.double())
             grad = grad + rhs.double()
         dq = limit_step(solve_step(hess, grad, q_cast, cfg.damping), cfg.max_step_rad)
-        dq = torch.where(converged[:, None], torch.zeros_like(dq), dq)
         q = torch.where(converged[:, None], q, apply_step(q_cast, dq))
         iterations += 1
         steps += (~converged).long()
@@ -387,7 +386,7 @@ class Tracker:
             depth_error_cm=float(s.depth_error_cm[k]),
             overlap=float(s.overlap[k]),
             surface_error_q97_mm=float(s.surface_error_q97_mm[k]),
-            iterations=fit.iterations if fit.steps is None else int(fit.steps[k]),
+            iterations=int(fit.steps[k]),
             converged=bool(fit.converged[k]),
             limb_visibility=s.limb_visibility[k],
             observed=observed_joints(s.joint_support_cm2[k], self.cfg.observed_joint_area_cm2),
