@@ -12,11 +12,13 @@ from pathlib import Path
 import torch
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.config import ConfigError, load_settings, merged_settings
+from depthmocap.shared.resources import CONFIGS_DIR
 
 from .estimator import MODES_NEEDING_MODEL
 from .presets import DEFAULT_PRESET, preset_settings
 
 __all__ = [
+    "POPULATION_BODY",
     "TrackError",
     "pick_device",
     "load_body",
@@ -24,6 +26,14 @@ __all__ = [
     "load_mode_config",
     "settings_for_body",
 ]
+
+
+# The body tracked when none is given: the average measured skeleton of 100 random bodies of
+# the training population (``python -m depthmocap.train.bodies.template_body``; also
+# ``runtime-calibrate``'s template). Its proportions are where the reported joints are (the
+# built-in ``BodyShape.default`` has rounded textbook ones: a chest 30% short for them), and the
+# size search scales it to the person.
+POPULATION_BODY = CONFIGS_DIR / "body_template.json"
 
 
 class TrackError(ValueError):
@@ -40,9 +50,10 @@ def pick_device(name: str) -> str:
 
 
 def load_body(path: Path | None) -> BodyShape:
-    """The body in ``path`` (a ``body.json``), or the default body for None."""
+    """The body in ``path`` (a ``body.json``), or for None the population's average adult
+    (:data:`POPULATION_BODY`)."""
     if path is None:
-        return BodyShape.default()
+        path = POPULATION_BODY
     try:
         return BodyShape.load(path)
     except FileNotFoundError:
