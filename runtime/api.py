@@ -45,7 +45,8 @@ class Tracker:
 
     Args:
         body: the person's body: a :class:`BodyShape`, a ``body.json`` (``runtime-calibrate``
-            or ``runtime-personalize`` make one), or None for the default adult body.
+            or ``runtime-personalize`` make one), or None for the population's average adult
+            (``configs/body_template.json``), scaled to the person once their size is found.
         model: the body-part forest (default: the shipped ``models/forest.npz``).
         preset: named hybrid settings (``runtime.presets.PRESETS``; default ``"shipped"``,
             the measured-best system; ``"wei2012"`` for the paper's thresholds).

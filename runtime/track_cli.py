@@ -123,7 +123,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="forest artifact (default: models/forest.npz of the checkout)",
     )
     p.add_argument("--mode", choices=MODES, default="hybrid", help="pose estimator")
-    p.add_argument("--body", type=Path, help="body file (shared.body JSON); default: average")
+    p.add_argument(
+        "--body",
+        type=Path,
+        help="body file (shared.body JSON); default: the population's average adult, "
+        "scaled to the person",
+    )
     p.add_argument(
         "--config",
         type=Path,

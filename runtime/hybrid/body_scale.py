@@ -1,9 +1,11 @@
 """The person's size from the first tracked frames, when no body file is given.
 
-Without a body the tracker fits the default adult to everyone, and a person 10% smaller or
-larger costs more than the rest of the pipeline together (dev recordings: 58.7 mm with the
-default body, 47.9 mm with the default body scaled to the person's true stature, 34.7 mm with
-the true body; ``docs/experiments.md``). The size is found by analysis by synthesis, as the
+Without a body the tracker fits one average adult to everyone (the training population's,
+``runtime.estimator_setup.POPULATION_BODY``), and a person 10% smaller or larger costs more
+than the rest of the pipeline together (dev recordings, before the population body: 58.7 mm
+with the built-in default body, 47.9 mm with it scaled to the person's true stature, 34.7 mm
+with the true body; the population body at the true stature 37.1; ``docs/experiments.md``).
+The size is found by analysis by synthesis, as the
 pose is: a few tracked frames are refitted with the default body scaled by each candidate
 factor, and the factor whose fits cover the person's silhouette best wins (the mean overlap
 ``|R and O| / |R or O|``, peak refined by a parabola through the best grid point and its
@@ -32,8 +34,8 @@ class BodyScaleConfig:
 
     samples: int = field_doc(8, "tracked frames refitted at each candidate size")
     every: int = field_doc(3, "take every k-th tracked frame, so the samples span a motion")
-    min_scale: float = field_doc(0.84, "smallest factor tried on the default body")
-    max_scale: float = field_doc(1.16, "largest factor tried on the default body")
+    min_scale: float = field_doc(0.84, "smallest factor tried on the body tracked")
+    max_scale: float = field_doc(1.16, "largest factor tried on the body tracked")
     step: float = field_doc(0.04, "spacing of the factors tried")
     iterations: int = field_doc(5, "Gauss-Newton iterations of each refit")
 

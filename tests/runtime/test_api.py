@@ -11,6 +11,7 @@ import depthmocap.runtime.track_cli as cli
 import numpy as np
 import pytest
 import torch
+from depthmocap.runtime.estimator_setup import POPULATION_BODY
 from depthmocap.runtime.streams import FrameRange
 from depthmocap.shared.poses_format import PosesFileError
 
@@ -165,6 +166,10 @@ def test_all_lists_exactly_the_lazy_exports():
 
 def test_the_body_in_use():
     tracker = Tracker()
-    assert torch.equal(tracker.body.lengths, depthmocap.BodyShape.default().lengths)
+    # No body given: the population's average adult, not the built-in textbook one.
+    population = depthmocap.BodyShape.load(POPULATION_BODY)
+    assert torch.equal(tracker.body.lengths, population.lengths)
+    assert float(tracker.body.chest_tilt) > 0.1  # anny's chest leans on the abdomen
+    assert not torch.equal(tracker.body.lengths, depthmocap.BodyShape.default().lengths)
     tracker.track(np.zeros((240, 320), np.uint16))  # builds the estimator
     assert tracker.body is tracker._estimator.body
