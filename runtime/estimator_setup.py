@@ -100,7 +100,7 @@ def load_mode_config(
 def settings_for_body(settings: dict, mode: str, body_given: bool) -> dict:
     """The hybrid's settings for a run with or without a body file: with one, the person's
     size is known and is not estimated (``body_scale`` off), and the output joints are the
-    body's own (``joint_offsets`` off: they were fitted on the default body's joints)."""
+    body's own (``joint_offsets`` off: they were fitted on the population body's joints)."""
     if mode != "hybrid" or not body_given:
         return settings
     return merged_settings(settings, {"body_scale": None, "joint_offsets": None})
