@@ -95,6 +95,7 @@ def test_runtime_track_with_the_search_on(tmp_path, one_thread):
     import json
 
     import depthmocap.runtime.track_cli as cli
+    from depthmocap.runtime.estimator_setup import POPULATION_BODY
     from depthmocap.runtime.export.bvh import bvh_hierarchy
 
     cfg = tmp_path / "scale.yaml"
@@ -106,7 +107,8 @@ def test_runtime_track_with_the_search_on(tmp_path, one_thread):
     scale = json.loads((out / "summary.json").read_text())["extra"]["body_scale"]
     assert 0.9 <= scale <= 1.1
     body = BodyShape.load(out / "body.json")
-    torch.testing.assert_close(body.lengths, BodyShape.default().scaled(scale).lengths)
+    population = BodyShape.load(POPULATION_BODY)  # the body tracked without a file
+    torch.testing.assert_close(body.lengths, population.scaled(scale).lengths)
     assert bvh_hierarchy(body.to(torch.float64)) in (out / "motion.bvh").read_text()
     with_body = tmp_path / "with_body"
     args = ["-i", "demo", "-o", str(with_body), "--stop", "4", "-q", "--config", str(cfg)]

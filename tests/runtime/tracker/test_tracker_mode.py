@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from depthmocap.runtime.streams.demo import open_demo_stream
 from depthmocap.runtime.track_cli import main
+from depthmocap.shared.body import BodyShape
 from depthmocap.shared.camera import Intrinsics
 from depthmocap.shared.poses_format import poses_to_arrays, read_poses_jsonl
 from depthmocap.shared.recording import RecordingWriter
@@ -12,8 +13,12 @@ from depthmocap.shared.recording import RecordingWriter
 
 def test_tracker_mode_follows_the_demo(tmp_path, capsys):
     out = tmp_path / "res"
+    # The demo person is the built-in body; without a file the tracker would fit the
+    # population's average adult, another body.
+    body = tmp_path / "body.json"
+    BodyShape.default().save(body)
     assert main(["--input", "demo", "--mode", "tracker", "--output", str(out), "--stop", "6",
-                 "--device", "cpu", "-q"]) == 0  # fmt: skip
+                 "--device", "cpu", "--body", str(body), "-q"]) == 0  # fmt: skip
     arrays = poses_to_arrays(read_poses_jsonl(out / "poses.jsonl").records)
     assert list(arrays["status"]) == ["tracked"] * 6
     gt = open_demo_stream().groundtruth["joints"][:6]
