@@ -31,7 +31,7 @@ __all__ = [
 # The body tracked when none is given: the average measured skeleton of 100 random bodies of
 # the training population (``python -m depthmocap.train.bodies.template_body``; also
 # ``runtime-calibrate``'s template). Its proportions are where the reported joints are (the
-# built-in ``BodyShape.default`` has rounded textbook ones: a chest 30% short for them), and the
+# built-in ``BodyShape.default`` has rounded textbook ones: a chest 31% short for them), and the
 # size search scales it to the person.
 POPULATION_BODY = CONFIGS_DIR / "body_template.json"
 
@@ -52,11 +52,16 @@ def pick_device(name: str) -> str:
 def load_body(path: Path | None) -> BodyShape:
     """The body in ``path`` (a ``body.json``), or for None the population's average adult
     (:data:`POPULATION_BODY`)."""
-    if path is None:
-        path = POPULATION_BODY
+    given = path is not None
+    path = path if given else POPULATION_BODY
     try:
         return BodyShape.load(path)
     except FileNotFoundError:
+        if not given:
+            raise TrackError(
+                f"the shipped population body is missing: {path} (reinstall depthmocap, or "
+                "give --body)"
+            ) from None
         raise TrackError(f"body file not found: {path}") from None
     except ValueError as err:
         raise TrackError(str(err)) from None

@@ -8,7 +8,8 @@ is, so the difference is a systematic offset in each joint's own segment frame: 
 
 :func:`offset_joints` moves each joint by its offset, turned with its segment and scaled with
 the body's stature; the offsets are fitted from tracked synthetic recordings with ground truth
-(``train-fit-joint-offsets``) and shipped as ``models/joint_offsets.json``:
+(``python -m depthmocap.train.evaluation.joint_offsets_fit``) and shipped as
+``models/joint_offsets.json``:
 
     {"format": "depthmocap-joint-offsets", "version": 1, "joint_names": [16 names],
      "reference_stature_m": 1.7, "offsets_m": [[x, y, z] x 16], "fitted_on": "...",

@@ -6,7 +6,7 @@ than the rest of the pipeline together (dev recordings, before the population bo
 with the built-in default body, 47.9 mm with it scaled to the person's true stature, 34.7 mm
 with the true body; the population body at the true stature 37.1; ``docs/experiments.md``).
 The size is found by analysis by synthesis, as the
-pose is: a few tracked frames are refitted with the default body scaled by each candidate
+pose is: a few tracked frames are refitted with the body tracked scaled by each candidate
 factor, and the factor whose fits cover the person's silhouette best wins (the mean overlap
 ``|R and O| / |R or O|``, peak refined by a parabola through the best grid point and its
 neighbours). The silhouette decides because it measures size directly; the depth residual

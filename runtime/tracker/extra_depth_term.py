@@ -235,8 +235,7 @@ def extra_rows(
     segment = torch.cat([q_seg, model_seg])
     batch = torch.cat([q_idx[:, 0], b])
     offset = torch.cat([off_r, off_o])
-    root = (q_ratio64**0.5).to(dtype), (o_ratio64**0.5).to(dtype)
-    weight = torch.cat([found * root[0], found_o * root[1]]).to(dtype)
+    weight = torch.cat([found * (q_ratio64**0.5).to(dtype), found_o * (o_ratio64**0.5).to(dtype)])
     sigma = weight.new_tensor([SIGMA_EXTRA_TORSO_M, cfg.sigma_extra_m])
     weight = weight / sigma[(segment >= sk.FIRST_LIMB_SEGMENT).long()]
     # One row per camera axis.

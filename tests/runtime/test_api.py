@@ -173,3 +173,13 @@ def test_the_body_in_use():
     assert not torch.equal(tracker.body.lengths, depthmocap.BodyShape.default().lengths)
     tracker.track(np.zeros((240, 320), np.uint16))  # builds the estimator
     assert tracker.body is tracker._estimator.body
+
+
+def test_a_missing_population_body_says_so(tmp_path, monkeypatch):
+    """A broken install (the shipped body template gone) is one clear error, not a bare
+    'body file not found' for a file the user never named."""
+    import depthmocap.runtime.estimator_setup as setup
+
+    monkeypatch.setattr(setup, "POPULATION_BODY", tmp_path / "gone.json")
+    with pytest.raises(TrackError, match="shipped population body is missing"):
+        Tracker()

@@ -84,14 +84,15 @@ RUNS = {
         {"failure": {"epsilon1_cm": 0.001}, "keep_better": {"compare_all_tests": False}},
     ),
     "hybrid-recheck": ("hybrid", {"keep_better": {"recheck_badness": 0.001}}),
-    # With the rendered body (--body): the population body tracked without a file is
-    # another body, whose fits of this person never reach the overlap bound.
     "hybrid-unsupported": ("hybrid", {"failure": {"lost_overlap": 0.9}}),
     "hybrid-recording-labels": (
         "hybrid",
         {"labels_from_recording": "REC", "arm_search": {"badness": 0.001}, "keep_better": None},
     ),
 }
+# Runs given the rendered (built-in) body by file: the population body tracked without one is
+# another body, whose fits of this person never reach the unsupported run's overlap bound.
+WITH_RENDERED_BODY = {"hybrid-unsupported"}
 
 
 @pytest.fixture(scope="module")
@@ -109,7 +110,7 @@ def outputs(recording, tmp_path_factory) -> dict[str, tuple[list[dict], dict]]:
             text = yaml.safe_dump(settings).replace("REC", str(recording))
             (root / f"{name}.yaml").write_text(text)
             argv += ["--config", root / f"{name}.yaml"]
-        if name == "hybrid-unsupported":
+        if name in WITH_RENDERED_BODY:
             BodyShape.default().save(root / "body.json")
             argv += ["--body", root / "body.json"]
         code = cli.main([str(a) for a in [*argv, "--device", "cpu", "--quiet"]])
