@@ -117,6 +117,13 @@ class Tracker:
         found = getattr(self._estimator, "body", None)
         return self._body if found is None else found
 
+    @property
+    def size_search(self):
+        """The hybrid's size search (``runtime.hybrid.body_scale.BodyScaleSearch``): its
+        factor, peak and overlap curves; None before the first frame, with a body file and
+        in the other modes."""
+        return getattr(self._estimator, "scale_search", None)
+
     def reset(self) -> None:
         """Forget the track: the next frame is found from scratch (a new person, a cut)."""
         self._segmenter.reset()

@@ -40,7 +40,7 @@ def test_peak_of_a_parabola_is_its_vertex():
 
 def test_refits_every_kth_frame_at_all_sizes_then_stops():
     body = BodyShape.default()
-    search = BodyScaleSearch(BodyScaleConfig(samples=3, every=2), body)
+    search = BodyScaleSearch(BodyScaleConfig(samples=3, every=2, correction=1.0), body)
     stature = float(body.stature())
     seen = []
 
@@ -72,7 +72,7 @@ def test_the_search_finds_the_size_of_a_rendered_person(one_thread, true_scale):
     person = default.scaled(true_scale)
     truth = camera_motion("walk", 24, seed=0, body=person).float()
     depth = render_body(truth, person, INTR).depth
-    search = BodyScaleSearch(BodyScaleConfig(samples=6, every=4), default)
+    search = BodyScaleSearch(BodyScaleConfig(samples=6, every=4, correction=1.0), default)
     trackers: dict = {}
 
     def fit(bodies, frame, q):  # as the hybrid does: one batched fit of all sizes
@@ -116,3 +116,26 @@ def test_runtime_track_with_the_search_on(tmp_path, one_thread):
     summary = json.loads((with_body / "summary.json").read_text())
     assert summary["extra"]["body_scale"] is None
     assert summary["extra"]["settings"]["body_scale"] is None
+
+
+def test_the_correction_multiplies_the_peak_and_the_curves_are_kept():
+    body = BodyShape.default()
+    search = BodyScaleSearch(BodyScaleConfig(samples=2, every=1, correction=1.05), body)
+    stature = float(body.stature())
+
+    def fit(bodies, frame, q):
+        return -((bodies.stature().numpy() / stature - 0.96) ** 2)
+
+    found = [search.offer(i, torch.zeros(34), fit) for i in range(2)]
+    assert search.peak == pytest.approx(0.96, abs=1e-6)
+    assert found[1] == pytest.approx(0.96 * 1.05, abs=1e-6) and search.scale == found[1]
+    assert len(search.curves) == 2 and search.curves[0].shape == search.factors.shape
+    with pytest.raises(ConfigError):
+        BodyScaleConfig(correction=0.0)
+
+
+def test_the_corrected_size_stays_within_the_grid():
+    body = BodyShape.default()
+    search = BodyScaleSearch(BodyScaleConfig(samples=1, every=1, correction=1.1), body)
+    found = search.offer(0, torch.zeros(34), lambda bodies, f, q: bodies.stature().numpy())
+    assert search.peak == pytest.approx(1.16) and found == pytest.approx(1.16)

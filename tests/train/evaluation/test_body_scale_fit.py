@@ -1,0 +1,86 @@
+"""Measuring the size search's bias (train.evaluation.body_scale_fit)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from depthmocap.train.evaluation import body_scale_fit as fit
+
+
+def test_correction_is_the_median_ratio():
+    rng = np.random.default_rng(0)
+    needed = rng.uniform(0.85, 1.15, 41)
+    found = needed / 1.03 * (1 + rng.normal(0, 0.002, 41))
+    found[:5] = 1.0  # a few searches far off move a median little
+    assert fit.correction_of(needed, found) == pytest.approx(1.03, abs=0.002)
+    with pytest.raises(ValueError, match="non-empty"):
+        fit.correction_of(np.ones(3), np.ones(2))
+    with pytest.raises(ValueError, match="non-empty"):
+        fit.correction_of(np.ones(0), np.ones(0))
+
+
+def test_size_errors_in_centimetres_of_stature():
+    e = fit.size_errors(np.array([1.0, 1.0]), np.array([0.98, 1.01]), stature_m=1.75)
+    assert e["bias_cm"] == pytest.approx(100 * 1.75 * (-0.01) / 2)
+    assert e["mean_abs_cm"] == pytest.approx(100 * 1.75 * 0.015)
+    assert e["max_abs_cm"] == pytest.approx(3.5)
+    assert e["std_cm"] == pytest.approx(100 * 1.75 * 0.015)
+
+
+def test_cross_validation_uses_the_other_half():
+    needed = np.array([1.0, 1.0, 1.0, 1.0])
+    found = np.array([0.5, 0.8, 0.5, 0.8])  # evens need 2, odds 1.25
+    np.testing.assert_allclose(fit.cross_validated(needed, found), [0.625, 1.6, 0.625, 1.6])
+
+
+def test_cli_resumes_and_reports(tmp_path, monkeypatch, capsys):
+    """Recordings already measured are not measured again; a torn last line is; the report
+    holds the correction and the errors before and after it."""
+    recs = tmp_path / "recs"
+    for name in "abcd":
+        (recs / name).mkdir(parents=True)
+        (recs / name / "body.json").write_text("{}")
+    measured = []
+
+    def fake(rec, population, model=None):
+        measured.append(rec.name)
+        needed = {"a": 0.9, "b": 1.0, "c": 1.1, "d": 1.05}[rec.name]
+        return {"recording": rec.name, "needed": needed, "found": needed / 1.02, "frames": 30,
+                "curves": [[0.5, 0.6]], "factors": [0.9, 1.1]}  # fmt: skip
+
+    monkeypatch.setattr(fit, "search_recording", fake)
+    out = tmp_path / "fit" / "searches.jsonl"
+    out.parent.mkdir()
+    row_a = {"recording": "a", "needed": 0.9, "found": 0.9 / 1.02}
+    out.write_text(json.dumps(row_a) + "\n" + '{"recording": "b", "nee')
+    assert fit.main(["--recordings", str(recs), "--out", str(out)]) == 0
+    assert measured == ["b", "c", "d"]
+    assert len(out.read_text().splitlines()) == 4
+    report = json.loads(out.with_suffix(".report.json").read_text())
+    assert report["correction"] == pytest.approx(1.02)
+    assert report["recordings"] == 4 and report["not_ended"] == 0
+    assert report["before"]["bias_cm"] < -1 and abs(report["after"]["bias_cm"]) < 1e-9
+    assert "correction 1.0200" in capsys.readouterr().out
+
+
+def test_cli_errors(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        fit.main(["--recordings", str(tmp_path / "none"), "--out", str(tmp_path / "o.jsonl")])
+    with pytest.raises(SystemExit):  # a folder without recordings
+        fit.main(["--recordings", str(tmp_path), "--out", str(tmp_path / "o.jsonl")])
+
+
+@pytest.mark.slow
+def test_search_on_a_stream_ends_with_its_curves(one_thread):
+    """The shipped search on the built-in demo: it ends within the grid, uncorrected, after
+    its samples, with one overlap curve per sample."""
+    from depthmocap.runtime.hybrid.body_scale import BodyScaleConfig
+    from depthmocap.runtime.streams import open_stream
+
+    cfg = BodyScaleConfig()
+    row = fit.search_stream(open_stream("demo"))
+    assert row["found"] is not None and cfg.min_scale <= row["found"] <= cfg.max_scale
+    assert np.asarray(row["curves"]).shape == (cfg.samples, len(cfg.scales()))
+    assert row["frames"] > (cfg.samples - 1) * cfg.every  # every k-th tracked frame
