@@ -1,4 +1,4 @@
-"""Where the output joints sit relative to the model's: a learned offset per joint.
+"""Where the output joints sit relative to the model's: a learned offset per joint and pose.
 
 The cylinder model's joints are its segments' pivots (``kinematics.named_joint_positions``);
 the joints a user expects are a motion-capture skeleton's (HDM05's: the spine joint higher on
@@ -7,16 +7,22 @@ is, so the difference is a systematic offset in each joint's own segment frame: 
 9 cm on the dev recordings, most of the gap between raw and offset-normalized error.
 
 :func:`offset_joints` moves each joint by its offset, turned with its segment and scaled with
-the body's stature; the offsets are fitted from tracked synthetic recordings with ground truth
-(``python -m depthmocap.train.evaluation.joint_offsets_fit``) and shipped as
+the body's stature. The offset depends on the pose, because the model's pivots and a mocap
+joint move apart as the limb bends (a knee's capsule pivot stays on the bone's axis, the mocap
+knee joint rides forward on the bent knee): it is linear in the pose's joint angles and their
+squares (:func:`pose_features`), ``offset_j(q) = offsets_m[j] + features(q) @
+pose_coefficients_m[j]``. The offsets are fitted from tracked synthetic recordings with ground
+truth (``python -m depthmocap.train.evaluation.joint_offsets_fit``) and shipped as
 ``models/joint_offsets.json``:
 
-    {"format": "depthmocap-joint-offsets", "version": 1, "joint_names": [16 names],
-     "reference_stature_m": 1.7, "offsets_m": [[x, y, z] x 16], "fitted_on": "...",
-     "frames": 2847}
+    {"format": "depthmocap-joint-offsets", "version": 2, "joint_names": [16 names],
+     "reference_stature_m": 1.7, "offsets_m": [[x, y, z] x 16],
+     "pose_features": "angles_and_squares", "pose_coefficients_m": [[[x, y, z] x 56] x 16],
+     "fitted_on": "...", "frames": 2847}
 
 ``offsets_m`` are in metres, in the frame of each joint's segment (``skeleton.JOINT_SEGMENT``),
 for a body of ``reference_stature_m``; a body of another stature gets them scaled by the ratio.
+Version 1 files (constant offsets: no ``pose_*`` keys) are still read.
 """
 
 from __future__ import annotations
@@ -33,16 +39,31 @@ from . import skeleton as sk
 
 __all__ = [
     "FORMAT",
+    "NUM_POSE_FEATURES",
+    "POSE_FEATURES",
     "VERSION",
     "JointOffsets",
     "JointOffsetsError",
     "load_joint_offsets",
     "offset_joints",
+    "offsets_at",
+    "pose_features",
     "save_joint_offsets",
 ]
 
 FORMAT = "depthmocap-joint-offsets"
-VERSION = 1
+VERSION = 2
+_READABLE = (1, 2)
+POSE_FEATURES = "angles_and_squares"
+NUM_POSE_FEATURES = 2 * (sk.NUM_DOFS - sk.ANGLE_DOFS.start)
+
+
+def pose_features(q: torch.Tensor) -> torch.Tensor:
+    """(B, 34) poses -> (B, P) features the offsets are linear in: the 28 joint angles, then
+    their squares (P = :data:`NUM_POSE_FEATURES`). The root is left out: where the person
+    stands and faces says nothing about where a joint sits on its segment."""
+    angles = q[..., sk.ANGLE_DOFS]
+    return torch.cat([angles, angles * angles], dim=-1)
 
 
 class JointOffsetsError(ValueError):
@@ -55,8 +76,11 @@ class JointOffsets:
     """Per-joint offsets (module docstring).
 
     Attributes:
-        offsets_m: (J, 3) metres in each joint's segment frame, J = ``len(JOINT_NAMES)``.
+        offsets_m: (J, 3) metres in each joint's segment frame, J = ``len(JOINT_NAMES)``:
+            the offsets at the zero pose.
         reference_stature_m: the stature the offsets are for.
+        pose_coefficients_m: (J, P, 3) how each offset changes with the pose's features
+            (:func:`pose_features`), or None: constant offsets.
         fitted_on: what they were fitted on (free text, for the record).
         frames: how many frames they were fitted on.
     """
@@ -65,6 +89,7 @@ class JointOffsets:
     reference_stature_m: float
     fitted_on: str = ""
     frames: int = 0
+    pose_coefficients_m: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.offsets_m = np.asarray(self.offsets_m, dtype=np.float64)
@@ -73,6 +98,14 @@ class JointOffsets:
             raise JointOffsetsError(
                 f"joint offsets must be {J} finite (x, y, z) rows, got {self.offsets_m.shape}"
             )
+        if self.pose_coefficients_m is not None:
+            c = np.asarray(self.pose_coefficients_m, dtype=np.float64)
+            if c.shape != (J, NUM_POSE_FEATURES, 3) or not np.isfinite(c).all():
+                raise JointOffsetsError(
+                    f"pose coefficients must be finite, ({J}, {NUM_POSE_FEATURES}, 3), got "
+                    f"{c.shape}"
+                )
+            self.pose_coefficients_m = c
         ok = math.isfinite(self.reference_stature_m) and self.reference_stature_m > 0
         if not ok:
             raise JointOffsetsError(
@@ -80,15 +113,17 @@ class JointOffsets:
             )
 
     def to_json_dict(self) -> dict:
-        return {
+        data = {
             "format": FORMAT,
             "version": VERSION,
             "joint_names": list(sk.JOINT_NAMES),
             "reference_stature_m": float(self.reference_stature_m),
             "offsets_m": np.round(self.offsets_m, 6).tolist(),
-            "fitted_on": self.fitted_on,
-            "frames": int(self.frames),
         }
+        if self.pose_coefficients_m is not None:
+            data["pose_features"] = POSE_FEATURES
+            data["pose_coefficients_m"] = np.round(self.pose_coefficients_m, 7).tolist()
+        return {**data, "fitted_on": self.fitted_on, "frames": int(self.frames)}
 
 
 def save_joint_offsets(path: str | Path, offsets: JointOffsets) -> None:
@@ -116,21 +151,39 @@ def load_joint_offsets(path: str | Path) -> JointOffsets:
         raise JointOffsetsError(f"{path}: not a readable joint-offsets file ({err})") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise JointOffsetsError(f"{path}: not a {FORMAT} file")
-    if data.get("version") != VERSION:
+    if data.get("version") not in _READABLE:
         raise JointOffsetsError(
-            f"{path}: joint-offsets version {data.get('version')!r}, this build reads {VERSION}"
+            f"{path}: joint-offsets version {data.get('version')!r}, this build reads "
+            f"{', '.join(map(str, _READABLE))}"
         )
     if data.get("joint_names") != list(sk.JOINT_NAMES):
         raise JointOffsetsError(f"{path}: its joints are not this build's {list(sk.JOINT_NAMES)}")
+    coefficients = data.get("pose_coefficients_m")
+    if coefficients is not None and data.get("pose_features") != POSE_FEATURES:
+        raise JointOffsetsError(
+            f"{path}: pose features {data.get('pose_features')!r}, this build has {POSE_FEATURES!r}"
+        )
     try:
         return JointOffsets(
             np.asarray(data.get("offsets_m"), dtype=np.float64),
             float(data.get("reference_stature_m")),
             str(data.get("fitted_on", "")),
             int(data.get("frames", 0)),
+            None if coefficients is None else np.asarray(coefficients, dtype=np.float64),
         )
     except (TypeError, ValueError) as err:
         raise JointOffsetsError(f"{path}: {err}") from None
+
+
+def offsets_at(
+    q: torch.Tensor, offsets: torch.Tensor, coefficients: torch.Tensor | None
+) -> torch.Tensor:
+    """(B, J, 3) each joint's offset at poses ``q`` (B, 34), from the zero-pose ``offsets``
+    (J, 3) and the ``coefficients`` (J, P, 3) of :func:`pose_features` (None: constant)."""
+    offsets = offsets.to(q)
+    if coefficients is None:
+        return offsets.expand(q.shape[0], -1, -1)
+    return offsets + torch.einsum("bp,jpc->bjc", pose_features(q), coefficients.to(q))
 
 
 def offset_joints(
@@ -141,12 +194,15 @@ def offset_joints(
     Args:
         joints: (B, J, 3) the model's named joints (``named_joint_positions``).
         rotations: (B, S, 3, 3) segment rotations of the same poses (``Kinematics.rotations``).
-        offsets: (J, 3) metres in each joint's segment frame, for the reference stature.
+        offsets: (J, 3), or (B, J, 3) per pose (:func:`offsets_at`), metres in each joint's
+            segment frame, for the reference stature.
         scale: (B,) or () the body's stature over the reference stature.
     Returns:
         (B, J, 3) ``joints + scale R_seg(j) offsets_j``.
     """
     seg = torch.as_tensor(sk.JOINT_SEGMENT, dtype=torch.long, device=joints.device)
     rot = rotations[:, seg]  # (B, J, 3, 3)
-    moved = (rot @ offsets.to(joints)[None, :, :, None])[..., 0]
+    offsets = offsets.to(joints)
+    offsets = offsets[None] if offsets.dim() == 2 else offsets
+    moved = (rot @ offsets[..., None])[..., 0]
     return joints + torch.as_tensor(scale).to(joints).reshape(-1, 1, 1) * moved

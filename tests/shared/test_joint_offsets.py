@@ -36,7 +36,12 @@ def test_round_trip(tmp_path):
     "change, message",
     [
         (lambda d: d.update(format="other"), "not a depthmocap-joint-offsets"),
-        (lambda d: d.update(version=2), "version 2"),
+        (lambda d: d.update(version=3), "version 3"),
+        (lambda d: d.update(pose_coefficients_m=[[[0.0] * 3] * 56] * J), "pose features None"),
+        (
+            lambda d: d.update(pose_features="angles_and_squares", pose_coefficients_m=[[1]]),
+            "pose coefficients",
+        ),
         (lambda d: d.update(joint_names=d["joint_names"][::-1]), "joints are not"),
         (lambda d: d.update(offsets_m=d["offsets_m"][:3]), "16 finite"),
         (lambda d: d.update(offsets_m=[[math.nan] * 3] * J), "16 finite"),
@@ -52,6 +57,46 @@ def test_bad_files_are_clear_errors(tmp_path, change, message):
     path.write_text(json.dumps(data))
     with pytest.raises(JointOffsetsError, match=message):
         load_joint_offsets(path)
+
+
+def test_pose_offsets_round_trip_and_version_1_files_still_read(tmp_path):
+    from depthmocap.shared.joint_offsets import NUM_POSE_FEATURES
+
+    rng = np.random.default_rng(1)
+    offsets, coef = rng.normal(0, 0.03, (J, 3)), rng.normal(0, 0.01, (J, NUM_POSE_FEATURES, 3))
+    save_joint_offsets(tmp_path / "o.json", JointOffsets(offsets, 1.7, pose_coefficients_m=coef))
+    back = load_joint_offsets(tmp_path / "o.json")
+    np.testing.assert_allclose(back.pose_coefficients_m, coef, atol=1e-7)
+    data = json.loads((tmp_path / "o.json").read_text())
+    assert data["version"] == 2 and data["pose_features"] == "angles_and_squares"
+    del data["pose_features"], data["pose_coefficients_m"]
+    data["version"] = 1
+    (tmp_path / "v1.json").write_text(json.dumps(data))
+    old = load_joint_offsets(tmp_path / "v1.json")
+    assert old.pose_coefficients_m is None
+    np.testing.assert_allclose(old.offsets_m, offsets, atol=1e-6)
+
+
+def test_pose_offsets_follow_the_joint_angles():
+    """offsets_at: the zero-pose offsets plus the angles' and their squares' coefficients;
+    the root's dofs do not count."""
+    from depthmocap.shared.joint_offsets import NUM_POSE_FEATURES, offsets_at
+
+    q = torch.zeros(3, sk.NUM_DOFS, dtype=torch.float64)
+    q[1, 3:6] = 1.0  # the root turned only
+    knee = sk.DOF_NAMES.index("l_tibia_flex")
+    q[2, knee] = 0.5
+    base = torch.zeros(J, 3, dtype=torch.float64)
+    base[12] = torch.tensor([0.0, 0.0, 0.01])
+    coef = torch.zeros(J, NUM_POSE_FEATURES, 3, dtype=torch.float64)
+    a = knee - sk.ANGLE_DOFS.start
+    coef[12, a, 2] = 0.02  # linear in the angle
+    coef[12, 28 + a, 2] = 0.04  # and in its square
+    out = offsets_at(q, base, coef)
+    torch.testing.assert_close(out[0], base)
+    torch.testing.assert_close(out[1], base)
+    assert float(out[2, 12, 2]) == pytest.approx(0.01 + 0.02 * 0.5 + 0.04 * 0.25)
+    torch.testing.assert_close(offsets_at(q, base, None), base.expand(3, -1, -1))
 
 
 def test_missing_and_corrupt_files(tmp_path):

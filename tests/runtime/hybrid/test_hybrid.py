@@ -851,6 +851,40 @@ def test_joint_offsets_move_the_output_joints_only(scene, tmp_path):
         )  # fmt: skip
 
 
+def test_pose_dependent_offsets_follow_the_tracked_pose(scene, tmp_path):
+    """A version-2 file: each output joint moves by its offset at the frame's own pose."""
+    from depthmocap.shared.joint_offsets import (
+        NUM_POSE_FEATURES,
+        JointOffsets,
+        offset_joints,
+        offsets_at,
+        save_joint_offsets,
+    )
+
+    q, depth, labels, mask = scene
+    _write_recording(tmp_path / "rec", depth, labels, 2)
+    rng = np.random.default_rng(3)
+    offsets = JointOffsets(
+        rng.normal(0, 0.02, (16, 3)), float(BODY.stature()),
+        pose_coefficients_m=rng.normal(0, 0.01, (16, NUM_POSE_FEATURES, 3)),
+    )  # fmt: skip
+    save_joint_offsets(tmp_path / "o.json", offsets)
+    est = create_estimator(
+        model_path=None, body=BODY, intrinsics=INTR,
+        config={"labels_from_recording": str(tmp_path / "rec"), "body_scale": None,
+                "joint_offsets": str(tmp_path / "o.json")},
+    )  # fmt: skip
+    for i in range(2):
+        out = estimate_frame(est, frame_of(depth, i, mask))
+        pose = torch.from_numpy(out.q)[None]
+        kin = forward_kinematics(pose, BODY.to(torch.float64))
+        per_pose = offsets_at(
+            pose, torch.from_numpy(offsets.offsets_m), torch.from_numpy(offsets.pose_coefficients_m)
+        )
+        want = offset_joints(named_joint_positions(kin), kin.rotations, per_pose, torch.tensor(1.0))
+        np.testing.assert_allclose(out.joints, want[0].numpy(), atol=2e-5)
+
+
 def test_the_shipped_offsets_load_and_a_body_file_switches_them_off():
     from depthmocap.runtime.estimator_setup import settings_for_body
     from depthmocap.runtime.hybrid import load_offsets

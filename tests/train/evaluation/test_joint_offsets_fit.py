@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from depthmocap.shared import skeleton as sk
-from depthmocap.train.evaluation.joint_offsets_fit import fit_offsets, main
+from depthmocap.train.evaluation.joint_offsets_fit import fit_offsets, fit_pose_offsets, main
 
 J = len(sk.JOINT_NAMES)
 
@@ -81,8 +81,37 @@ def test_cli_fits_offsets_from_tracked_results(tmp_path, capsys):
     (result / "poses.jsonl").write_text("\n".join(json.dumps(x) for x in lines) + "\n")
     out = tmp_path / "offsets.json"
     args = ["--results", str(tmp_path / "results"), "--recordings", str(tmp_path / "recs")]
-    assert main([*args, "--out", str(out)]) == 0
+    assert main([*args, "--out", str(out), "--constant"]) == 0
     assert "1 recordings, 6 frames" in capsys.readouterr().out
     fitted = load_joint_offsets(out)
     np.testing.assert_allclose(fitted.offsets_m, true.numpy(), atol=2e-4)
     assert fitted.reference_stature_m == pytest.approx(reference) and fitted.frames == 6
+
+
+def test_recovers_pose_dependent_offsets_despite_failed_frames():
+    """Truth = model + s R (o + features(q) C): the ridge fit over the frames within the gate
+    finds o and C; failed frames far off are left out; the runtime's offsets_at agrees."""
+    import torch
+    from depthmocap.shared.joint_offsets import NUM_POSE_FEATURES, offsets_at, pose_features
+
+    rng = np.random.default_rng(2)
+    n = 1500
+    q = rng.normal(0, 0.5, (n, sk.NUM_DOFS))
+    o = rng.normal(0, 0.03, (J, 3))
+    C = rng.normal(0, 0.01, (J, NUM_POSE_FEATURES, 3))
+    local = o + np.einsum("np,jpc->njc", pose_features(torch.from_numpy(q)).numpy(), C)
+    np.testing.assert_allclose(
+        offsets_at(torch.from_numpy(q), torch.from_numpy(o), torch.from_numpy(C)).numpy(), local
+    )
+    rot = _rotations(n, rng)
+    scale = rng.uniform(0.85, 1.15, n)
+    model = rng.normal(0, 1, (n, J, 3))
+    seg_rot = rot[:, np.asarray(sk.JOINT_SEGMENT)]
+    truth = model + scale[:, None, None] * np.einsum("njab,njb->nja", seg_rot, local)
+    failed = rng.random(n) < 0.1
+    truth[failed] += rng.normal(0, 0.1, (failed.sum(), J, 3)) + 1.0  # all beyond the gate
+    fit_o, fit_c = fit_pose_offsets(model, truth, rot, scale, q, ridge=1e-6, gate_m=0.2)
+    np.testing.assert_allclose(fit_o, o, atol=1e-4)
+    np.testing.assert_allclose(fit_c, C, atol=1e-4)
+    with pytest.raises(ValueError, match="frames within"):
+        fit_pose_offsets(model[:20], truth[:20], rot[:20], scale[:20], q[:20])
