@@ -1,0 +1,162 @@
+"""Move the joints of finished runs to another joint-offsets file, without tracking again.
+
+    python -m depthmocap.train.evaluation.reapply_offsets \\
+        --results out/broad/hybrid_default_body --old-offsets old.json \\
+        --offsets models/joint_offsets.json --out out/broad_new/hybrid_default_body
+
+The offsets are output-only (``shared.joint_offsets``): the poses ``q`` a run tracks do not
+depend on them, so a run's joints under other offsets follow from its ``poses.jsonl``. Each
+frame's joints are the model's joints of its ``q`` on the body tracked at that frame, moved by
+the offsets at that pose. A run without a body file tracks the population body until the size
+search ends and the scaled body (the result's ``body.json``) from then on: for each frame the
+body whose joints under ``--old-offsets`` reproduce the recorded ones (to 1 mm) is taken, and
+a frame that neither reproduces is an error (the run was made with other offsets or bodies).
+Every other field of ``poses.jsonl`` is kept; ``summary.json``, ``body.json`` and the BVH are
+copied, so the evaluation (``dev_benchmark --reuse-results``, ``train-eval``) reads the new
+folder as a run of its own.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+from depthmocap.shared.body import BodyShape
+from depthmocap.shared.joint_offsets import (
+    JointOffsets,
+    load_joint_offsets,
+    offset_joints,
+    offsets_at,
+)
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
+
+__all__ = ["ReapplyError", "joints_with_offsets", "reapply_result", "main"]
+
+MATCH_M = 1e-3  # recorded joints are rounded to 1 um; float32 tracking differs by ~1e-6 m
+
+
+class ReapplyError(ValueError):
+    """A result that cannot be moved to other offsets (not made as this tool assumes)."""
+
+
+def joints_with_offsets(q: np.ndarray, body: BodyShape, offsets: JointOffsets | None) -> np.ndarray:
+    """(F, J, 3) output joints of poses ``q`` (F, 34) on ``body`` under ``offsets`` (None:
+    the model's own joints), as the hybrid writes them."""
+    body = body.to(torch.float64)
+    pose = torch.as_tensor(q, dtype=torch.float64)
+    kin = forward_kinematics(pose, body)
+    joints = named_joint_positions(kin)
+    if offsets is None:
+        return joints.numpy()
+    coef = offsets.pose_coefficients_m
+    per_pose = offsets_at(
+        pose,
+        torch.from_numpy(offsets.offsets_m),
+        None if coef is None else torch.from_numpy(coef),
+    )
+    scale = body.stature() / offsets.reference_stature_m
+    return offset_joints(joints, kin.rotations, per_pose, scale).numpy()
+
+
+def reapply_result(
+    result: Path,
+    out: Path,
+    bodies: list[BodyShape],
+    old: JointOffsets | None,
+    new: JointOffsets | None,
+) -> int:
+    """Write ``result`` (a run's folder) to ``out`` with its joints under ``new``.
+
+    Args:
+        bodies: the bodies the run may have tracked at a frame (its ``body.json`` first).
+    Returns:
+        the number of frames moved.
+    Raises:
+        ReapplyError: a frame whose recorded joints no candidate body reproduces.
+    """
+    from depthmocap.shared.poses_format import JOINT_NAMES
+
+    lines = [json.loads(x) for x in (result / "poses.jsonl").read_text().splitlines() if x]
+    posed = [i for i, r in enumerate(lines) if r.get("q") is not None and r.get("joints")]
+    if posed:
+        q = np.array([lines[i]["q"] for i in posed], dtype=np.float64)
+        names = list(lines[posed[0]]["joints"])
+        if names != list(JOINT_NAMES):
+            raise ReapplyError(f"{result}: joints {names} are not this build's")
+        recorded = np.array([[lines[i]["joints"][n] or [np.nan] * 3 for n in names] for i in posed])
+        err = np.stack(
+            [np.abs(joints_with_offsets(q, b, old) - recorded).max(axis=(1, 2)) for b in bodies]
+        )  # (candidates, F); NaN rows (unwritten joints) never match
+        which = np.nanargmin(np.where(np.isfinite(err), err, np.inf), axis=0)
+        best = err[which, np.arange(len(posed))]
+        bad = ~(best < MATCH_M)
+        if bad.any():
+            k = posed[int(np.argmax(bad))]
+            raise ReapplyError(
+                f"{result}: frame {lines[k]['frame']}'s joints are {best[bad].max() * 1e3:.1f} "
+                "mm from every candidate body under the old offsets (other offsets or body?)"
+            )
+        moved = np.empty_like(recorded)
+        for b, body in enumerate(bodies):
+            mine = which == b
+            if mine.any():
+                moved[mine] = joints_with_offsets(q[mine], body, new)
+        for row, i in zip(moved, posed):
+            lines[i]["joints"] = {
+                n: [round(float(v), 6) for v in xyz] for n, xyz in zip(names, row)
+            }
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "poses.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+    for name in ("summary.json", "body.json", "motion.bvh"):
+        if (result / name).is_file():
+            shutil.copyfile(result / name, out / name)
+    return len(posed)
+
+
+def _offsets(path: str) -> JointOffsets | None:
+    return None if path == "none" else load_joint_offsets(path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from depthmocap.runtime.estimator_setup import POPULATION_BODY
+
+    p = argparse.ArgumentParser(
+        prog="python -m depthmocap.train.evaluation.reapply_offsets",
+        description=__doc__.splitlines()[0],
+    )
+    p.add_argument("--results", type=Path, required=True, help="one run folder per recording")
+    p.add_argument("--old-offsets", required=True, help="the runs' offsets file, or 'none'")
+    p.add_argument("--offsets", required=True, help="the offsets file to move to, or 'none'")
+    p.add_argument("--out", type=Path, required=True, help="folder of the moved runs")
+    args = p.parse_args(argv)
+    if not args.results.is_dir():
+        p.error(f"--results {args.results}: no such folder")
+    old, new = _offsets(args.old_offsets), _offsets(args.offsets)
+    population = BodyShape.load(POPULATION_BODY)
+    runs = sorted(d for d in args.results.iterdir() if d.is_dir())
+    moved = 0
+    for run in runs:
+        # dev_benchmark keeps each run in NAME/result; runtime-track writes NAME itself.
+        inner = run / "result" if (run / "result" / "poses.jsonl").is_file() else run
+        if not (inner / "poses.jsonl").is_file():
+            continue
+        bodies = [population]
+        if (inner / "body.json").is_file():
+            bodies.insert(0, BodyShape.load(inner / "body.json"))
+        target = args.out / run.name / inner.relative_to(run)
+        try:
+            moved += reapply_result(inner, target, bodies, old, new)
+        except ReapplyError as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 2
+    print(f"{len(runs)} runs, {moved} posed frames moved to {args.offsets} -> {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
