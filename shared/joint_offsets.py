@@ -7,13 +7,13 @@ is, so the difference is a systematic offset in each joint's own segment frame: 
 9 cm on the dev recordings, most of the gap between raw and offset-normalized error.
 
 :func:`offset_joints` moves each joint by its offset, turned with its segment and scaled with
-the body's stature. The offset depends on the pose, because the model's pivots and a mocap
-joint move apart as the limb bends (a knee's capsule pivot stays on the bone's axis, the mocap
-knee joint rides forward on the bent knee): it is linear in the pose's joint angles and their
-squares (:func:`pose_features`), ``offset_j(q) = offsets_m[j] + features(q) @
-pose_coefficients_m[j]``. The offsets are fitted from tracked synthetic recordings with ground
-truth (``python -m depthmocap.train.evaluation.joint_offsets_fit``) and shipped as
-``models/joint_offsets.json``:
+the body's stature. The offset depends on the pose, because a capsule's pivot and a mocap joint
+move apart as the limb bends and the tracker's own bias changes with the pose (fitted, it
+removes 7-10 mm more than a constant offset on held-out tuning recordings): it is linear in the
+pose's joint angles and their squares (:func:`pose_features`),
+``offset_j(q) = offsets_m[j] + features(q) @ pose_coefficients_m[j]``. The offsets are fitted
+from tracked synthetic recordings with ground truth (``python -m
+depthmocap.train.evaluation.joint_offsets_fit``) and shipped as ``models/joint_offsets.json``:
 
     {"format": "depthmocap-joint-offsets", "version": 2, "joint_names": [16 names],
      "reference_stature_m": 1.7, "offsets_m": [[x, y, z] x 16],

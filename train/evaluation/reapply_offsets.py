@@ -34,6 +34,7 @@ from depthmocap.shared.joint_offsets import (
     offsets_at,
 )
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
+from depthmocap.shared.resources import CONFIGS_DIR
 
 __all__ = ["ReapplyError", "joints_with_offsets", "reapply_result", "main"]
 
@@ -123,8 +124,6 @@ def _offsets(path: str) -> JointOffsets | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from depthmocap.runtime.estimator_setup import POPULATION_BODY
-
     p = argparse.ArgumentParser(
         prog="python -m depthmocap.train.evaluation.reapply_offsets",
         description=__doc__.splitlines()[0],
@@ -137,7 +136,8 @@ def main(argv: list[str] | None = None) -> int:
     if not args.results.is_dir():
         p.error(f"--results {args.results}: no such folder")
     old, new = _offsets(args.old_offsets), _offsets(args.offsets)
-    population = BodyShape.load(POPULATION_BODY)
+    # The body runtime-track tracks without a body file (runtime.estimator_setup's).
+    population = BodyShape.load(CONFIGS_DIR / "body_template.json")
     runs = sorted(d for d in args.results.iterdir() if d.is_dir())
     moved = 0
     for run in runs:

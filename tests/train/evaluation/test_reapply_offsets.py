@@ -84,3 +84,9 @@ def test_no_offsets_gives_the_model_joints():
     plain = joints_with_offsets(q, body, None)
     moved = joints_with_offsets(q, body, JointOffsets(np.zeros((J, 3)), 1.7))
     np.testing.assert_allclose(plain, moved, atol=1e-12)
+
+
+def test_the_population_body_is_the_runtimes():
+    from depthmocap.shared.resources import CONFIGS_DIR
+
+    assert POPULATION_BODY == CONFIGS_DIR / "body_template.json"  # reapply_offsets reads it there

@@ -1,7 +1,7 @@
 """Measure the size search's systematic error (``runtime.hybrid.body_scale``) and the
 correction that removes it.
 
-    python -m depthmocap.train.evaluation.body_scale_fit \\
+    python -m depthmocap.bench.body_scale_fit \\
         --recordings data/size_tune --out out/size_fit/searches.jsonl
 
 Each recording is tracked as ``runtime-track`` does without a body file (the population
@@ -125,7 +125,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from depthmocap.runtime.estimator_setup import POPULATION_BODY
 
     p = argparse.ArgumentParser(
-        prog="python -m depthmocap.train.evaluation.body_scale_fit",
+        prog="python -m depthmocap.bench.body_scale_fit",
         description=__doc__.splitlines()[0],
     )
     p.add_argument("--recordings", type=Path, required=True, help="recordings with body.json")

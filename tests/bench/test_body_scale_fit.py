@@ -1,4 +1,4 @@
-"""Measuring the size search's bias (train.evaluation.body_scale_fit)."""
+"""Measuring the size search's bias (bench.body_scale_fit)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 import pytest
-from depthmocap.train.evaluation import body_scale_fit as fit
+from depthmocap.bench import body_scale_fit as fit
 
 
 def test_correction_is_the_median_ratio():
