@@ -97,6 +97,11 @@ class SegmentationConfig:
         help="components at least this convex count with convex_weight of their area (boxes, "
         "doors, cupboards project to convex shapes); linear in between",
     )
+    solidity_erosion_px: int = field_doc(
+        1,
+        help="measure a component's solidity without its fringe this many pixels deep: "
+        "flying pixels along a box's edge make it look less convex (0: as it is)",
+    )
     convex_weight: float = field_doc(
         0.05, help="weight of a convex component's area when choosing the person"
     )

@@ -109,7 +109,10 @@ def _segment_np(
         previous_share = was_person[cand] / np.maximum(comp_pixels[cand], 1)
     score = np.full(count, -1.0)
     score[cand] = person_scores(
-        comp_area[cand], component_solidity(labels, stats, cand, cv2), previous_share, cfg
+        comp_area[cand],
+        component_solidity(labels, stats, cand, cv2, cfg.solidity_erosion_px),
+        previous_share,
+        cfg,
     )
     per_image = np.where(image_of[None] == np.arange(b)[:, None], score[None], -1.0)  # (B, C)
     best = per_image.argmax(1)

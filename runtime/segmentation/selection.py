@@ -27,21 +27,33 @@ from .config import SegmentationConfig
 __all__ = ["component_solidity", "person_likeness", "person_scores"]
 
 
-def component_solidity(labels: np.ndarray, stats: np.ndarray, which: np.ndarray, cv2) -> np.ndarray:
+def component_solidity(
+    labels: np.ndarray, stats: np.ndarray, which: np.ndarray, cv2, erosion_px: int = 0
+) -> np.ndarray:
     """Solidity (pixel area / convex hull area) of the components ``which`` of a label canvas.
 
     Args:
         labels: (H, W) component labels (OpenCV's, 0 = none).
         stats: (count, 5) OpenCV component statistics (left, top, width, height, area).
         which: (K,) component labels to measure.
+        erosion_px: measure each component eroded by this many pixels (a square), so that
+            its ragged fringe does not count: a sensor's flying pixels along a box's edge
+            swell its hull and make it look less convex than it is. A component the erosion
+            removes entirely is measured as it is.
     Returns:
         (K,) solidity in (0, 1]. The hull is taken through pixel centres, so its area is grown
         by half its perimeter plus one (the pixels' own extent), making a filled rectangle 1.
     """
     out = np.ones(len(which))
+    kernel = np.ones((2 * erosion_px + 1,) * 2, np.uint8)
     for i, k in enumerate(which):
-        x, y, w, h, n = stats[k]
+        x, y, w, h, _ = stats[k]
         sub = (labels[y : y + h, x : x + w] == k).view(np.uint8)
+        if erosion_px > 0:
+            padded = np.pad(sub, erosion_px)  # with background: the bounding box's edge erodes
+            core = cv2.morphologyEx(padded, cv2.MORPH_OPEN, kernel)
+            sub = core if core.any() else sub
+        n = int(np.count_nonzero(sub))
         contours, _ = cv2.findContours(sub, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         hull = cv2.convexHull(np.concatenate(contours))
         out[i] = n / max(cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True) + 1.0, 1.0)

@@ -227,10 +227,29 @@ BOX = (2.3, (0.7, 1.25), (CAM_HEIGHT - 1.5, CAM_HEIGHT))
 CUPBOARD = (2.3, (0.6, 1.25), (CAM_HEIGHT - 1.65, CAM_HEIGHT))
 
 
-def _solidity_of(image: np.ndarray) -> float:
+def _solidity_of(image: np.ndarray, erosion_px: int = 0) -> float:
     count, labels, stats, _ = cv2.connectedComponentsWithStats(image.astype(np.uint8), 4)
     assert count == 2
-    return float(component_solidity(labels, stats, np.array([1]), cv2)[0])
+    return float(component_solidity(labels, stats, np.array([1]), cv2, erosion_px)[0])
+
+
+def test_a_ragged_edge_does_not_make_a_box_look_like_a_person():
+    """A box whose lower edge trails one-pixel spurs of flying pixels: measured as it is, the
+    spurs swell its hull; without its one-pixel fringe it is a box again. A cross keeps its
+    shape either way, and a component the erosion would remove is measured as it is."""
+    box = np.zeros((80, 100), bool)
+    box[10:50, 10:90] = True
+    for x in range(12, 88, 4):  # spurs 1 px wide, 3-12 px long
+        box[50 : 53 + (x * 7) % 10, x] = True
+    assert _solidity_of(box) < 0.9
+    assert _solidity_of(box, erosion_px=1) > 0.95
+    cross = np.zeros((60, 60), bool)
+    cross[5:55, 26:34] = True
+    cross[20:28, 5:55] = True
+    assert _solidity_of(cross, erosion_px=1) < 0.5
+    line = np.zeros((20, 20), bool)
+    line[10, 2:18] = True
+    assert _solidity_of(line, erosion_px=1) == pytest.approx(_solidity_of(line))
 
 
 def test_solidity_golden_values():
