@@ -46,6 +46,7 @@ __all__ = [
     "ObservedCandidates",
     "observed_candidates",
     "closest_points",
+    "closest_points_torch",
     "extra_rows",
 ]
 
@@ -94,6 +95,20 @@ def observed_candidates(obs: Observation, max_count: int) -> ObservedCandidates:
     return ObservedCandidates(b, obs.points[b, v, u])
 
 
+_KERNEL: list = []  # [module or None] once looked up
+
+
+def _closest_kernel():
+    """:mod:`runtime.tracker.closest_kernel` (numba's compiled search), or None without numba."""
+    if not _KERNEL:
+        try:
+            from . import closest_kernel
+        except ImportError:  # numba is optional (the runtime extra)
+            closest_kernel = None
+        _KERNEL.append(closest_kernel)
+    return _KERNEL[0]
+
+
 def closest_points(
     query: torch.Tensor,
     query_batch: torch.Tensor,
@@ -104,15 +119,34 @@ def closest_points(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Index of each query's closest candidate of the same pose within the depth gate.
 
-    Queries and candidates are grouped by pose (:func:`~runtime.tracker.regions.batch_slots`)
-    and compared within their pose only, so B poses cost B times one pose's (n, m) distance
-    table, not a (B n, B m) one.
+    On the CPU with numba, a compiled loop (:mod:`runtime.tracker.closest_kernel`);
+    otherwise :func:`closest_points_torch`. Queries and candidates are compared within their
+    pose only.
 
     Args:
         query: (N, 3); cand: (M, 3); *_batch: pose index of each.
     Returns:
         index (N,) into cand, and found (N,) bool (eligible match within max_distance).
     """
+    kernel = _closest_kernel() if query.device.type == "cpu" else None
+    if kernel is not None and query.shape[0] and cand.shape[0]:
+        return kernel.closest_points_cpu(
+            query, query_batch, cand, cand_batch, depth_gate, max_distance
+        )
+    return closest_points_torch(query, query_batch, cand, cand_batch, depth_gate, max_distance)
+
+
+def closest_points_torch(
+    query: torch.Tensor,
+    query_batch: torch.Tensor,
+    cand: torch.Tensor,
+    cand_batch: torch.Tensor,
+    depth_gate: float,
+    max_distance: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`closest_points` with torch on any device: queries and candidates are grouped by
+    pose (:func:`~runtime.tracker.regions.batch_slots`), so B poses cost B times one pose's
+    (n, m) distance table, not a (B n, B m) one."""
     n = query.shape[0]
     index = torch.zeros(n, dtype=torch.long, device=query.device)
     found = torch.zeros(n, dtype=torch.bool, device=query.device)

@@ -10,6 +10,7 @@ from depthmocap.runtime.raycast import render_body
 from depthmocap.runtime.tracker import TrackerConfig, extra_depth_term
 from depthmocap.runtime.tracker.extra_depth_term import (
     closest_points,
+    closest_points_torch,
     extra_rows,
     observed_candidates,
 )
@@ -68,7 +69,12 @@ class TestExtraRows:
 
 
 class TestClosestPoints:
-    def test_golden(self):
+    @pytest.fixture(params=["dispatch", "torch"])
+    def closest_points(self, request):
+        """Both the dispatching search (numba's loop on the CPU when installed) and torch's."""
+        return closest_points if request.param == "dispatch" else closest_points_torch
+
+    def test_golden(self, closest_points):
         """The closest points respect the depth gate and the batch."""
         query = torch.tensor([[0.0, 0.0, 2.0], [0.0, 0.0, 2.0], [1.0, 0.0, 2.0]])
         qb = torch.tensor([0, 1, 0])
@@ -77,7 +83,7 @@ class TestClosestPoints:
         idx, found = closest_points(query, qb, cand, cb, depth_gate=0.08, max_distance=0.3)
         assert idx[:2].tolist() == [0, 1] and found.tolist() == [True, True, False]
 
-    def test_poses_never_match_each_other(self):
+    def test_poses_never_match_each_other(self, closest_points):
         """Each query is matched within its own pose only, whatever the distances, and a
         pose without candidates finds nothing."""
         gen = torch.Generator().manual_seed(0)
@@ -92,3 +98,18 @@ class TestClosestPoints:
                 continue
             best = own[(cand[own] - query[n]).norm(dim=-1).argmin()]
             assert found[n] and int(idx[n]) == int(best)
+
+    def test_the_compiled_search_matches_torch(self):
+        """Random scenes of several poses with the depth and distance gates biting: the same
+        candidates as torch's table, in float32 and float64."""
+        kernel = pytest.importorskip("depthmocap.runtime.tracker.closest_kernel")
+        gen = torch.Generator().manual_seed(1)
+        for dtype in (torch.float32, torch.float64):
+            query = torch.rand(400, 3, generator=gen, dtype=dtype) * torch.tensor([1, 1, 0.6])
+            cand = torch.rand(900, 3, generator=gen, dtype=dtype) * torch.tensor([1, 1, 0.6])
+            qb = torch.randint(0, 4, (400,), generator=gen)
+            cb = torch.randint(0, 3, (900,), generator=gen)  # pose 3: no candidates
+            want = closest_points_torch(query, qb, cand, cb, depth_gate=0.05, max_distance=0.08)
+            got = kernel.closest_points_cpu(query, qb, cand, cb, 0.05, 0.08)
+            assert torch.equal(got[1], want[1]) and bool(got[1].any()) and not bool(got[1].all())
+            assert torch.equal(got[0][got[1]], want[0][want[1]])
