@@ -41,7 +41,7 @@ class BodyScaleConfig:
     correction: float = field_doc(
         1.0,
         "factor applied to the size found, kept within min_scale..max_scale (1: none). "
-        "python -m depthmocap.train.evaluation.body_scale_fit measures the search's stature "
+        "python -m depthmocap.bench.body_scale_fit measures the search's stature "
         "error: 3.5 cm short on the training population, but the taller bodies that remove it "
         "track worse (20 size-tuning recordings: 50.4 -> 53.6 mm with 1.034), so none is "
         "shipped",
