@@ -149,13 +149,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         for rec in recordings:
             if rec.name in done:
                 continue
-            row = search_recording(rec, population, args.model)
+            try:
+                row = search_recording(rec, population, args.model)
+            except (ValueError, OSError) as err:  # a bad recording or model; rows so far kept
+                print(f"error: {rec.name}: {err}", file=sys.stderr)
+                return 2
             f.write(json.dumps(row) + "\n")
             f.flush()
             rows.append(row)
             print(f"{rec.name}: needed {row['needed']:.3f}, found {row['found']}", flush=True)
-    ended = [r for r in rows if r["found"] is not None and r["recording"] in
-             {rec.name for rec in recordings}]  # fmt: skip
+    chosen = {rec.name for rec in recordings}
+    ended = [r for r in rows if r["found"] is not None and r["recording"] in chosen]
     if len(ended) < 2:
         print("error: fewer than two recordings where the search ended", file=sys.stderr)
         return 2

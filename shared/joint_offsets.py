@@ -44,6 +44,7 @@ __all__ = [
     "VERSION",
     "JointOffsets",
     "JointOffsetsError",
+    "apply_offsets",
     "load_joint_offsets",
     "offset_joints",
     "offsets_at",
@@ -206,3 +207,29 @@ def offset_joints(
     offsets = offsets[None] if offsets.dim() == 2 else offsets
     moved = (rot @ offsets[..., None])[..., 0]
     return joints + torch.as_tensor(scale).to(joints).reshape(-1, 1, 1) * moved
+
+
+def apply_offsets(
+    joints: torch.Tensor,
+    rotations: torch.Tensor,
+    q: torch.Tensor,
+    offsets: JointOffsets,
+    stature: torch.Tensor | float,
+) -> torch.Tensor:
+    """The model's joints of poses ``q`` (B, 34) moved by ``offsets`` at those poses, for a
+    body of ``stature`` ((B,) or (), metres): :func:`offsets_at`, then :func:`offset_joints`.
+    Computed in ``joints``' dtype and device.
+
+    Args:
+        joints: (B, J, 3) the model's named joints; rotations: (B, S, 3, 3) segment rotations.
+    Returns:
+        (B, J, 3).
+    """
+    coef = offsets.pose_coefficients_m
+    per_pose = offsets_at(
+        q.to(joints),
+        torch.as_tensor(offsets.offsets_m).to(joints),
+        None if coef is None else torch.as_tensor(coef).to(joints),
+    )
+    scale = torch.as_tensor(stature).to(joints) / offsets.reference_stature_m
+    return offset_joints(joints, rotations, per_pose, scale)

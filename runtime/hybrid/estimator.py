@@ -29,7 +29,7 @@ from depthmocap.runtime.detector import DetectionResult, Detector
 from depthmocap.runtime.estimator import PoseEstimate, lost, observed_of
 from depthmocap.runtime.frame import Frame, LabelSource
 from depthmocap.runtime.tracker.tracker import Tracker, TrackResult
-from depthmocap.shared.joint_offsets import JointOffsets, offset_joints, offsets_at
+from depthmocap.shared.joint_offsets import JointOffsets, apply_offsets
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
 from depthmocap.shared.so3 import rotvec_to_matrix
 
@@ -85,12 +85,6 @@ class HybridEstimator:
     ) -> None:
         self.label_source, self.detector, self.tracker, self.cfg = labels, detector, tracker, cfg
         self.offsets = offsets
-        body = tracker.body  # a new body keeps its dtype and device (_use_body)
-        self._offsets_m = (
-            None if offsets is None else torch.as_tensor(offsets.offsets_m).to(body.lengths)
-        )
-        coef = None if offsets is None else offsets.pose_coefficients_m
-        self._offset_coef = None if coef is None else torch.as_tensor(coef).to(body.lengths)
         self.arm_search = (
             None if cfg.arm_search is None else ArmSearch(cfg.arm_search, tracker.body)
         )
@@ -142,9 +136,7 @@ class HybridEstimator:
         kin = forward_kinematics(q[None].to(body.lengths), body)
         joints = named_joint_positions(kin)
         if self.offsets is not None:
-            scale = body.stature() / self.offsets.reference_stature_m
-            moved = offsets_at(q[None].to(body.lengths), self._offsets_m, self._offset_coef)
-            joints = offset_joints(joints, kin.rotations, moved, scale)
+            joints = apply_offsets(joints, kin.rotations, q[None], self.offsets, body.stature())
         return joints[0].detach().cpu().double().numpy()
 
     def _run_detector(self, frame: Frame) -> DetectionResult:

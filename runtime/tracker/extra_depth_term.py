@@ -26,6 +26,7 @@ millimetres on exact data; edges that far off are aligned by the depth and silho
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import torch
@@ -95,18 +96,14 @@ def observed_candidates(obs: Observation, max_count: int) -> ObservedCandidates:
     return ObservedCandidates(b, obs.points[b, v, u])
 
 
-_KERNEL: list = []  # [module or None] once looked up
-
-
+@functools.cache
 def _closest_kernel():
     """:mod:`runtime.tracker.closest_kernel` (numba's compiled search), or None without numba."""
-    if not _KERNEL:
-        try:
-            from . import closest_kernel
-        except ImportError:  # numba is optional (the runtime extra)
-            closest_kernel = None
-        _KERNEL.append(closest_kernel)
-    return _KERNEL[0]
+    try:
+        from . import closest_kernel
+    except ImportError:  # numba is optional (the runtime extra)
+        return None
+    return closest_kernel
 
 
 def closest_points(

@@ -84,3 +84,16 @@ def test_search_on_a_stream_ends_with_its_curves(one_thread):
     assert row["found"] is not None and cfg.min_scale <= row["found"] <= cfg.max_scale
     assert np.asarray(row["curves"]).shape == (cfg.samples, len(cfg.scales()))
     assert row["frames"] > (cfg.samples - 1) * cfg.every  # every k-th tracked frame
+
+
+def test_a_bad_recording_is_a_clear_error_and_keeps_what_was_measured(tmp_path, capsys):
+    recs = tmp_path / "recs"
+    for name in ("a", "b"):
+        (recs / name).mkdir(parents=True)
+        (recs / name / "body.json").write_text("{}")
+    out = tmp_path / "searches.jsonl"
+    out.write_text(json.dumps({"recording": "a", "needed": 1.0, "found": 0.97}) + "\n")
+    # "b"'s body file is not one: the loader's error, named by recording.
+    assert fit.main(["--recordings", str(recs), "--out", str(out)]) == 2
+    assert "error: b:" in capsys.readouterr().err
+    assert json.loads(out.read_text().splitlines()[0])["recording"] == "a"

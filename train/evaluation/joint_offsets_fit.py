@@ -35,8 +35,7 @@ from depthmocap.shared import skeleton as sk
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.joint_offsets import (
     JointOffsets,
-    offset_joints,
-    offsets_at,
+    apply_offsets,
     pose_features,
     save_joint_offsets,
 )
@@ -105,17 +104,12 @@ def fit_pose_offsets(
 
 def moved_joints(data: dict[str, np.ndarray], offsets: JointOffsets) -> np.ndarray:
     """(N, J, 3) the model's joints of ``data`` (:func:`load_tracked`) moved by ``offsets``."""
-    coef = offsets.pose_coefficients_m
-    per_pose = offsets_at(
-        torch.from_numpy(data["q"]),
-        torch.from_numpy(offsets.offsets_m),
-        None if coef is None else torch.from_numpy(coef),
-    )
-    return offset_joints(
+    return apply_offsets(
         torch.from_numpy(data["model"]),
         torch.from_numpy(data["rotations"]),
-        per_pose,
-        torch.from_numpy(data["scale"]),
+        torch.from_numpy(data["q"]),
+        offsets,
+        torch.from_numpy(data["stature"]),
     ).numpy()
 
 
@@ -131,10 +125,10 @@ def load_tracked(results: Path, recordings: Path, reference: BodyShape) -> dict[
 
     Returns:
         ``model``, ``truth`` (N, J, 3), ``rotations`` (N, S, 3, 3), ``scale`` (N,) (body
-        stature over ``reference``'s), ``q`` (N, 34), ``recording`` (N,) index into
-        ``names``, ``names``.
+        stature over ``reference``'s), ``stature`` (N,) metres, ``q`` (N, 34), ``recording``
+        (N,) index into ``names``, ``names``.
     """
-    model, truth, rots, scale, which, names, poses_q = [], [], [], [], [], [], []
+    model, truth, rots, scale, which, names, poses_q, statures = [], [], [], [], [], [], [], []
     for folder in sorted(p for p in results.iterdir() if p.is_dir()):
         poses = _poses_file(folder)
         gt_file = recordings / folder.name / "groundtruth.npz"
@@ -156,6 +150,7 @@ def load_tracked(results: Path, recordings: Path, reference: BodyShape) -> dict[
         poses_q.append(q.numpy())
         ratio = float(body.stature()) / float(reference.stature())
         scale.append(np.full(len(rows), ratio))
+        statures.append(np.full(len(rows), float(body.stature())))
         which.append(np.full(len(rows), len(names)))
         names.append(folder.name)
     if not names:
@@ -167,6 +162,7 @@ def load_tracked(results: Path, recordings: Path, reference: BodyShape) -> dict[
         "truth": np.concatenate(truth),
         "rotations": np.concatenate(rots),
         "scale": np.concatenate(scale),
+        "stature": np.concatenate(statures),
         "q": np.concatenate(poses_q),
         "recording": np.concatenate(which),
         "names": np.asarray(names),

@@ -29,9 +29,9 @@ import torch
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.joint_offsets import (
     JointOffsets,
+    JointOffsetsError,
+    apply_offsets,
     load_joint_offsets,
-    offset_joints,
-    offsets_at,
 )
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
 from depthmocap.shared.resources import CONFIGS_DIR
@@ -54,14 +54,7 @@ def joints_with_offsets(q: np.ndarray, body: BodyShape, offsets: JointOffsets | 
     joints = named_joint_positions(kin)
     if offsets is None:
         return joints.numpy()
-    coef = offsets.pose_coefficients_m
-    per_pose = offsets_at(
-        pose,
-        torch.from_numpy(offsets.offsets_m),
-        None if coef is None else torch.from_numpy(coef),
-    )
-    scale = body.stature() / offsets.reference_stature_m
-    return offset_joints(joints, kin.rotations, per_pose, scale).numpy()
+    return apply_offsets(joints, kin.rotations, pose, offsets, body.stature()).numpy()
 
 
 def reapply_result(
@@ -78,11 +71,13 @@ def reapply_result(
     Returns:
         the number of frames moved.
     Raises:
-        ReapplyError: a frame whose recorded joints no candidate body reproduces.
+        ReapplyError: a frame whose recorded joints no candidate body reproduces, or a
+            malformed line before the last (an unfinished last line, from an interrupted run,
+            is dropped as the evaluation drops it).
     """
     from depthmocap.shared.poses_format import JOINT_NAMES
 
-    lines = [json.loads(x) for x in (result / "poses.jsonl").read_text().splitlines() if x]
+    lines = _read_lines(result / "poses.jsonl")
     posed = [i for i, r in enumerate(lines) if r.get("q") is not None and r.get("joints")]
     if posed:
         q = np.array([lines[i]["q"] for i in posed], dtype=np.float64)
@@ -93,7 +88,7 @@ def reapply_result(
         err = np.stack(
             [np.abs(joints_with_offsets(q, b, old) - recorded).max(axis=(1, 2)) for b in bodies]
         )  # (candidates, F); NaN rows (unwritten joints) never match
-        which = np.nanargmin(np.where(np.isfinite(err), err, np.inf), axis=0)
+        which = np.argmin(np.where(np.isfinite(err), err, np.inf), axis=0)
         best = err[which, np.arange(len(posed))]
         bad = ~(best < MATCH_M)
         if bad.any():
@@ -119,6 +114,19 @@ def reapply_result(
     return len(posed)
 
 
+def _read_lines(path: Path) -> list[dict]:
+    raw = [x for x in path.read_text().splitlines() if x.strip()]
+    lines = []
+    for k, text in enumerate(raw):
+        try:
+            lines.append(json.loads(text))
+        except json.JSONDecodeError as err:
+            if k == len(raw) - 1:
+                break  # the unfinished last line of an interrupted run
+            raise ReapplyError(f"{path}: line {k + 1} is not JSON ({err})") from None
+    return lines
+
+
 def _offsets(path: str) -> JointOffsets | None:
     return None if path == "none" else load_joint_offsets(path)
 
@@ -135,7 +143,11 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if not args.results.is_dir():
         p.error(f"--results {args.results}: no such folder")
-    old, new = _offsets(args.old_offsets), _offsets(args.offsets)
+    try:
+        old, new = _offsets(args.old_offsets), _offsets(args.offsets)
+    except JointOffsetsError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     # The body runtime-track tracks without a body file (runtime.estimator_setup's).
     population = BodyShape.load(CONFIGS_DIR / "body_template.json")
     runs = sorted(d for d in args.results.iterdir() if d.is_dir())
@@ -145,14 +157,14 @@ def main(argv: list[str] | None = None) -> int:
         inner = run / "result" if (run / "result" / "poses.jsonl").is_file() else run
         if not (inner / "poses.jsonl").is_file():
             continue
-        bodies = [population]
-        if (inner / "body.json").is_file():
-            bodies.insert(0, BodyShape.load(inner / "body.json"))
         target = args.out / run.name / inner.relative_to(run)
         try:
+            bodies = [population]
+            if (inner / "body.json").is_file():
+                bodies.insert(0, BodyShape.load(inner / "body.json"))
             moved += reapply_result(inner, target, bodies, old, new)
-        except ReapplyError as err:
-            print(f"error: {err}", file=sys.stderr)
+        except (ReapplyError, ValueError, OSError) as err:  # body loader: ValueError
+            print(f"error: {run.name}: {err}", file=sys.stderr)
             return 2
     print(f"{len(runs)} runs, {moved} posed frames moved to {args.offsets} -> {args.out}")
     return 0

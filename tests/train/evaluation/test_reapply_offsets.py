@@ -90,3 +90,25 @@ def test_the_population_body_is_the_runtimes():
     from depthmocap.shared.resources import CONFIGS_DIR
 
     assert POPULATION_BODY == CONFIGS_DIR / "body_template.json"  # reapply_offsets reads it there
+
+
+def test_bad_input_is_a_clear_error_and_a_torn_last_line_is_dropped(tmp_path, capsys):
+    old = JointOffsets(np.full((J, 3), 0.01), 1.78)
+    save_joint_offsets(tmp_path / "old.json", old)
+    run, *_ = _run(tmp_path, old)
+    args = ["--results", str(tmp_path / "runs"), "--old-offsets", str(tmp_path / "old.json")]
+    (tmp_path / "bad.json").write_text("{not json")
+    assert main([*args, "--offsets", str(tmp_path / "bad.json"), "--out", str(tmp_path / "o")]) == 2
+    assert "not a readable joint-offsets file" in capsys.readouterr().err
+    lines = (run / "poses.jsonl").read_text()
+    (run / "poses.jsonl").write_text(lines + '{"frame": 5, "stat')  # an interrupted run
+    assert main([*args, "--offsets", "none", "--out", str(tmp_path / "o")]) == 0
+    moved = (tmp_path / "o" / "take" / "result" / "poses.jsonl").read_text().splitlines()
+    assert len(moved) == 5
+    (run / "poses.jsonl").write_text("garbage\n" + lines)
+    assert main([*args, "--offsets", "none", "--out", str(tmp_path / "o")]) == 2
+    assert "line 1 is not JSON" in capsys.readouterr().err
+    (run / "poses.jsonl").write_text(lines)
+    (run / "body.json").write_text("{}")
+    assert main([*args, "--offsets", "none", "--out", str(tmp_path / "o")]) == 2
+    assert "take" in capsys.readouterr().err
