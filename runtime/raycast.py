@@ -32,6 +32,7 @@ follows q's device and dtype.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -258,6 +259,51 @@ def surface_local_points(
     return ((points - origin)[:, None, :] @ rot)[:, 0] + centre
 
 
+@functools.cache
+def _zbuffer_kernel():
+    """:mod:`runtime.raycast_kernel` (numba's compiled z-buffer), or None without numba."""
+    try:
+        from depthmocap.runtime import raycast_kernel
+    except ImportError:
+        return None
+    return raycast_kernel
+
+
+def _zbuffer_torch(
+    rot: torch.Tensor, origin: torch.Tensor, geom: SegmentGeometry, intr: Intrinsics, box: bool
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Depth (B, H, W) (0: background) and primitive (B, H, W) int64 (-1: background): every
+    candidate (pixel, primitive) pair cast, the nearest hit kept by two scatters."""
+    B, H, W = origin.shape[0], intr.height, intr.width
+    dtype, device = origin.dtype, origin.device
+    if box:
+        ends = capsule_ends(rot, origin, geom.basis[:, 2], geom.span, geom.scale)
+        first, count = segment_row_spans(*ends, intr, segment_boxes(*ends, intr))
+    else:
+        first = torch.zeros(geom.segment.shape[0], H, dtype=torch.long, device=device)
+        count = torch.full_like(first, W)
+    pix, pseg, col, row = span_pairs(first, count, W)  # pseg: primitive of each pair
+    rays = torch.stack(
+        [
+            (col.to(dtype) - intr.cx) / intr.fx,
+            (row.to(dtype) - intr.cy) / intr.fy,
+            torch.ones(col.shape, dtype=dtype, device=device),
+        ],
+        -1,
+    )
+    t = _cast(rays, pseg, rot, origin, geom)  # (B, P)
+    inf = torch.full((B, H * W), float("inf"), dtype=dtype, device=device)
+    zbuf = inf.scatter_reduce(1, pix.expand(B, -1), t, "amin")
+    # Winner per pixel: the pair whose depth equals the z-buffer (ties: any of them).
+    won = (t == zbuf.index_select(1, pix)) & torch.isfinite(t)
+    prim = torch.full((B, H * W), -1, dtype=torch.long, device=device)
+    flat_prim = torch.where(won, pseg.expand(B, -1), torch.full_like(t, -1, dtype=torch.long))
+    prim = prim.scatter_reduce(1, pix.expand(B, -1), flat_prim, "amax")
+    depth = torch.where(prim >= 0, zbuf, torch.zeros_like(zbuf)).reshape(B, H, W)
+    prim = prim.reshape(B, H, W)
+    return depth, prim
+
+
 def render_body(
     q: torch.Tensor,
     body: BodyShape,
@@ -289,31 +335,13 @@ def render_body(
     geom = segment_geometry(body, q) if geom is None else geom
     rot, origin = geom.frames(kin)
     B, H, W = q.shape[0], intr.height, intr.width
-    if box:
-        ends = capsule_ends(rot, origin, geom.basis[:, 2], geom.span, geom.scale)
-        first, count = segment_row_spans(*ends, intr, segment_boxes(*ends, intr))
+    kernel = _zbuffer_kernel() if box and q.device.type == "cpu" else None
+    if kernel is not None:
+        depth, prim = kernel.zbuffer_cpu(
+            rot, origin, geom.basis, geom.scale, geom.span, intr, _NEAR
+        )
     else:
-        first = torch.zeros(geom.segment.shape[0], H, dtype=torch.long, device=q.device)
-        count = torch.full_like(first, W)
-    pix, pseg, col, row = span_pairs(first, count, W)  # pseg: primitive of each pair
-    rays = torch.stack(
-        [
-            (col.to(q.dtype) - intr.cx) / intr.fx,
-            (row.to(q.dtype) - intr.cy) / intr.fy,
-            torch.ones(col.shape, dtype=q.dtype, device=q.device),
-        ],
-        -1,
-    )
-    t = _cast(rays, pseg, rot, origin, geom)  # (B, P)
-    inf = torch.full((B, H * W), float("inf"), dtype=q.dtype, device=q.device)
-    zbuf = inf.scatter_reduce(1, pix.expand(B, -1), t, "amin")
-    # Winner per pixel: the pair whose depth equals the z-buffer (ties: any of them).
-    won = (t == zbuf.index_select(1, pix)) & torch.isfinite(t)
-    prim = torch.full((B, H * W), -1, dtype=torch.long, device=q.device)
-    flat_prim = torch.where(won, pseg.expand(B, -1), torch.full_like(t, -1, dtype=torch.long))
-    prim = prim.scatter_reduce(1, pix.expand(B, -1), flat_prim, "amax")
-    depth = torch.where(prim >= 0, zbuf, torch.zeros_like(zbuf)).reshape(B, H, W)
-    prim = prim.reshape(B, H, W)
+        depth, prim = _zbuffer_torch(rot, origin, geom, intr, box)
     seg_of = geom.segment.index_select(0, prim.clamp_min(0).reshape(-1)).reshape(prim.shape)
     segment = torch.where(prim >= 0, seg_of, prim)
     lean = BodyRender(depth, segment >= 0, segment, None, None, kin, prim, geom, rot, origin)
