@@ -315,10 +315,16 @@ def pose_update(q: torch.Tensor, dq: torch.Tensor) -> torch.Tensor:
     return torch.cat([q[:, :3] + dq[:, :3], root, q[:, 6:] + dq[:, 6:]], 1)
 
 
+@functools.cache
+def _limits(dtype: torch.dtype, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    lim = torch.as_tensor(sk.DOF_LIMITS, dtype=dtype, device=device)
+    return lim[:, 0].contiguous(), lim[:, 1].contiguous()
+
+
 def clamp_to_limits(q: torch.Tensor) -> torch.Tensor:
     """Joint angles clamped into their limits; root untouched. (B, 34) -> (B, 34)."""
-    lim = _const(sk.DOF_LIMITS, q)
-    return torch.maximum(torch.minimum(q, lim[:, 1]), lim[:, 0])
+    lower, upper = _limits(q.dtype, q.device)
+    return torch.maximum(torch.minimum(q, upper), lower)
 
 
 def rest_pose(

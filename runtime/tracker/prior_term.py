@@ -9,7 +9,12 @@ from __future__ import annotations
 
 import torch
 from depthmocap.shared.kinematics import clamp_to_limits
-from depthmocap.shared.so3 import matrix_to_rotvec, rotvec_to_matrix
+from depthmocap.shared.so3 import (
+    quaternion_conjugate,
+    quaternion_multiply,
+    quaternion_to_rotvec,
+    rotvec_to_quaternion,
+)
 
 __all__ = ["predict_pose", "prior_residual", "prior_system"]
 
@@ -27,9 +32,10 @@ def predict_pose(
     if q_prev2 is None or velocity_gain == 0.0:
         return q_prev.clone()
     pred = q_prev + velocity_gain * (q_prev - q_prev2)
-    r1, r2 = rotvec_to_matrix(q_prev[:, 3:6]), rotvec_to_matrix(q_prev2[:, 3:6])
-    step = matrix_to_rotvec(r1 @ r2.transpose(-1, -2)) * velocity_gain
-    pred[:, 3:6] = matrix_to_rotvec(rotvec_to_matrix(step) @ r1)
+    r1, r2 = rotvec_to_quaternion(q_prev[:, 3:6]), rotvec_to_quaternion(q_prev2[:, 3:6])
+    step = quaternion_to_rotvec(quaternion_multiply(r1, quaternion_conjugate(r2)))
+    step = rotvec_to_quaternion(step * velocity_gain)
+    pred[:, 3:6] = quaternion_to_rotvec(quaternion_multiply(step, r1))
     return clamp_to_limits(pred)
 
 
@@ -41,10 +47,12 @@ def prior_residual(q: torch.Tensor, q_pred: torch.Tensor) -> torch.Tensor:
     of the logarithm; prior residuals are per-frame accelerations, i.e. small angles.
     """
     res = q_pred - q
-    rot = rotvec_to_matrix(q_pred[:, 3:6]) @ rotvec_to_matrix(q[:, 3:6]).transpose(-1, -2)
-    res[:, 3:6] = 0.5 * torch.stack(
-        [rot[:, 2, 1] - rot[:, 1, 2], rot[:, 0, 2] - rot[:, 2, 0], rot[:, 1, 0] - rot[:, 0, 1]], -1
+    # R_pred R^T as the quaternion (cos(a/2), sin(a/2) axis): sin(a) axis = 2 w v, whatever
+    # the quaternion's sign.
+    rel = quaternion_multiply(
+        rotvec_to_quaternion(q_pred[:, 3:6]), quaternion_conjugate(rotvec_to_quaternion(q[:, 3:6]))
     )
+    res[:, 3:6] = 2.0 * rel[:, :1] * rel[:, 1:]
     return res
 
 

@@ -43,3 +43,36 @@ def test_gradients_finite_at_zero():
     r = rotvec_to_matrix(torch.zeros(3, dtype=torch.float64)).requires_grad_(True)
     matrix_to_rotvec(r).sum().backward()
     assert torch.isfinite(r.grad).all()
+
+
+def test_quaternion_route_matches_matrices():
+    """rotvec -> quaternion agrees with the matrix exponential, the Hamilton product with the
+    matrix product, and compose_rotvec with the matrix route, small angles included."""
+    from depthmocap.shared.so3 import (
+        compose_rotvec,
+        matrix_to_quaternion,
+        quaternion_conjugate,
+        quaternion_multiply,
+        rotvec_to_quaternion,
+    )
+
+    g = torch.Generator().manual_seed(1)
+    a = torch.randn(100, 3, generator=g, dtype=torch.float64)
+    b = torch.randn(100, 3, generator=g, dtype=torch.float64)
+    a[:5] *= 1e-6  # the small-angle series
+    b[5:10] = 0.0
+    qa, qb = rotvec_to_quaternion(a), rotvec_to_quaternion(b)
+    # Same rotation up to the quaternion's sign.
+    ref = matrix_to_quaternion(rotvec_to_matrix(a))
+    assert torch.allclose(qa * torch.sign(qa[:, :1] * ref[:, :1] + 1e-30), ref, atol=1e-12)
+    prod = matrix_to_quaternion(rotvec_to_matrix(a) @ rotvec_to_matrix(b))
+    got = quaternion_multiply(qa, qb)
+    got = torch.where(got[:, :1] < 0, -got, got)
+    assert torch.allclose(got, prod, atol=1e-12)
+    identity = quaternion_multiply(qa, quaternion_conjugate(qa))
+    assert torch.allclose(identity, torch.tensor([1.0, 0, 0, 0], dtype=torch.float64), atol=1e-12)
+    composed = compose_rotvec(a, b)
+    assert torch.allclose(
+        rotvec_to_matrix(composed), rotvec_to_matrix(a) @ rotvec_to_matrix(b), atol=1e-12
+    )
+    assert (composed.norm(dim=-1) <= math.pi + 1e-12).all()

@@ -54,3 +54,15 @@ class TestPriorSystem:
         dq = solve_step(torch.diag_embed(w2), rhs, q1, 1e-6)
         moved = pose_update(q1, dq)
         assert float(prior_residual(moved, pred).abs().max()) < 1e-4
+
+    def test_root_residual_is_the_vee_of_the_relative_rotation(self, make_pose):
+        """The root's residual is sin(angle) axis of R_pred R^T: the vee of its antisymmetric
+        part, whichever sign the quaternions take."""
+        q1, q2 = _two_poses(make_pose)
+        rel = rotvec_to_matrix(q2[:, 3:6]) @ rotvec_to_matrix(q1[:, 3:6]).transpose(-1, -2)
+        vee = 0.5 * torch.stack(
+            [rel[:, 2, 1] - rel[:, 1, 2], rel[:, 0, 2] - rel[:, 2, 0], rel[:, 1, 0] - rel[:, 0, 1]],
+            -1,
+        )
+        assert torch.allclose(prior_residual(q1, q2)[:, 3:6], vee, atol=1e-12)
+        assert float(vee.norm()) > 0.02  # a real turn, not the identity
