@@ -15,6 +15,7 @@ columns are those of the left SO(3) increment (:func:`shared.kinematics.pose_upd
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import torch
@@ -27,6 +28,7 @@ from .regions import batch_slots
 __all__ = [
     "Rows",
     "cat_rows",
+    "lever_table",
     "rows_jacobian",
     "normal_equations",
     "solve_step",
@@ -65,21 +67,48 @@ def cat_rows(rows: list[Rows]) -> Rows:
     return Rows(*(torch.cat([getattr(r, f) for r in rows]) for f in Rows.__dataclass_fields__))
 
 
-def rows_jacobian(kin: Kinematics, rows: Rows) -> torch.Tensor:
-    """Jacobian rows g^T dp/dq: (N, 34)."""
+def lever_table(kin: Kinematics) -> torch.Tensor:
+    """(B, 6, 34) per pose: a row's Jacobian entries are its lever ``(p x g, g)`` (6,) times
+    this table, whose columns are ``(0, e_i)`` for the root translations and ``(a, o x a)``
+    for the rotational DoFs (axis a through o), before the chain mask."""
     B = kin.origins.shape[0]
     axes = kin.dof_axes[:, 3:]  # (B, 31, 3)
     moments = torch.linalg.cross(kin.dof_origins[:, 3:], axes, dim=-1)
-    table = torch.cat([axes, moments], -1).reshape(B * 31, 6)
+    rot = torch.cat([axes, moments], -1).transpose(1, 2)  # (B, 6, 31)
+    eye = torch.eye(3, dtype=axes.dtype, device=axes.device)
+    trans = torch.cat([torch.zeros_like(eye), eye], 0).expand(B, 6, 3)
+    return torch.cat([trans, rot], 2)
+
+
+def _levers(rows: Rows) -> torch.Tensor:
     g = rows.direction
-    lever = torch.cat([torch.linalg.cross(rows.points, g, dim=-1), g], -1)  # (N, 6)
-    if B == 1:
-        rot = lever @ table.T
-    else:  # each row against its own pose's table only: N x 31, not N x B 31
-        table = table.reshape(B, 31, 6).index_select(0, rows.batch)  # (N, 31, 6)
-        rot = (table @ lever[:, :, None])[..., 0]
-    affects = torch.as_tensor(sk.DOF_AFFECTS_SEGMENT, dtype=g.dtype, device=g.device)
-    return torch.cat([g, rot], 1) * affects.index_select(0, rows.segment)
+    return torch.cat([torch.linalg.cross(rows.points, g, dim=-1), g], -1)  # (N, 6)
+
+
+@functools.cache
+def _affects(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """(15, 34) 1 where DoF d moves segment k (its chain from the root), else 0."""
+    return torch.as_tensor(sk.DOF_AFFECTS_SEGMENT, dtype=dtype, device=device)
+
+
+@functools.cache
+def _chain_masks(device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    """(K, 34) float64 :func:`_affects` and (34, K, 34) its per-segment products
+    ``a_k[i] a_k[j]``: which Hessian entries a row on segment k reaches."""
+    affects = _affects(torch.float64, device)
+    return affects, affects.T[:, :, None] * affects[None]
+
+
+def rows_jacobian(kin: Kinematics, rows: Rows) -> torch.Tensor:
+    """Jacobian rows g^T dp/dq: (N, 34)."""
+    g = rows.direction
+    table = lever_table(kin)
+    lever = _levers(rows)
+    if table.shape[0] == 1:
+        jac = lever @ table[0]
+    else:  # each row against its own pose's table only
+        jac = (lever[:, None, :] @ table.index_select(0, rows.batch))[:, 0]
+    return jac * _affects(g.dtype, g.device)[rows.segment]
 
 
 def normal_equations(
@@ -89,13 +118,43 @@ def normal_equations(
 
     ``columns`` (N, 34), if given, multiplies the Jacobian rows: a term measured between two
     segments drops the DoFs that move both alike (:mod:`runtime.tracker.collision_term`).
+
+    A row's Jacobian is its lever ``l = (p x g, g)`` times its pose's :func:`lever_table`
+    ``T`` masked to its segment's chain (``T_k``), so the sums need only each (pose,
+    segment)'s 6 x 6 moments ``sum w^2 l l^T`` and ``sum w^2 r l``: ``H = sum_k T_k^T M_k
+    T_k``. N rows cost N outer products of 6 instead of N x 34 Jacobian entries; the moments
+    are summed in float64.
     """
-    jac = rows_jacobian(kin, rows) * rows.weight[:, None]
     if columns is not None:
-        jac = jac * columns
+        return _normal_equations_with_columns(kin, rows, batch_size, columns)
+    K, B = sk.NUM_SEGMENTS, batch_size
+    w = rows.weight.double()
+    lever = _levers(rows).double() * w[:, None]  # (N, 6)
+    ext = torch.cat([lever, (rows.residual.double() * w)[:, None]], 1)  # (N, 7)
+    group = rows.batch * K + rows.segment
+    stats = lever.new_zeros(B * K, 6, 7).index_add_(0, group, lever[:, :, None] * ext[:, None])
+    table = lever_table(kin).double()  # (B, 6, 34)
+    D = table.shape[-1]
+    # T^T M_k T for every segment k in two batched products, then each masked to the DoFs
+    # that move segment k (a_k a_k^T) and summed over k.
+    mt = stats[..., :6].reshape(B, K * 6, 6) @ table  # (B, K 6, D): M_k T
+    tmt = table.transpose(1, 2) @ mt.reshape(B, K, 6, D).transpose(1, 2).reshape(B, 6, K * D)
+    affects, mask = _chain_masks(lever.device)
+    hess = (tmt.reshape(B, D, K, D) * mask).sum(2)
+    tm = table.transpose(1, 2) @ stats[..., 6].reshape(B, K, 6).transpose(1, 2)  # (B, D, K)
+    grad = (tm * affects.T).sum(2)
+    return hess, grad
+
+
+def _normal_equations_with_columns(
+    kin: Kinematics, rows: Rows, batch_size: int, columns: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`normal_equations` with per-row column masks: the Jacobian rows themselves."""
+    jac = rows_jacobian(kin, rows) * (rows.weight[:, None] * columns)
     res = rows.residual * rows.weight
     if batch_size == 1:
         jt = jac.T[None]
+        res = res[None]
     else:  # rows grouped by pose, zero-padded: (B, K, 34), not a (B, 34, N) mask product
         slot, real = batch_slots(rows.batch, batch_size)
         jac = jac[slot] * real[..., None]

@@ -45,6 +45,41 @@ class TestRowsJacobian:
         assert torch.allclose(analytic, numeric, atol=1e-9)
 
 
+class TestNormalEquations:
+    @pytest.mark.parametrize("batch", [1, 3])
+    def test_match_the_explicit_jacobian(self, batch):
+        """The per-segment moment sums give J^T W^2 J and J^T W^2 r of the explicit rows,
+        each pose from its own rows only; with per-row column masks too."""
+        body = BodyShape.default(torch.float64)
+        g = torch.Generator().manual_seed(2)
+        q = torch.zeros(batch, 34, dtype=torch.float64)
+        q[:, 2] = 2.5
+        q[:, 6:] = 0.3 * torch.randn(batch, 28, generator=g, dtype=torch.float64)
+        kin = forward_kinematics(q, body)
+        n = 300
+        rows = gauss_newton.Rows(
+            torch.randint(0, batch, (n,), generator=g),
+            torch.randn(n, 3, generator=g, dtype=torch.float64) + torch.tensor([0, 0, 2.5]),
+            torch.randint(0, 15, (n,), generator=g),
+            torch.randn(n, 3, generator=g, dtype=torch.float64),
+            torch.randn(n, generator=g, dtype=torch.float64),
+            torch.rand(n, generator=g, dtype=torch.float64),
+        )
+        jac = gauss_newton.rows_jacobian(kin, rows) * rows.weight[:, None]
+        res = rows.residual * rows.weight
+        columns = (torch.rand(n, 34, generator=g) > 0.3).double()
+        hess, grad = gauss_newton.normal_equations(kin, rows, batch)
+        hess_c, grad_c = gauss_newton.normal_equations(kin, rows, batch, columns)
+        for b in range(batch):
+            mine = rows.batch == b
+            j, r = jac[mine], res[mine]
+            torch.testing.assert_close(hess[b], j.T @ j, atol=1e-9, rtol=1e-9)
+            torch.testing.assert_close(grad[b], j.T @ r, atol=1e-9, rtol=1e-9)
+            jc = j * columns[mine]
+            torch.testing.assert_close(hess_c[b], jc.T @ jc, atol=1e-9, rtol=1e-9)
+            torch.testing.assert_close(grad_c[b], jc.T @ r, atol=1e-9, rtol=1e-9)
+
+
 class TestSolveStep:
     def test_golden(self, make_pose):
         """The limits' active set keeps joints inside: a hyper-extending elbow stays put."""
