@@ -7,9 +7,9 @@ search where numba is missing or the points are on a GPU.
 Why: the torch search builds each pose's whole (queries x candidates) table of squared
 distances, masks it by the depth gate and takes its minimum, five passes over some million
 entries per Gauss-Newton iteration (a sixth of a tracked frame's time on the CPU). Here each
-pose's candidates are sorted by depth, and each query walks outwards from its own depth until
-the depth difference alone is beyond the gate or the best match so far: a few percent of the
-candidates instead of all of them.
+pose's candidates are sorted by height, and each query walks outwards from its own height until
+the height difference alone is beyond the best match so far: a few percent of the candidates
+instead of all of them.
 
 The distance is the plain sum of squared differences in float64; the torch table expands it
 as ``|q|^2 + |c|^2 - 2 q.c`` in the points' dtype. Both find the same candidate except where
@@ -28,29 +28,31 @@ __all__ = ["closest_points_cpu"]
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def _closest(q, q_group, c, c_index, start, end, gate, max_d2, index, found):  # pragma: no cover
-    """Each query's closest candidate of its group; a group's candidates are sorted by depth,
-    so the scan walks outwards from the query's depth and stops where the depth difference
-    alone exceeds the gate or the best distance so far."""
+    """Each query's closest candidate of its group within the depth gate. A group's
+    candidates are sorted by height (y, the axis a standing person spreads most along), so
+    the scan walks outwards from the query's height and stops where the height difference
+    alone exceeds the best distance so far."""
     for i in range(q.shape[0]):
         g = q_group[i]
         best = np.inf
         best_j = -1
         qx, qy, qz = q[i, 0], q[i, 1], q[i, 2]
         lo, hi = start[g], end[g]
-        mid = lo + np.searchsorted(c[lo:hi, 2], qz)
+        mid = lo + np.searchsorted(c[lo:hi, 1], qy)
         for step in (1, -1):
             j = mid if step == 1 else mid - 1
             while lo <= j < hi:
-                dz = qz - c[j, 2]
-                if abs(dz) > gate or dz * dz > best:
-                    break
-                dx = qx - c[j, 0]
                 dy = qy - c[j, 1]
-                d2 = dx * dx + dy * dy + dz * dz
-                # Ties go to the candidate first in the caller's order, as in torch's search.
-                if d2 < best or (d2 == best and c_index[j] < c_index[best_j]):
-                    best = d2
-                    best_j = j
+                if dy * dy > best:
+                    break
+                dz = qz - c[j, 2]
+                if abs(dz) <= gate:
+                    dx = qx - c[j, 0]
+                    d2 = dx * dx + dy * dy + dz * dz
+                    # Ties go to the candidate first in the caller's order, as in torch's.
+                    if d2 < best or (d2 == best and c_index[j] < c_index[best_j]):
+                        best = d2
+                        best_j = j
                 j += step
         if best_j >= 0:
             index[i] = c_index[best_j]
@@ -72,7 +74,12 @@ def closest_points_cpu(
     qb = query_batch.numpy().astype(np.int64, copy=False)
     cb = cand_batch.numpy().astype(np.int64, copy=False)
     groups = int(max(qb.max(initial=-1), cb.max(initial=-1))) + 1
-    order = np.lexsort((c[:, 2], cb))  # by pose, then by depth within each pose
+    # By pose, then by height within each pose (one argsort of a combined key; candidates the
+    # caller already sorted, as observed_candidates does, skip it).
+    y = c[:, 1]
+    key = cb * (y.max(initial=0.0) - y.min(initial=0.0) + 1.0) + y
+    presorted = bool(np.all(key[1:] >= key[:-1]))
+    order = np.arange(len(c)) if presorted else np.argsort(key)
     bounds = np.searchsorted(cb[order], np.arange(groups + 1))
     index = np.full(len(q), -1, dtype=np.int64)
     found = np.zeros(len(q), dtype=np.bool_)
