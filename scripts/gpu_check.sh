@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The GPU check, one command for a session that has a CUDA machine (issue 38): the CUDA
 # tests, then `runtime-bench --device cuda` on the whole hybrid, with a CPU baseline on the
-# same machine. Logs go to $OUT (default out/gpu_check). Expects python3 with torch (CUDA),
-# numpy, pyyaml and opencv already installed, as on the lent machines; installs this checkout
+# same machine (the same recordings, 2 threads). Logs go to $OUT (default out/gpu_check).
+# Expects python3 with torch (CUDA), numpy, pyyaml, opencv and numba already installed, as
+# on the lent machines; installs this checkout
 # without dependencies or network.
 set -u
 OUT=${OUT:-out/gpu_check}
@@ -19,7 +20,7 @@ echo "== runtime-bench --device cuda =="
 timeout "${BENCH_S:-240}" python3 -m depthmocap.bench --device cuda "${extra[@]}" 2>&1 \
   | tee "$OUT/bench_cuda.log"
 echo "== runtime-bench --device cpu (baseline, same machine, 2 threads) =="
-timeout "${BASE_S:-90}" python3 -m depthmocap.bench --device cpu --threads 2 2>&1 \
+timeout "${BASE_S:-150}" python3 -m depthmocap.bench --device cpu --threads 2 "${extra[@]}" 2>&1 \
   | tee "$OUT/bench_cpu.log"
 echo "== CUDA tests =="
 timeout "${TEST_S:-150}" python3 -m pytest -q -p no:cacheprovider -k cuda tests 2>&1 \
