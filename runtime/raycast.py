@@ -260,8 +260,9 @@ def surface_local_points(
 
 
 @functools.cache
-def _zbuffer_kernel():
-    """:mod:`runtime.raycast_kernel` (numba's compiled z-buffer), or None without numba."""
+def _compiled_kernel():
+    """:mod:`runtime.raycast_kernel` (numba's compiled z-buffer and capsule distances), or
+    None without numba."""
     try:
         from depthmocap.runtime import raycast_kernel
     except ImportError:
@@ -335,7 +336,7 @@ def render_body(
     geom = segment_geometry(body, q) if geom is None else geom
     rot, origin = geom.frames(kin)
     B, H, W = q.shape[0], intr.height, intr.width
-    kernel = _zbuffer_kernel() if box and q.device.type == "cpu" else None
+    kernel = _compiled_kernel() if box and q.device.type == "cpu" else None
     if kernel is not None:
         depth, prim = kernel.zbuffer_cpu(
             rot, origin, geom.basis, geom.scale, geom.span, intr, _NEAR
@@ -387,6 +388,12 @@ def segment_distances(points: torch.Tensor, kin: Kinematics, body: BodyShape) ->
     geom = segment_geometry(body, points)
     B = points.shape[0]
     rot, origin = geom.frames(kin)
+    kernel = _compiled_kernel() if points.device.type == "cpu" else None
+    inputs = (points, rot, origin, geom.span, geom.scale)
+    if kernel is not None and not (
+        torch.is_grad_enabled() and any(t.requires_grad for t in inputs)
+    ):  # the compiled loop has no autograd
+        return kernel.segment_distances_cpu(points, rot, origin, geom.basis, geom.span, geom.scale)
     rel = points[:, :, None, :] - origin[:, None]  # (B, N, P, 3)
     local = (rel[..., None, :] @ rot[:, None])[..., 0, :]
     coords = torch.einsum("kij,bnkj->bnki", geom.basis, local)

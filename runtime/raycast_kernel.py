@@ -1,4 +1,5 @@
-"""The body ray-caster's z-buffer as one compiled loop (numba): the CPU path.
+"""The body ray-caster's z-buffer, and points' distances to the capsules, as compiled loops
+(numba): the CPU path.
 
 Importing this module imports numba (an optional dependency, the ``runtime`` extra);
 :func:`runtime.raycast.render_body` imports it lazily and keeps its torch ray-caster for GPUs,
@@ -11,6 +12,10 @@ CPU, once per Gauss-Newton iteration. Here each primitive's conservative pixel b
 z-buffer. The intersection is the same closed form (Inigo Quilez's capsule in the
 primitive's scaled frame) in float64; a pixel where two primitives meet at the same depth to
 rounding may go to the other one, as in the torch code's float32.
+
+:func:`segment_distances_cpu` is :func:`runtime.raycast.segment_distances` (every point to
+every capsule, for the surface-error signal and the arm search's label checks), one pass over
+(pose, point, capsule) in registers instead of some twenty (B, N, P, 3) temporaries.
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ import numba
 import numpy as np
 import torch
 
-__all__ = ["zbuffer_cpu"]
+__all__ = ["zbuffer_cpu", "segment_distances_cpu"]
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
@@ -135,3 +140,67 @@ def zbuffer_cpu(
         float(near), depth, prim,
     )  # fmt: skip
     return torch.from_numpy(depth).to(rot.dtype), torch.from_numpy(prim)
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def _segment_distances(points, rot, origin, basis, span, scale, out):  # pragma: no cover
+    B, N, P = out.shape[0], out.shape[1], out.shape[2]
+    for b in range(B):
+        for p in range(P):
+            # camera -> capsule coordinates: c = basis R^T (x - o), one 3 x 3 matrix per capsule
+            m00 = basis[p, 0, 0] * rot[b, p, 0, 0] + basis[p, 0, 1] * rot[b, p, 0, 1]
+            m00 += basis[p, 0, 2] * rot[b, p, 0, 2]
+            m01 = basis[p, 0, 0] * rot[b, p, 1, 0] + basis[p, 0, 1] * rot[b, p, 1, 1]
+            m01 += basis[p, 0, 2] * rot[b, p, 1, 2]
+            m02 = basis[p, 0, 0] * rot[b, p, 2, 0] + basis[p, 0, 1] * rot[b, p, 2, 1]
+            m02 += basis[p, 0, 2] * rot[b, p, 2, 2]
+            m10 = basis[p, 1, 0] * rot[b, p, 0, 0] + basis[p, 1, 1] * rot[b, p, 0, 1]
+            m10 += basis[p, 1, 2] * rot[b, p, 0, 2]
+            m11 = basis[p, 1, 0] * rot[b, p, 1, 0] + basis[p, 1, 1] * rot[b, p, 1, 1]
+            m11 += basis[p, 1, 2] * rot[b, p, 1, 2]
+            m12 = basis[p, 1, 0] * rot[b, p, 2, 0] + basis[p, 1, 1] * rot[b, p, 2, 1]
+            m12 += basis[p, 1, 2] * rot[b, p, 2, 2]
+            m20 = basis[p, 2, 0] * rot[b, p, 0, 0] + basis[p, 2, 1] * rot[b, p, 0, 1]
+            m20 += basis[p, 2, 2] * rot[b, p, 0, 2]
+            m21 = basis[p, 2, 0] * rot[b, p, 1, 0] + basis[p, 2, 1] * rot[b, p, 1, 1]
+            m21 += basis[p, 2, 2] * rot[b, p, 1, 2]
+            m22 = basis[p, 2, 0] * rot[b, p, 2, 0] + basis[p, 2, 1] * rot[b, p, 2, 1]
+            m22 += basis[p, 2, 2] * rot[b, p, 2, 2]
+            ox, oy, oz = origin[b, p, 0], origin[b, p, 1], origin[b, p, 2]
+            lo, hi = span[b, p, 0], span[b, p, 1]
+            s0, s1, s2 = scale[b, p, 0], scale[b, p, 1], scale[b, p, 2]
+            for n in range(N):
+                rx, ry, rz = points[b, n, 0] - ox, points[b, n, 1] - oy, points[b, n, 2] - oz
+                c0 = m00 * rx + m01 * ry + m02 * rz
+                c1 = m10 * rx + m11 * ry + m12 * rz
+                c2 = m20 * rx + m21 * ry + m22 * rz
+                axial = c2 - min(max(c2, lo), hi)
+                length = math.sqrt(c0 * c0 + c1 * c1 + axial * axial)
+                rho = math.sqrt((c0 / s0) ** 2 + (c1 / s1) ** 2 + (axial / s2) ** 2)
+                out[b, n, p] = length * (1.0 - 1.0 / max(rho, 1e-9))
+
+
+def segment_distances_cpu(
+    points: torch.Tensor,
+    rot: torch.Tensor,
+    origin: torch.Tensor,
+    basis: torch.Tensor,
+    span: torch.Tensor,
+    scale: torch.Tensor,
+) -> torch.Tensor:
+    """Signed distance (B, N, P) in points' dtype, > 0 outside, of the points (B, N, 3) to the
+    P capsules with frames ``rot`` (B, P, 3, 3), ``origin`` (B, P, 3) and the
+    :class:`runtime.raycast.SegmentGeometry` fields ``basis`` (P, 3, 3), ``span`` (..., P, 2),
+    ``scale`` (..., P, 3): :func:`runtime.raycast.capsule_signed_distance`'s measure."""
+    B, N = points.shape[:2]
+    P = origin.shape[1]
+
+    def f64(t: torch.Tensor, *shape: int) -> np.ndarray:
+        return np.ascontiguousarray(t.detach().to(torch.float64).expand(*shape).numpy())
+
+    out = np.empty((B, N, P))
+    _segment_distances(
+        f64(points, B, N, 3), f64(rot, B, P, 3, 3), f64(origin, B, P, 3), f64(basis, P, 3, 3),
+        f64(span, B, P, 2), f64(scale, B, P, 3), out,
+    )  # fmt: skip
+    return torch.from_numpy(out).to(points.dtype)
