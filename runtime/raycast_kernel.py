@@ -29,6 +29,19 @@ import torch
 __all__ = ["zbuffer_cpu", "segment_distances_cpu"]
 
 
+def _f64(t: torch.Tensor, *shape: int) -> np.ndarray:
+    """``t`` expanded to ``shape`` as a contiguous float64 array (the kernels' input)."""
+    return np.ascontiguousarray(t.detach().to(torch.float64).expand(*shape).numpy())
+
+
+@numba.njit(inline="always")
+def _capsule_frame(basis, rot, m):  # pragma: no cover - compiled
+    """m = basis @ rot^T: camera directions to a capsule's (section, section, axis) frame."""
+    for i in range(3):
+        for j in range(3):
+            m[i, j] = basis[i, 0] * rot[j, 0] + basis[i, 1] * rot[j, 1] + basis[i, 2] * rot[j, 2]
+
+
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def _zbuffer(
     rot, origin, basis, scale, span, fx, fy, cx, cy, near, depth, prim
@@ -44,13 +57,10 @@ def _zbuffer(
                 prim[b, v, u] = -1
         for p in range(P):
             # World -> scaled local: m = diag(1 / scale) basis R^T, o = -m origin.
+            _capsule_frame(basis[p], rot[b, p], m)
             for i in range(3):
                 for j in range(3):
-                    m[i, j] = (
-                        basis[p, i, 0] * rot[b, p, j, 0]
-                        + basis[p, i, 1] * rot[b, p, j, 1]
-                        + basis[p, i, 2] * rot[b, p, j, 2]
-                    ) / scale[b, p, i]
+                    m[i, j] /= scale[b, p, i]
             for i in range(3):  # the camera centre in the scaled frame: -m origin
                 cen[i] = -(m[i, 0] * origin[b, p, 0] + m[i, 1] * origin[b, p, 1])
                 cen[i] -= m[i, 2] * origin[b, p, 2]
@@ -129,14 +139,11 @@ def zbuffer_cpu(
     ``span`` (..., P, 2), on the image of ``intr``; hits nearer than ``near`` are ignored."""
     B, P = origin.shape[:2]
 
-    def f64(t: torch.Tensor, *shape: int) -> np.ndarray:
-        return np.ascontiguousarray(t.detach().to(torch.float64).expand(*shape).numpy())
-
     depth = np.empty((B, intr.height, intr.width))
     prim = np.empty((B, intr.height, intr.width), dtype=np.int64)
     _zbuffer(
-        f64(rot, B, P, 3, 3), f64(origin, B, P, 3), f64(basis, P, 3, 3), f64(scale, B, P, 3),
-        f64(span, B, P, 2), float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy),
+        _f64(rot, B, P, 3, 3), _f64(origin, B, P, 3), _f64(basis, P, 3, 3), _f64(scale, B, P, 3),
+        _f64(span, B, P, 2), float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy),
         float(near), depth, prim,
     )  # fmt: skip
     return torch.from_numpy(depth).to(rot.dtype), torch.from_numpy(prim)
@@ -145,27 +152,13 @@ def zbuffer_cpu(
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def _segment_distances(points, rot, origin, basis, span, scale, out):  # pragma: no cover
     B, N, P = out.shape[0], out.shape[1], out.shape[2]
+    m = np.empty((3, 3))
     for b in range(B):
         for p in range(P):
-            # camera -> capsule coordinates: c = basis R^T (x - o), one 3 x 3 matrix per capsule
-            m00 = basis[p, 0, 0] * rot[b, p, 0, 0] + basis[p, 0, 1] * rot[b, p, 0, 1]
-            m00 += basis[p, 0, 2] * rot[b, p, 0, 2]
-            m01 = basis[p, 0, 0] * rot[b, p, 1, 0] + basis[p, 0, 1] * rot[b, p, 1, 1]
-            m01 += basis[p, 0, 2] * rot[b, p, 1, 2]
-            m02 = basis[p, 0, 0] * rot[b, p, 2, 0] + basis[p, 0, 1] * rot[b, p, 2, 1]
-            m02 += basis[p, 0, 2] * rot[b, p, 2, 2]
-            m10 = basis[p, 1, 0] * rot[b, p, 0, 0] + basis[p, 1, 1] * rot[b, p, 0, 1]
-            m10 += basis[p, 1, 2] * rot[b, p, 0, 2]
-            m11 = basis[p, 1, 0] * rot[b, p, 1, 0] + basis[p, 1, 1] * rot[b, p, 1, 1]
-            m11 += basis[p, 1, 2] * rot[b, p, 1, 2]
-            m12 = basis[p, 1, 0] * rot[b, p, 2, 0] + basis[p, 1, 1] * rot[b, p, 2, 1]
-            m12 += basis[p, 1, 2] * rot[b, p, 2, 2]
-            m20 = basis[p, 2, 0] * rot[b, p, 0, 0] + basis[p, 2, 1] * rot[b, p, 0, 1]
-            m20 += basis[p, 2, 2] * rot[b, p, 0, 2]
-            m21 = basis[p, 2, 0] * rot[b, p, 1, 0] + basis[p, 2, 1] * rot[b, p, 1, 1]
-            m21 += basis[p, 2, 2] * rot[b, p, 1, 2]
-            m22 = basis[p, 2, 0] * rot[b, p, 2, 0] + basis[p, 2, 1] * rot[b, p, 2, 1]
-            m22 += basis[p, 2, 2] * rot[b, p, 2, 2]
+            _capsule_frame(basis[p], rot[b, p], m)  # c = basis R^T (x - o)
+            m00, m01, m02 = m[0, 0], m[0, 1], m[0, 2]
+            m10, m11, m12 = m[1, 0], m[1, 1], m[1, 2]
+            m20, m21, m22 = m[2, 0], m[2, 1], m[2, 2]
             ox, oy, oz = origin[b, p, 0], origin[b, p, 1], origin[b, p, 2]
             lo, hi = span[b, p, 0], span[b, p, 1]
             s0, s1, s2 = scale[b, p, 0], scale[b, p, 1], scale[b, p, 2]
@@ -195,12 +188,9 @@ def segment_distances_cpu(
     B, N = points.shape[:2]
     P = origin.shape[1]
 
-    def f64(t: torch.Tensor, *shape: int) -> np.ndarray:
-        return np.ascontiguousarray(t.detach().to(torch.float64).expand(*shape).numpy())
-
     out = np.empty((B, N, P))
     _segment_distances(
-        f64(points, B, N, 3), f64(rot, B, P, 3, 3), f64(origin, B, P, 3), f64(basis, P, 3, 3),
-        f64(span, B, P, 2), f64(scale, B, P, 3), out,
+        _f64(points, B, N, 3), _f64(rot, B, P, 3, 3), _f64(origin, B, P, 3), _f64(basis, P, 3, 3),
+        _f64(span, B, P, 2), _f64(scale, B, P, 3), out,
     )  # fmt: skip
     return torch.from_numpy(out).to(points.dtype)

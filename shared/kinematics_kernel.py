@@ -48,19 +48,19 @@ def _matmul(a, b, out):  # pragma: no cover - compiled
 
 
 @numba.njit(inline="always")
-def _rodrigues(axis, angle, out):  # pragma: no cover - compiled
-    """Rotation about the unit ``axis`` by ``angle``: I + sin K + (1 - cos) K^2."""
-    s, c1 = math.sin(angle), 1.0 - math.cos(angle)
-    x, y, z = axis[0], axis[1], axis[2]
-    out[0, 0] = 1.0 + c1 * (-y * y - z * z)
-    out[0, 1] = -s * z + c1 * x * y
-    out[0, 2] = s * y + c1 * x * z
-    out[1, 0] = s * z + c1 * x * y
-    out[1, 1] = 1.0 + c1 * (-x * x - z * z)
-    out[1, 2] = -s * x + c1 * y * z
-    out[2, 0] = -s * y + c1 * x * z
-    out[2, 1] = s * x + c1 * y * z
-    out[2, 2] = 1.0 + c1 * (-x * x - y * y)
+def _rotation(x, y, z, a, b, out):  # pragma: no cover - compiled
+    """I + a K + b K^2 for K the cross-product matrix of (x, y, z): Rodrigues' formula with
+    a = sin, b = 1 - cos for a unit axis, or the exponential map's coefficients for a rotation
+    vector."""
+    out[0, 0] = 1.0 + b * (-y * y - z * z)
+    out[0, 1] = -a * z + b * x * y
+    out[0, 2] = a * y + b * x * z
+    out[1, 0] = a * z + b * x * y
+    out[1, 1] = 1.0 + b * (-x * x - z * z)
+    out[1, 2] = -a * x + b * y * z
+    out[2, 0] = -a * y + b * x * z
+    out[2, 1] = a * x + b * y * z
+    out[2, 2] = 1.0 + b * (-x * x - y * y)
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
@@ -102,15 +102,7 @@ def _fk(q, lengths, hip, clavicle, tilt, parent, order, seg_axis, attach, latera
         else:
             th = math.sqrt(th2)
             ca, cb = math.sin(th) / th, (1.0 - math.cos(th)) / th2
-        rot[0, 0] = 1.0 + cb * (-wy * wy - wz * wz)
-        rot[0, 1] = -ca * wz + cb * wx * wy
-        rot[0, 2] = ca * wy + cb * wx * wz
-        rot[1, 0] = ca * wz + cb * wx * wy
-        rot[1, 1] = 1.0 + cb * (-wx * wx - wz * wz)
-        rot[1, 2] = -ca * wx + cb * wy * wz
-        rot[2, 0] = -ca * wy + cb * wx * wz
-        rot[2, 1] = ca * wx + cb * wy * wz
-        rot[2, 2] = 1.0 + cb * (-wx * wx - wy * wy)
+        _rotation(wx, wy, wz, ca, cb, rot)
         for n in range(K):
             k = order[n]
             p = parent[k]
@@ -137,7 +129,9 @@ def _fk(q, lengths, hip, clavicle, tilt, parent, order, seg_axis, attach, latera
                                 for j in range(3):
                                     prefix[k, s + 1, i, j] = local[i, j]
                         continue
-                    _rodrigues(dof_axis[d], angles[d], step)
+                    ax = dof_axis[d]
+                    angle = angles[d]
+                    _rotation(ax[0], ax[1], ax[2], math.sin(angle), 1.0 - math.cos(angle), step)
                     _matmul(local, step, tmp)
                     for i in range(3):
                         for j in range(3):
