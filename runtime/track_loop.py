@@ -38,7 +38,8 @@ class TrackStats:
         latency_ms: per written frame, milliseconds from its arrival (read from the source)
             to its pose being written.
         frame_ms: per written frame, milliseconds of its own processing (mask, estimate,
-            outputs), without the time it waited.
+            outputs), without the time it waited; live, the mask and the forest's labels are
+            made on the reader thread, beside the previous frame's estimate, and not counted.
     """
 
     frames: int = 0
@@ -152,22 +153,31 @@ def track(
     """
     stats = stats if stats is not None else TrackStats()
     segment = PersonSegmenter(seg_cfg or SegmentationConfig())
+    prefetch = getattr(estimator, "prefetch", None)
+
+    def prepare(frame) -> Frame:
+        prepared = Frame.from_depth(frame, device=device, segment=segment)
+        if prefetch is not None and prepared.has_person:
+            prefetch(prepared)
+        return prepared
+
     t_begin = time.perf_counter()
-    reader = (
-        LatestFrameReader(stream, pace=not stream.is_live) if (realtime or stream.is_live) else None
-    )
+    live = realtime or stream.is_live
+    # Live, each frame is prepared (mask, forest labels) on the reader thread while the
+    # estimator works on the one before: that work then costs no frame time of its own.
+    reader = LatestFrameReader(stream, pace=not stream.is_live, prepare=prepare) if live else None
     frames = iter(reader) if reader is not None else timed_frames(stream)
     body = getattr(estimator, "body", None)
     try:
-        for frame, arrival in frames:
+        for item, arrival in frames:
             t_frame = time.perf_counter()
-            prepared = Frame.from_depth(frame, device=device, segment=segment)
+            prepared = item if reader is not None else prepare(item)
             est = estimate_frame(estimator, prepared)
             if getattr(estimator, "body", None) is not body:  # e.g. the person's size found
                 body = estimator.body
                 writer.update_body(body)
             writer.write_frame(
-                frame.index, frame.time, est.status, est.joints, est.q, est.errors,
+                prepared.index, prepared.time, est.status, est.joints, est.q, est.errors,
                 observed=est.observed,
             )  # fmt: skip
             t_written = time.perf_counter()
@@ -175,7 +185,7 @@ def track(
             stats.frame_ms.append((t_written - t_frame) * 1e3)
             stats.frames += 1
             stats.status_counts[est.status] = stats.status_counts.get(est.status, 0) + 1
-            stats.last_index = frame.index
+            stats.last_index = prepared.index
             if view is not None:
                 view.log_frame(prepared, est)
             if overlay_dir is not None:
@@ -187,10 +197,10 @@ def track(
                 # frame (runtime.export.results), and a new one holds no stale overlays.
                 overlay_dir.mkdir(parents=True, exist_ok=True)
                 cv2.imwrite(
-                    str(overlay_dir / f"{frame.index:06d}.png"), draw_overlay(prepared, est)
+                    str(overlay_dir / f"{prepared.index:06d}.png"), draw_overlay(prepared, est)
                 )
             if progress is not None:
-                progress.update(stats, frame.index)
+                progress.update(stats, prepared.index)
             if stop is not None and stop.is_set():
                 break
             if reader is not None:

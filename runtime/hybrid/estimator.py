@@ -113,6 +113,14 @@ class HybridEstimator:
         if self.arm_search is not None:
             self.arm_search.reset()
 
+    def prefetch(self, frame: Frame) -> None:
+        """Compute what every frame needs before the estimate (the forest's labels, when the
+        tracker's label term reads them), so a caller can do it on another thread while the
+        previous frame is estimated (``runtime-track`` live:
+        :mod:`runtime.streams.latest_frame`)."""
+        if self.tracker.cfg.use_labels:
+            frame.labels(self.label_source)
+
     # ---- the pieces a frame is made of ----
 
     def _tracker_labels(self, frame: Frame) -> torch.Tensor | None:

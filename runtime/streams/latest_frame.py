@@ -9,13 +9,18 @@ as skipped, so the estimator always works on the newest frame and latency stays 
 
 A file source can be paced to its frame rate (``runtime-track --realtime``): the reader thread
 then plays it back like a camera would deliver it.
+
+The reader thread can also prepare each frame (``prepare``: the person mask, the forest's
+labels), so that work overlaps the estimator's on the previous frame: the tracker's small
+torch ops leave the second core mostly idle (issue 38).
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from typing import Any
 
 from .base import DepthFrame, DepthStream
 
@@ -36,16 +41,24 @@ class LatestFrameReader:
         stream: the source; its iteration runs on the reader thread.
         pace: deliver a file source at its frame rate, as a camera would (its first frame at
             once, frame ``k`` at ``time_k - time_0`` seconds after it).
+        prepare: run on the reader thread on every frame read; iterating then yields
+            ``(prepare(frame), arrival)`` (``arrival``: when the frame was read, before its
+            preparation). Its errors reach the consumer like the stream's.
     Attributes:
         skipped: frames replaced by a newer one before the consumer took them.
     Errors the stream raises on the reader thread (a disconnected camera, a corrupt file) are
     raised by the consumer's iteration after the frames read before them.
     """
 
-    def __init__(self, stream: DepthStream, pace: bool = False) -> None:
-        self.stream, self.pace = stream, pace
+    def __init__(
+        self,
+        stream: DepthStream,
+        pace: bool = False,
+        prepare: Callable[[DepthFrame], Any] | None = None,
+    ) -> None:
+        self.stream, self.pace, self.prepare = stream, pace, prepare
         self.skipped = 0
-        self._slot: tuple[DepthFrame, float] | None = None
+        self._slot: tuple[Any, float] | None = None
         self._ended = False
         self._error: BaseException | None = None
         self._stop = threading.Event()
@@ -64,10 +77,12 @@ class LatestFrameReader:
                     due = start[1] + (frame.time - start[0]) - time.perf_counter()
                     if due > 0 and self._stop.wait(due):
                         break
+                arrival = time.perf_counter()
+                item = frame if self.prepare is None else self.prepare(frame)
                 with self._cond:
                     if self._slot is not None:
                         self.skipped += 1
-                    self._slot = (frame, time.perf_counter())
+                    self._slot = (item, arrival)
                     self._cond.notify()
         except BaseException as err:  # handed to the consumer, which reports it
             self._error = err
@@ -76,7 +91,7 @@ class LatestFrameReader:
                 self._ended = True
                 self._cond.notify()
 
-    def __iter__(self) -> Iterator[tuple[DepthFrame, float]]:
+    def __iter__(self) -> Iterator[tuple[Any, float]]:
         if self._thread is None:
             self._thread = threading.Thread(target=self._read, name="depth-reader", daemon=True)
             self._thread.start()

@@ -525,3 +525,37 @@ def test_realtime_newest_frame_wins_and_timing_is_reported():
     assert len(stats.latency_ms) == stats.frames == len(stats.frame_ms)
     assert timing["latency_ms"]["p95"] >= timing["frame_time_ms"]["p50"] >= 30.0 * 0.9
     assert set(timing["latency_ms"]) == {"mean", "p50", "p95", "max"}
+
+
+def test_live_frames_are_prepared_beside_the_estimate():
+    """Live (here a paced file), each frame's mask and the estimator's prefetch (the forest's
+    labels) run on the reader thread, not the estimator's; frames without a person are not
+    prefetched; the results are those of the plain loop."""
+    import threading
+
+    from depthmocap.runtime.track_loop import track
+
+    class Writer:
+        def __init__(self):
+            self.rows = []
+
+        def write_frame(self, index, time, status, *a, **k):
+            self.rows.append((index, status))
+
+    class Prefetching(FakeEstimator):
+        def __init__(self):
+            super().__init__()
+            self.prefetched: list[tuple[int, str]] = []
+
+        def prefetch(self, frame: Frame) -> None:
+            self.prefetched.append((frame.index, threading.current_thread().name))
+
+    frames = [person_frame(), np.zeros_like(person_frame()), person_frame()]
+    live_w, live = Writer(), Prefetching()
+    track(ListStream(frames, fps=10.0), live, live_w, realtime=True)
+    plain_w, plain = Writer(), Prefetching()
+    track(ListStream(frames, fps=50.0), plain, plain_w)
+    assert live_w.rows == plain_w.rows == [(0, "tracked"), (1, "lost"), (2, "tracked")]
+    assert live.prefetched == [(0, "depth-reader"), (2, "depth-reader")]
+    assert [i for i, _ in plain.prefetched] == [0, 2]
+    assert {name for _, name in plain.prefetched} == {threading.current_thread().name}

@@ -89,3 +89,35 @@ def test_timed_frames_are_every_frame_in_order():
     got = [(f.index, a) for f, a in timed_frames(CountingStream(5))]
     assert [i for i, _ in got] == list(range(5))
     assert all(a1 <= a2 for (_, a1), (_, a2) in zip(got, got[1:]))
+
+
+def test_frames_are_prepared_on_the_reader_thread():
+    """``prepare`` runs on the reader thread, on every frame read (skipped ones too); the
+    consumer gets its results with the frame's arrival before the preparation."""
+    prepared_on, read_at = [], {}
+
+    def prepare(frame):
+        prepared_on.append(threading.current_thread().name)
+        read_at[frame.index] = time.perf_counter()
+        time.sleep(0.002)  # the mask and the forest take a while
+        return ("prepared", frame.index)
+
+    reader = LatestFrameReader(CountingStream(8, fps=200.0), pace=True, prepare=prepare)
+    got = [(item, arrival) for item, arrival in reader]
+    assert [item for item, _ in got] == [("prepared", i) for i in range(8)]
+    assert set(prepared_on) == {"depth-reader"} and len(prepared_on) == 8
+    assert all(arrival <= read_at[index] for (_, index), arrival in got)
+
+
+def test_preparation_errors_reach_the_consumer():
+    def prepare(frame):
+        if frame.index == 2:
+            raise ValueError("frame 2 is corrupt")
+        return frame.index
+
+    got = []
+    with pytest.raises(ValueError, match="corrupt"):
+        for index, _ in LatestFrameReader(CountingStream(5), prepare=prepare):
+            got.append(index)
+            time.sleep(0.005)
+    assert got and got[-1] < 2
