@@ -85,7 +85,7 @@ def _zbuffer(
                         uh = max(uh, (cen[0] + s) / zz)
                         vl = min(vl, (cen[1] + s) / zz)
                         vh = max(vh, (cen[1] + s) / zz)
-            if ul > uh:
+            if not (ul <= uh and vl <= vh):  # behind the camera, or not a number (NaN pose)
                 continue
             u0 = int(max(math.floor(max(min(ul * fx + cx, 1e6), -1e6)), 0.0))
             u1 = int(min(math.ceil(max(min(uh * fx + cx, 1e6), -1e6)) + 1.0, W))

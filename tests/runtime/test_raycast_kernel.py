@@ -98,3 +98,19 @@ def test_segment_distances_match_torch(monkeypatch):
     grad_points = points.clone().requires_grad_(True)
     raycast.surface_distance(grad_points, kin, body).sum().backward()
     assert grad_points.grad is not None and grad_points.grad.abs().sum() > 0
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_poses_that_are_not_numbers_render_as_the_torch_caster_does(bad, monkeypatch):
+    """A NaN or infinite angle or position: no crash and no stray writes; what is rendered is
+    what the torch caster renders (the good parts of the body, nothing for a NaN root)."""
+    q = _random_poses(3, seed=11)
+    q[0, 12] = bad  # one joint angle
+    q[1, 2] = bad  # the root's depth
+    body = BodyShape.default()
+    fast = raycast.render_body(q, body, SMALL, details=False)
+    monkeypatch.setattr(raycast, "_compiled_kernel", lambda: None)
+    slow = raycast.render_body(q, body, SMALL, details=False)
+    assert torch.isfinite(fast.depth).all()
+    assert ((fast.segment >= 0) != (slow.segment >= 0)).float().mean() < 1e-3
+    torch.testing.assert_close(fast.depth[2], slow.depth[2], atol=1e-3, rtol=0)
