@@ -9,6 +9,7 @@ belong to none of the depth regions.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import torch
@@ -21,6 +22,7 @@ __all__ = [
     "Regions",
     "classify",
     "sample_pixels",
+    "sample_pixels_torch",
     "batch_slots",
     "pixel_rays",
     "rendered_points",
@@ -85,6 +87,16 @@ def sample_pixels(
         into their dtype last, so one pose's rows are those of a Python-float ratio to the
         bit.
     """
+    kernel = _compiled_kernel() if mask.device.type == "cpu" else None
+    if kernel is not None:
+        return kernel.sample_pixels_cpu(mask, max_count)
+    return sample_pixels_torch(mask, max_count)
+
+
+def sample_pixels_torch(
+    mask: torch.Tensor, max_count: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`sample_pixels` in torch ops (GPUs, and CPUs without numba)."""
     idx = mask.nonzero()
     B = mask.shape[0]
     total = torch.bincount(idx[:, 0], minlength=B)
@@ -97,6 +109,17 @@ def sample_pixels(
     else:
         ratio = torch.ones(idx.shape[0], dtype=torch.float64, device=mask.device)
     return idx, total, ratio
+
+
+@functools.cache
+def _compiled_kernel():
+    """:mod:`runtime.tracker.sampling_kernel` (numba's compiled sampler), or None without
+    numba."""
+    try:
+        from . import sampling_kernel
+    except ImportError:  # numba is optional (the runtime extra)
+        return None
+    return sampling_kernel
 
 
 def batch_slots(batch: torch.Tensor, size: int) -> tuple[torch.Tensor, torch.Tensor]:
