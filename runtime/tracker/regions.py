@@ -152,6 +152,11 @@ def rendered_points(
     render: BodyRender, idx: torch.Tensor, intr: Intrinsics
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Camera-frame rendered surface points (N, 3) and their segments (N,) at pixels ``idx``."""
+    depth = render.depth
+    if depth.device.type == "cpu" and not depth.requires_grad:
+        kernel = _compiled_kernel()
+        if kernel is not None:
+            return kernel.rendered_points_cpu(depth, render.segment, idx, intr)
     b, v, u = idx.unbind(1)
     depth = render.depth[b, v, u]
     return depth[:, None] * pixel_rays(idx, intr, depth.dtype), render.segment[b, v, u]

@@ -1,5 +1,6 @@
-"""The tracker's pixel sampling (:func:`runtime.tracker.regions.sample_pixels`) as a compiled
-loop (numba): the CPU path.
+"""The tracker's pixel sampling (:func:`runtime.tracker.regions.sample_pixels`) and the
+rendered points at the samples (:func:`~runtime.tracker.regions.rendered_points`) as compiled
+loops (numba): the CPU path.
 
 Importing this module imports numba (an optional dependency, the ``runtime`` extra);
 :func:`~runtime.tracker.regions.sample_pixels` imports it lazily and keeps its torch code for
@@ -9,7 +10,9 @@ Why: the samplers of every term call it some 6-7 times per Gauss-Newton iteratio
 a few thousand pixels; in torch each call is about ten small ops (nonzero, bincount, the hash,
 its modulo, a gather, a filter), ~0.2 ms of dispatch for microseconds of work. Here one pass
 counts each mask's pixels and a second writes the kept ones: the same rows, counts and
-ratios, bit for bit.
+ratios, bit for bit. The rendered points (a gather and the pixel rays, some 4 calls per
+iteration) are one loop in the depth's own dtype, the same operations in the same order as
+the torch code's: the same points, bit for bit.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ import numba
 import numpy as np
 import torch
 
-__all__ = ["sample_pixels_cpu"]
+__all__ = ["sample_pixels_cpu", "rendered_points_cpu"]
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
@@ -78,3 +81,33 @@ def sample_pixels_cpu(
         ratio = np.ones(rows, np.float64)
     idx = torch.from_numpy(np.ascontiguousarray(idx))
     return idx, torch.from_numpy(total), torch.from_numpy(ratio)
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def _rendered_points(depth, segment, idx, uv, centre, focal, points, seg):  # pragma: no cover
+    """Points (N, 3) and segments (N,) at pixels ``idx`` (b, v, u); ``uv`` (N, 2) the pixels'
+    (u, v) and ``centre``, ``focal`` (2,) the intrinsics, all in the depth's dtype."""
+    for i in range(idx.shape[0]):
+        b, v, u = idx[i, 0], idx[i, 1], idx[i, 2]
+        d = depth[b, v, u]
+        points[i, 0] = d * ((uv[i, 0] - centre[0]) / focal[0])
+        points[i, 1] = d * ((uv[i, 1] - centre[1]) / focal[1])
+        points[i, 2] = d
+        seg[i] = segment[b, v, u]
+
+
+def rendered_points_cpu(
+    depth: torch.Tensor, segment: torch.Tensor, idx: torch.Tensor, intr
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`runtime.tracker.regions.rendered_points` for CPU tensors without autograd:
+    ``depth`` (B, H, W) float, ``segment`` (B, H, W) int, ``idx`` (N, 3) int64."""
+    d = depth.numpy()
+    ix = np.ascontiguousarray(idx.numpy())
+    uv = ix[:, :0:-1].astype(d.dtype)  # (u, v) as the torch code casts them
+    centre = np.array([intr.cx, intr.cy], d.dtype)
+    focal = np.array([intr.fx, intr.fy], d.dtype)
+    points = np.empty((ix.shape[0], 3), d.dtype)
+    segments = segment.numpy()
+    seg = np.empty(ix.shape[0], segments.dtype)
+    _rendered_points(d, segments, ix, uv, centre, focal, points, seg)
+    return torch.from_numpy(points), torch.from_numpy(seg)

@@ -73,3 +73,26 @@ class TestCompiledSampler:
         # The public function on a CPU mask gives the same (it takes the compiled path).
         for g, w in zip(sample_pixels(masks, cap), sample_pixels_torch(masks, cap), strict=True):
             assert torch.equal(g, w)
+
+    @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+    def test_rendered_points_the_same_as_torch(self, dtype):
+        pytest.importorskip("numba")
+        from types import SimpleNamespace
+
+        from depthmocap.runtime.tracker.regions import pixel_rays, rendered_points
+        from depthmocap.shared.camera import Intrinsics
+
+        gen = torch.Generator().manual_seed(2)
+        intr = Intrinsics.kinect_v1(160)
+        depth = (1.0 + 3.0 * torch.rand(2, intr.height, intr.width, generator=gen)).to(dtype)
+        segment = torch.randint(-1, 16, depth.shape, generator=gen)
+        idx, _, _ = sample_pixels(torch.rand(depth.shape, generator=gen) < 0.3, 500)
+        points, seg = rendered_points(SimpleNamespace(depth=depth, segment=segment), idx, intr)
+        b, v, u = idx.unbind(1)
+        want = depth[b, v, u][:, None] * pixel_rays(idx, intr, dtype)
+        assert points.dtype == dtype and torch.equal(points, want)
+        assert torch.equal(seg, segment[b, v, u])
+        # With autograd the torch code runs (the compiled loop has no gradient).
+        grad_depth = depth.clone().requires_grad_(True)
+        p, _ = rendered_points(SimpleNamespace(depth=grad_depth, segment=segment), idx, intr)
+        assert p.requires_grad and torch.equal(p.detach(), want)
