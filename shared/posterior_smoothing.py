@@ -16,9 +16,21 @@ report the labels the runtime uses.
 
 from __future__ import annotations
 
+import functools
+
 import torch
 
-__all__ = ["check_smoothing", "smooth_posteriors"]
+__all__ = ["check_smoothing", "smooth_posteriors", "smooth_posteriors_torch"]
+
+
+@functools.cache
+def _compiled_kernel():
+    """:mod:`shared.smoothing_kernel` (numba's compiled smoothing), or None without numba."""
+    try:
+        from depthmocap.shared import smoothing_kernel
+    except ImportError:  # numba is optional (the runtime extra)
+        return None
+    return smoothing_kernel
 
 
 def check_smoothing(window: int, depth_gate_m: float) -> None:
@@ -57,6 +69,21 @@ def smooth_posteriors(
     check_smoothing(window, depth_gate_m)
     if window == 1 or pix.shape[0] == 0:
         return probs
+    kernel = _compiled_kernel() if probs.device.type == "cpu" and not probs.requires_grad else None
+    if kernel is not None:
+        return kernel.smooth_posteriors_cpu(pix, probs, depth_m, window, depth_gate_m, stride)
+    return smooth_posteriors_torch(pix, probs, depth_m, window, depth_gate_m, stride)
+
+
+def smooth_posteriors_torch(
+    pix: torch.Tensor,
+    probs: torch.Tensor,
+    depth_m: torch.Tensor,
+    window: int,
+    depth_gate_m: float,
+    stride: int = 1,
+) -> torch.Tensor:
+    """:func:`smooth_posteriors` in torch ops (GPUs, CPUs without numba); checked inputs."""
     b, h, w = depth_m.shape
     n = pix.shape[0]
     frame, row, col = pix.unbind(1)

@@ -82,3 +82,29 @@ def test_the_window_steps_over_a_stride():
     torch.testing.assert_close(smooth_posteriors(pix, probs, depth, 3, 0.05), probs)
     strided = smooth_posteriors(pix, probs, depth, 3, 0.05, stride=2)
     torch.testing.assert_close(strided[centre], torch.tensor([8 / 9, 1 / 9]))
+
+
+@pytest.mark.parametrize("stride", [1, 2])
+def test_the_compiled_smoothing_matches_torch(stride):
+    """The numba loop (the CPU path) against the torch code: the same posteriors to float32
+    rounding on a random batch of frames with holes, depth steps at the gate and image
+    borders, and the same arg-max labels."""
+    pytest.importorskip("numba")
+    from depthmocap.shared.posterior_smoothing import smooth_posteriors_torch
+    from depthmocap.shared.smoothing_kernel import smooth_posteriors_cpu
+
+    gen = torch.Generator().manual_seed(stride)
+    depth = 2.0 + 0.1 * torch.randint(0, 3, (2, 30, 40), generator=gen).float()
+    valid = torch.rand(2, 30, 40, generator=gen) < 0.7
+    if stride > 1:
+        lattice = torch.zeros_like(valid)
+        lattice[:, ::stride, ::stride] = True
+        valid &= lattice
+    pix = valid.nonzero()
+    probs = torch.softmax(3 * torch.randn(pix.shape[0], 20, generator=gen), 1)
+    for window, gate in ((3, 0.05), (5, 0.15), (5, 10.0)):
+        got = smooth_posteriors_cpu(pix, probs, depth, window, gate, stride)
+        want = smooth_posteriors_torch(pix, probs, depth, window, gate, stride)
+        assert got.dtype == want.dtype
+        torch.testing.assert_close(got, want, rtol=1e-6, atol=1e-7)
+        assert torch.equal(got.argmax(1), want.argmax(1))
