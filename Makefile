@@ -4,7 +4,7 @@ PY := .venv/bin/python
 SETUP_STAMP := .venv/.setup-stamp
 export PYTHONUNBUFFERED := 1
 
-.PHONY: setup demo test lint format bench install-check clean synth dev-recordings dev-recordings-all dev-protocol dev-protocol-eval train-forest train-forest-eval \
+.PHONY: setup demo test lint format bench bench-broad install-check clean synth dev-recordings dev-recordings-all dev-protocol dev-protocol-eval train-forest train-forest-eval \
 	synth-calib train-forest-calib
 
 setup: ## create .venv, install system packages (root), torch and the project with all extras
@@ -71,6 +71,9 @@ bench: $(SETUP_STAMP) ## speed figures, then the accuracy table on data/dev (pri
 	$(PY) -m depthmocap.bench $(if $(wildcard data/dev),--recordings data/dev --hybrid-recordings data/dev,)
 	@if [ -d data/dev ]; then $(PY) -m depthmocap.train.evaluation.dev_benchmark --recordings data/dev; \
 	else echo "accuracy table skipped: no data/dev (run make dev-recordings)"; fi
+
+bench-broad: $(SETUP_STAMP) ## the whole hybrid's speed over the broad protocol's 116 recordings (data/dev_broad; ~12 min)
+	$(PY) -m depthmocap.bench --hybrid-frames 0 --hybrid-recordings data/dev_broad
 
 install-check: $(SETUP_STAMP) ## install the checkout into a fresh venv outside it and track the demo from elsewhere
 	$(PY) -m pytest -q tests/test_install.py
