@@ -99,6 +99,17 @@ def _chain_masks(device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
     return affects, affects.T[:, :, None] * affects[None]
 
 
+@functools.cache
+def _compiled_kernel():
+    """:mod:`runtime.tracker.moments_kernel` (numba's compiled moments), or None without
+    numba."""
+    try:
+        from . import moments_kernel
+    except ImportError:  # numba is optional (the runtime extra)
+        return None
+    return moments_kernel
+
+
 def rows_jacobian(kin: Kinematics, rows: Rows) -> torch.Tensor:
     """Jacobian rows g^T dp/dq: (N, 34)."""
     g = rows.direction
@@ -132,7 +143,11 @@ def normal_equations(
     lever = _levers(rows).double() * w[:, None]  # (N, 6)
     ext = torch.cat([lever, (rows.residual.double() * w)[:, None]], 1)  # (N, 7)
     group = rows.batch * K + rows.segment
-    stats = lever.new_zeros(B * K, 6, 7).index_add_(0, group, lever[:, :, None] * ext[:, None])
+    kernel = _compiled_kernel() if lever.device.type == "cpu" and not lever.requires_grad else None
+    if kernel is not None:
+        stats = kernel.moments_cpu(lever, ext, group, B * K)
+    else:
+        stats = lever.new_zeros(B * K, 6, 7).index_add_(0, group, lever[:, :, None] * ext[:, None])
     table = lever_table(kin).double()  # (B, 6, 34)
     D = table.shape[-1]
     # T^T M_k T for every segment k in two batched products, then each masked to the DoFs

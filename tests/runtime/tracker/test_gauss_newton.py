@@ -79,6 +79,36 @@ class TestNormalEquations:
             torch.testing.assert_close(hess_c[b], jc.T @ jc, atol=1e-9, rtol=1e-9)
             torch.testing.assert_close(grad_c[b], jc.T @ r, atol=1e-9, rtol=1e-9)
 
+    def test_compiled_moments_equal_torch(self, monkeypatch):
+        """The numba moments (the CPU path) sum the same products in the same order as
+        torch's ``index_add_``: the normal equations agree bit for bit, batched or not."""
+        pytest.importorskip("numba")
+        from depthmocap.runtime.tracker.moments_kernel import moments_cpu
+
+        g = torch.Generator().manual_seed(3)
+        lever = torch.randn(5000, 6, generator=g, dtype=torch.float64)
+        ext = torch.randn(5000, 7, generator=g, dtype=torch.float64)
+        group = torch.randint(0, 45, (5000,), generator=g)
+        want = lever.new_zeros(45, 6, 7).index_add_(0, group, lever[:, :, None] * ext[:, None])
+        assert torch.equal(moments_cpu(lever, ext, group, 45), want)
+        body = BodyShape.default(torch.float64)
+        q = torch.zeros(3, 34, dtype=torch.float64)
+        q[:, 2] = 2.5
+        q[:, 6:] = 0.3 * torch.randn(3, 28, generator=g, dtype=torch.float64)
+        kin = forward_kinematics(q, body)
+        rows = gauss_newton.Rows(
+            torch.randint(0, 3, (400,), generator=g),
+            torch.randn(400, 3, generator=g, dtype=torch.float64) + torch.tensor([0, 0, 2.5]),
+            torch.randint(0, 15, (400,), generator=g),
+            torch.randn(400, 3, generator=g, dtype=torch.float64),
+            torch.randn(400, generator=g, dtype=torch.float64),
+            torch.rand(400, generator=g, dtype=torch.float64),
+        )
+        compiled = gauss_newton.normal_equations(kin, rows, 3)
+        monkeypatch.setattr(gauss_newton, "_compiled_kernel", lambda: None)
+        for got, want in zip(compiled, gauss_newton.normal_equations(kin, rows, 3), strict=True):
+            assert torch.equal(got, want)
+
 
 class TestSolveStep:
     def test_golden(self, make_pose):
