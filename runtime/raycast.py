@@ -32,7 +32,6 @@ follows q's device and dtype.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,6 +46,7 @@ from depthmocap.runtime.capsule_pixels import (
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.body import FOOT_SEGMENTS, BodyShape, cross_section_axes
 from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.compiled import compiled_module
 from depthmocap.shared.kinematics import Kinematics, forward_kinematics
 from depthmocap.shared.labels import segment_to_part
 
@@ -259,15 +259,10 @@ def surface_local_points(
     return ((points - origin)[:, None, :] @ rot)[:, 0] + centre
 
 
-@functools.cache
 def _compiled_kernel():
     """:mod:`runtime.raycast_kernel` (numba's compiled z-buffer and capsule distances), or
     None without numba."""
-    try:
-        from depthmocap.runtime import raycast_kernel
-    except ImportError:
-        return None
-    return raycast_kernel
+    return compiled_module("depthmocap.runtime.raycast_kernel")
 
 
 def _zbuffer_torch(

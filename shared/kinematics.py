@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from depthmocap.shared.compiled import compiled_module
 
 from . import skeleton as sk
 from .body import BodyShape
@@ -153,14 +154,9 @@ def _upper_arm_pre_rotations(body: BodyShape, q: torch.Tensor) -> torch.Tensor:
     )
 
 
-@functools.cache
 def _compiled_kernel():
     """:mod:`shared.kinematics_kernel` (numba's compiled walk), or None without numba."""
-    try:
-        from . import kinematics_kernel
-    except ImportError:
-        return None
-    return kinematics_kernel
+    return compiled_module("depthmocap.shared.kinematics_kernel")
 
 
 def _needs_grad(q: torch.Tensor, body: BodyShape) -> bool:

@@ -16,21 +16,15 @@ report the labels the runtime uses.
 
 from __future__ import annotations
 
-import functools
-
 import torch
+from depthmocap.shared.compiled import compiled_module
 
 __all__ = ["check_smoothing", "smooth_posteriors", "smooth_posteriors_torch"]
 
 
-@functools.cache
 def _compiled_kernel():
     """:mod:`shared.smoothing_kernel` (numba's compiled smoothing), or None without numba."""
-    try:
-        from depthmocap.shared import smoothing_kernel
-    except ImportError:  # numba is optional (the runtime extra)
-        return None
-    return smoothing_kernel
+    return compiled_module("depthmocap.shared.smoothing_kernel")
 
 
 def check_smoothing(window: int, depth_gate_m: float) -> None:

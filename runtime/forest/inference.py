@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.compiled import compiled_module
 from depthmocap.shared.forest_format import Forest, load_forest, traversal_table
 from depthmocap.shared.forest_walk import traverse, walk_posteriors
 from depthmocap.shared.posterior_smoothing import check_smoothing, smooth_posteriors
@@ -63,11 +64,7 @@ DEFAULT_CALIBRATION_MODEL = DEFAULT_MODEL.with_name("forest_calib.npz")
 
 def compiled_walk():
     """The module :mod:`shared.forest_kernel` (numba's compiled walk), or None without numba."""
-    try:
-        from depthmocap.shared import forest_kernel
-    except ImportError:
-        return None
-    return forest_kernel
+    return compiled_module("depthmocap.shared.forest_kernel")
 
 
 class ForestClassifier:

@@ -26,12 +26,12 @@ millimetres on exact data; edges that far off are aligned by the depth and silho
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import torch
 from depthmocap.runtime.raycast import BodyRender
 from depthmocap.shared import skeleton as sk
+from depthmocap.shared.compiled import compiled_module
 
 from .config import TrackerConfig
 from .gauss_newton import Rows
@@ -103,14 +103,9 @@ def observed_candidates(obs: Observation, max_count: int) -> ObservedCandidates:
     return ObservedCandidates(b, points)
 
 
-@functools.cache
 def _closest_kernel():
     """:mod:`runtime.tracker.closest_kernel` (numba's compiled search), or None without numba."""
-    try:
-        from . import closest_kernel
-    except ImportError:  # numba is optional (the runtime extra)
-        return None
-    return closest_kernel
+    return compiled_module("depthmocap.runtime.tracker.closest_kernel")
 
 
 def closest_points(

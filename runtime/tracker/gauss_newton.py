@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import torch
 from depthmocap.shared import skeleton as sk
+from depthmocap.shared.compiled import compiled_module
 from depthmocap.shared.kinematics import Kinematics, clamp_to_limits, pose_update
 from depthmocap.shared.least_squares import damped, solve, solve_with_fixed
 
@@ -99,15 +100,10 @@ def _chain_masks(device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
     return affects, affects.T[:, :, None] * affects[None]
 
 
-@functools.cache
 def _compiled_kernel():
     """:mod:`runtime.tracker.moments_kernel` (numba's compiled moments), or None without
     numba."""
-    try:
-        from . import moments_kernel
-    except ImportError:  # numba is optional (the runtime extra)
-        return None
-    return moments_kernel
+    return compiled_module("depthmocap.runtime.tracker.moments_kernel")
 
 
 def rows_jacobian(kin: Kinematics, rows: Rows) -> torch.Tensor:

@@ -9,12 +9,12 @@ belong to none of the depth regions.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import torch
 from depthmocap.runtime.raycast import BodyRender
 from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.compiled import compiled_module
 
 from .observation import Observation
 
@@ -111,15 +111,10 @@ def sample_pixels_torch(
     return idx, total, ratio
 
 
-@functools.cache
 def _compiled_kernel():
     """:mod:`runtime.tracker.sampling_kernel` (numba's compiled sampler), or None without
     numba."""
-    try:
-        from . import sampling_kernel
-    except ImportError:  # numba is optional (the runtime extra)
-        return None
-    return sampling_kernel
+    return compiled_module("depthmocap.runtime.tracker.sampling_kernel")
 
 
 def batch_slots(batch: torch.Tensor, size: int) -> tuple[torch.Tensor, torch.Tensor]:

@@ -279,9 +279,13 @@ def test_shipped_forest_numba_equals_torch_on_the_bench_frame():
     assert torch.equal(fast.labels(depth, mask, stride=2), ref.labels(depth, mask, stride=2))
 
 
-def test_without_numba_auto_falls_back_to_torch(forest, test_frames, monkeypatch):
+def test_without_numba_auto_falls_back_to_torch(forest, test_frames, monkeypatch, request):
     import depthmocap.shared as shared
+    from depthmocap.shared.compiled import compiled_module
 
+    # The loaded modules are remembered: forget them now and again after the test.
+    compiled_module.cache_clear()
+    request.addfinalizer(compiled_module.cache_clear)
     monkeypatch.setitem(sys.modules, "numba", None)  # "import numba" raises ImportError
     monkeypatch.delitem(sys.modules, "depthmocap.shared.forest_kernel", raising=False)
     monkeypatch.delattr(shared, "forest_kernel", raising=False)

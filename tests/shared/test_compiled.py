@@ -1,0 +1,25 @@
+"""The compiled loops' loader (shared.compiled): a module when it imports, None when numba is
+missing, and each answer remembered."""
+
+from __future__ import annotations
+
+import sys
+
+import pytest
+from depthmocap.shared.compiled import compiled_module
+
+
+def test_loads_a_kernel_module_and_remembers_it():
+    pytest.importorskip("numba")
+    compiled_module.cache_clear()
+    first = compiled_module("depthmocap.runtime.tracker.moments_kernel")
+    assert first is not None and hasattr(first, "moments_cpu")
+    assert compiled_module("depthmocap.runtime.tracker.moments_kernel") is first
+
+
+def test_none_without_numba(monkeypatch, request):
+    compiled_module.cache_clear()
+    request.addfinalizer(compiled_module.cache_clear)
+    monkeypatch.setitem(sys.modules, "numba", None)  # "import numba" raises ImportError
+    monkeypatch.delitem(sys.modules, "depthmocap.shared.smoothing_kernel", raising=False)
+    assert compiled_module("depthmocap.shared.smoothing_kernel") is None
