@@ -25,10 +25,8 @@ __all__ = ["sample_pixels_cpu", "rendered_points_cpu"]
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
-def _sample(mask, max_count, idx, total, kept):  # pragma: no cover - compiled
-    """Rows (b, v, u) of the kept True pixels of ``mask`` (B, H, W) into ``idx``, row-major;
-    each mask's count of True pixels into ``total`` and of kept ones into ``kept``. Returns
-    the number of rows written."""
+def _count(mask, total):  # pragma: no cover - compiled
+    """Each mask's count of True pixels into ``total``; returns their sum."""
     nb, h, w = mask.shape
     n = 0
     for b in range(nb):
@@ -39,7 +37,15 @@ def _sample(mask, max_count, idx, total, kept):  # pragma: no cover - compiled
                     c += 1
         total[b] = c
         n += c
-    thin = max_count > 0 and n > max_count
+    return n
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def _sample(mask, max_count, thin, total, idx, kept):  # pragma: no cover - compiled
+    """Rows (b, v, u) of the kept True pixels of ``mask`` (B, H, W) into ``idx``, row-major,
+    and each mask's count of kept ones into ``kept``; ``thin``: whether the cap applies.
+    Returns the number of rows written."""
+    nb, h, w = mask.shape
     rows = 0
     for b in range(nb):
         # The same stride and hash as the torch code: ceil(count / cap), at least 1, and a
@@ -68,19 +74,18 @@ def sample_pixels_cpu(
     """:func:`runtime.tracker.regions.sample_pixels` for a CPU ``mask`` (B, H, W) bool: the
     same (N, 3) int64 rows, (B,) int64 counts and (N,) float64 ratios."""
     m = mask.numpy()
-    b = m.shape[0]
-    idx = np.empty((m.size, 3), np.int64)
-    total = np.zeros(b, np.int64)
-    kept = np.zeros(b, np.int64)
-    rows = _sample(m, int(max_count), idx, total, kept)
+    total = np.zeros(m.shape[0], np.int64)
+    kept = np.zeros(m.shape[0], np.int64)
+    n = _count(m, total)
+    thin = max_count > 0 and n > max_count
+    idx = np.empty((n, 3), np.int64)  # the True pixels bound the kept ones
+    rows = _sample(m, int(max_count), thin, total, idx, kept)
     idx = idx[:rows]
-    thin = max_count > 0 and int(total.sum()) > max_count
     if thin:
         ratio = (total.astype(np.float64) / np.maximum(kept, 1).astype(np.float64))[idx[:, 0]]
     else:
         ratio = np.ones(rows, np.float64)
-    idx = torch.from_numpy(np.ascontiguousarray(idx))
-    return idx, torch.from_numpy(total), torch.from_numpy(ratio)
+    return torch.from_numpy(idx), torch.from_numpy(total), torch.from_numpy(ratio)
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
