@@ -46,7 +46,8 @@ def _smooth(pix, probs, depth, radius, stride, gate, index, out):  # pragma: no 
                 if u < 0 or u >= w:
                     continue
                 j = index[f, v, u]
-                if j < 0 or abs(depth[f, v, u] - d0) > gate:
+                # "not <=": a NaN gap is left out, as torch's ``gap <= gate`` leaves it.
+                if j < 0 or not abs(depth[f, v, u] - d0) <= gate:
                     continue
                 count += 1
                 for k in range(c):

@@ -108,3 +108,9 @@ def test_the_compiled_smoothing_matches_torch(stride):
         assert got.dtype == want.dtype
         torch.testing.assert_close(got, want, rtol=1e-6, atol=1e-7)
         assert torch.equal(got.argmax(1), want.argmax(1))
+    # A NaN depth at a classified pixel is out of every gate, its own included, in both.
+    v, u = pix[0, 1:].tolist()
+    depth[pix[0, 0], v, u] = float("nan")
+    got = smooth_posteriors_cpu(pix, probs, depth, 3, 0.05, stride)
+    torch.testing.assert_close(got, smooth_posteriors_torch(pix, probs, depth, 3, 0.05, stride))
+    assert bool((got[0] == 0).all())
