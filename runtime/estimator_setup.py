@@ -76,11 +76,11 @@ def check_model(path: Path, mode: str) -> None:
             f"model file not found: {path} (train one with `make train-forest` or pass --model)"
         )
     try:
-        from depthmocap.shared.forest_format import load_forest
+        from depthmocap.shared.forest_format import load_forest_shared
         from depthmocap.shared.labels import PART_NAMES
     except ImportError:  # the estimator's own loader will check it
         return
-    load_forest(path, expected_classes=PART_NAMES)
+    load_forest_shared(path, expected_classes=PART_NAMES)  # the estimator reuses what it read
 
 
 def load_mode_config(

@@ -55,6 +55,7 @@ __all__ = [
     "traversal_table",
     "save_forest",
     "load_forest",
+    "load_forest_shared",
 ]
 
 FOREST_FORMAT = "depthmocap-forest"
@@ -328,3 +329,38 @@ def load_forest(path: str | Path, expected_classes: list[str] | tuple[str, ...] 
         raise
     except (TypeError, ValueError, AttributeError) as exc:  # fields of the wrong kind
         raise ForestFormatError(f"{path}: malformed forest metadata ({exc})") from None
+
+
+# Forests read by load_forest_shared: (resolved path, size, mtime_ns, classes) -> Forest.
+_SHARED: dict[tuple, Forest] = {}
+_SHARED_MAX = 4
+
+
+def load_forest_shared(
+    path: str | Path, expected_classes: list[str] | tuple[str, ...] | None = None
+) -> Forest:
+    """:func:`load_forest`, read once per file version and shared: the runtime checks the model
+    before it opens a camera and then builds its classifier from it, and every
+    ``depthmocap.Tracker`` does both, so each read (decompressing and hashing ~20 MB, 0.5-0.8 s
+    on a 2-core CPU) would otherwise happen twice per tracker. A file replaced or edited since
+    (another size or modification time) is read and validated again. The shared forest's
+    arrays are read-only; callers that change a forest load their own with :func:`load_forest`.
+    """
+    path = Path(path)
+    try:
+        st = path.stat()
+    except OSError:
+        return load_forest(path, expected_classes)  # its clear error for a missing file
+    key = (
+        str(path.resolve()), st.st_size, st.st_mtime_ns,
+        None if expected_classes is None else tuple(expected_classes),
+    )  # fmt: skip
+    forest = _SHARED.get(key)
+    if forest is None:
+        forest = load_forest(path, expected_classes)
+        for name in _ARRAYS:
+            getattr(forest, name).setflags(write=False)
+        if len(_SHARED) >= _SHARED_MAX:
+            _SHARED.pop(next(iter(_SHARED)))
+        _SHARED[key] = forest
+    return forest

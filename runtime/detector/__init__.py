@@ -70,10 +70,10 @@ def load_forest_labeler(
     """
     if model_path is None:
         raise DetectorError("this mode needs a forest model (--model forest.npz)")
-    from depthmocap.shared.forest_format import load_forest
+    from depthmocap.shared.forest_format import load_forest_shared
     from depthmocap.shared.labels import PART_NAMES
 
-    forest = load_forest(model_path, expected_classes=PART_NAMES)
+    forest = load_forest_shared(model_path, expected_classes=PART_NAMES)
     try:
         from depthmocap.runtime.forest.inference import ForestClassifier
     except ImportError as err:

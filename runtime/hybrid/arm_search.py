@@ -102,10 +102,12 @@ class ArmSearch:
     def __init__(self, cfg: ArmSearchConfig, body: BodyShape) -> None:
         self.cfg, self.body = cfg, body
         self.misplaced_failed_at: dict[str, int] = {}
+        self.failed_at: dict[str, int] = {}
 
     def reset(self) -> None:
         """Forget the cooldowns (a new track)."""
         self.misplaced_failed_at = {}
+        self.failed_at = {}
 
     def wanted(self, badness: float) -> bool:
         """Whether a fit this bad is suspect enough to search."""
@@ -136,7 +138,9 @@ class ArmSearch:
                     found, badness = r, b
             if found is not None:
                 best = found
-            elif suspect.conflicts is not None:
+                continue
+            self.failed_at[suspect.side] = frame.index
+            if suspect.conflicts is not None:
                 self.misplaced_failed_at[suspect.side] = frame.index
         return SearchResult(best, badness, searched)
 
@@ -149,6 +153,9 @@ class ArmSearch:
         misplaced = cfg.misplaced
         points = kin = signed = None
         for limb, side in ((0, "l"), (1, "r")):
+            last = self.failed_at.get(side)
+            if last is not None and frame.index - last <= cfg.cooldown_frames:
+                continue
             shown = float(vis[limb])
             hidden = shown < max(HIDDEN_VISIBILITY, PARTIAL_VISIBILITY)
             if not (hidden or misplaced is not None):

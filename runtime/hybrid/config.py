@@ -171,9 +171,16 @@ class ArmSearchConfig:
     misplaced: MisplacedArmConfig | None = field_doc(
         None, "search arms the model shows on pixels the forest calls something else (None: off)"
     )
+    cooldown_frames: int = field_doc(
+        0,
+        "after a search of an arm found no refit to take, that arm is not searched again for "
+        "this many frames (0: every suspect frame is searched)",
+    )
 
     def __post_init__(self) -> None:
         _check(not math.isnan(self.badness), "arm_search.badness must be a number", self.badness)
+        _check(self.cooldown_frames >= 0, "arm_search.cooldown_frames must be >= 0",
+               self.cooldown_frames)  # fmt: skip
         _check(self.other_arm_margin_m >= 0, "arm_search.other_arm_margin_m must be >= 0",
                self.other_arm_margin_m)  # fmt: skip
         s = self.agreement_slack
@@ -189,7 +196,7 @@ def _shipped_keep_better() -> KeepBetterConfig:
 
 
 def _shipped_arm_search() -> ArmSearchConfig:
-    return ArmSearchConfig(badness=1.9, misplaced=MisplacedArmConfig())
+    return ArmSearchConfig(badness=1.9, misplaced=MisplacedArmConfig(), cooldown_frames=3)
 
 
 def _shipped_tracker() -> TrackerConfig:

@@ -11,6 +11,7 @@ from depthmocap.shared.forest_format import (
     ForestFormatError,
     forest_checksum,
     load_forest,
+    load_forest_shared,
     save_forest,
     traversal_table,
 )
@@ -51,6 +52,39 @@ def test_round_trip(tmp_path):
     assert g.onnx_graph == b"\x08\x01graph"
     assert g.max_depth == 1 and g.num_trees == 2 and g.num_leaves == 3
     assert g.offset_scale(100.0, 25.0) == (2.0, 0.5)
+
+
+def test_shared_load_reads_each_file_version_once(tmp_path):
+    import os
+
+    path = tmp_path / "f.npz"
+    save_forest(path, two_trees())
+    a = load_forest_shared(path, expected_classes=CLASSES)
+    assert load_forest_shared(path, expected_classes=CLASSES) is a  # read once, then shared
+    assert load_forest_shared(str(path), CLASSES) is a
+    assert np.array_equal(a.leaf_dist, load_forest(path).leaf_dist)
+    with pytest.raises(ValueError):
+        a.threshold[0] = 1.0  # shared: nobody may change it under the others
+    with pytest.raises(ForestFormatError, match="classes differ"):
+        load_forest_shared(path, expected_classes=("background", "b", "a"))
+    # Replaced by another forest (new size and time): read and validated again.
+    f = two_trees()
+    f.threshold = np.array([0.5, 0, 0, 0], dtype=np.float32)
+    f.stats = {"seconds": 12345.0}
+    save_forest(path, f)
+    st = path.stat()
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    b = load_forest_shared(path, expected_classes=CLASSES)
+    assert b is not a and float(b.threshold[0]) == 0.5
+    # ... and an edited, now corrupt file fails as load_forest does.
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 2 * 10**9))
+    with pytest.raises(ForestFormatError):
+        load_forest_shared(path, expected_classes=CLASSES)
+    with pytest.raises(ForestFormatError, match="not found"):
+        load_forest_shared(tmp_path / "nope.npz")
 
 
 def test_traversal_table_leaves_point_to_themselves():

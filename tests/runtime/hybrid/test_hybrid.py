@@ -71,6 +71,8 @@ def cfg_of(**flat) -> HybridConfig:
         if k in keep:
             keep[k] = _off(keep[k])
     arm = {k: flat.pop(k) for k in ("other_arm_margin_m",) if k in flat}
+    if "arm_search_cooldown" in flat:
+        arm["cooldown_frames"] = flat.pop("arm_search_cooldown")
     if "arm_agreement_slack" in flat:
         arm["agreement_slack"] = _off(flat.pop("arm_agreement_slack"))
     misplaced_names = {"misplaced_arm_conflict": "conflict",
@@ -561,6 +563,7 @@ def test_hidden_arm_search_needs_all_its_conditions(scene, labels_scale, cfg, fi
         {"misplaced": {"conflict": math.nan}},
         {"misplaced": {"min_points": 0}},
         {"misplaced": {"cooldown_frames": -1}},
+        {"cooldown_frames": -1},
         {"misplaced": {"relief": 1.5}},
     ],
 )
@@ -770,8 +773,19 @@ class ArmShowingTracker(ArmHidingTracker):
         return FakeResult(q_prev.clone(), 1.0, 0.95, 12.0, limb_visibility=vis)
 
 
-@pytest.mark.parametrize("cooldown, refits", [(0, [8, 8, 8, 8]), (2, [8, 0, 0, 8])])
-def test_a_misplaced_arm_search_that_finds_nothing_waits_cooldown_frames(scene, cooldown, refits):
+@pytest.mark.parametrize(
+    "which, cooldown, refits",
+    [
+        ("misplaced_arm_cooldown", 0, [8, 8, 8, 8]),
+        ("misplaced_arm_cooldown", 2, [8, 0, 0, 8]),
+        ("arm_search_cooldown", 0, [8, 8, 8, 8]),
+        ("arm_search_cooldown", 2, [8, 0, 0, 8]),  # any fruitless search of the arm waits
+        ("arm_search_cooldown", 3, [8, 0, 0, 0]),
+    ],
+)
+def test_a_misplaced_arm_search_that_finds_nothing_waits_cooldown_frames(
+    scene, which, cooldown, refits
+):
     q, depth, labels, mask = scene
     seen = _left_arm_labelled_chest(labels)
     # Relief 0: every refit leaves some of its points labelled otherwise, none is taken.
@@ -779,7 +793,7 @@ def test_a_misplaced_arm_search_that_finds_nothing_waits_cooldown_frames(scene, 
         arm_search_badness=1.0,
         misplaced_arm_conflict=0.5,
         misplaced_arm_relief=0.0,
-        misplaced_arm_cooldown=cooldown,
+        **{which: cooldown},
     )
     tracker = ArmShowingTracker()
     det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
