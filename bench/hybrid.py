@@ -27,10 +27,12 @@ from .timing import wall_ms
 __all__ = [
     "CAMERA_FPS",
     "benchmark_hybrid",
+    "frame_work",
     "hybrid_rows",
     "paced_latency",
     "recordings_in",
     "recordings_rows",
+    "work_rows",
 ]
 
 # The camera rate the latency replay assumes (Kinect v1, v2, Xtion: 30 frames/s).
@@ -50,11 +52,60 @@ def benchmark_hybrid(source: str, device: str, frames: int | None, warmup: int =
         for frame in itertools.islice(stream, warmup):  # allocator growth, kernel caches
             tracker.track(frame)
     tracker.reset()
-    times, statuses = [], []
+    times, statuses, work = [], [], []
+
+    def track(frame) -> None:
+        search = tracker.size_search  # None until the first frame builds the estimator
+        sampled = 0 if search is None else search.samples
+        est = tracker.track(frame)
+        search = tracker.size_search
+        sized = search is not None and search.samples > sampled
+        statuses.append(est.status)
+        work.append(frame_work(est.status, est.errors or {}, sized))
+
     with open_stream(source) as stream:
         for frame in itertools.islice(stream, frames):
-            times.append(wall_ms(lambda f=frame: statuses.append(tracker.track(f).status), device))
-    return {"ms": np.asarray(times), "statuses": np.asarray(statuses), "device": tracker.device}
+            times.append(wall_ms(lambda f=frame: track(f), device))
+    return {
+        "ms": np.asarray(times),
+        "statuses": np.asarray(statuses),
+        "work": np.asarray(work),
+        "device": tracker.device,
+    }
+
+
+def frame_work(status: str, errors: dict, sized: bool) -> str:
+    """What a frame ran beyond its own track, from its estimate: "size search" (the frame was
+    refitted at every candidate size), "detector" (the detector ran: the frame was detected,
+    or the detector questioned its track), "arm search" (arm refits were tried); joined by
+    " + ", or "track only"."""
+    ran = []
+    if sized:
+        ran.append("size search")
+    if status == "detected" or any(k.startswith("tracker_") for k in errors):
+        ran.append("detector")
+    if "arms_searched" in errors:
+        ran.append("arm search")
+    return " + ".join(ran) or "track only"
+
+
+def work_rows(ms: np.ndarray, work: np.ndarray) -> list[tuple[str, float, str]]:
+    """One row per kind of frame (:func:`frame_work`), most time first: its median time, its
+    share of the frames and of the time, and how many of its frames took over 50 ms."""
+    total = float(ms.sum())
+    rows = []
+    for kind in sorted(set(work.tolist()), key=lambda k: -float(ms[work == k].sum())):
+        mine = ms[work == kind]
+        rows.append(
+            (
+                f"  {kind}",
+                float(np.median(mine)),
+                f"median; {100 * len(mine) / len(ms):.1f}% of frames, "
+                f"{100 * float(mine.sum()) / total:.0f}% of the time, "
+                f"{int((mine > 50).sum())} over 50 ms",
+            )
+        )
+    return rows
 
 
 def paced_latency(ms: np.ndarray, fps: float = CAMERA_FPS) -> tuple[float, float]:
@@ -132,6 +183,7 @@ def recordings_rows(folder: Path, device: str) -> list[tuple[str, float, str]]:
     ms = np.concatenate([r["ms"] for r in runs])
     statuses = np.concatenate([r["statuses"] for r in runs])
     rows = _spread_rows(ms, f"{len(recs)} recordings, {len(ms)} frames", _status_note(statuses))
+    rows += work_rows(ms, np.concatenate([r["work"] for r in runs]))
     for rec, r in zip(recs, runs, strict=True):
         median = float(np.median(r["ms"]))
         rows.append(

@@ -12,6 +12,22 @@ def test_benchmark_hybrid_times_every_frame(one_thread):
     r = benchmark_hybrid("demo", "cpu", frames=3, warmup=1)
     assert r["ms"].shape == (3,) and np.all(r["ms"] > 0) and r["device"] == "cpu"
     assert set(r["statuses"]) <= {"tracked", "detected", "lost"}
+    assert r["work"].shape == (3,) and r["work"][0].startswith(("detector", "size search"))
+
+
+def test_frames_are_classed_by_what_they_ran():
+    from depthmocap.bench.hybrid import frame_work, work_rows
+
+    assert frame_work("tracked", {"depth_error_cm": 1.0}, False) == "track only"
+    assert frame_work("detected", {}, False) == "detector"
+    assert frame_work("tracked", {"tracker_overlap": 0.5, "rechecked": 1.0}, False) == "detector"
+    assert frame_work("tracked", {"arms_searched": 1.0}, True) == "size search + arm search"
+    ms = np.array([10.0, 20.0, 100.0, 60.0])
+    work = np.array(["track only", "track only", "detector", "arm search"])
+    rows = work_rows(ms, work)
+    assert [r[0].strip() for r in rows] == ["detector", "arm search", "track only"]
+    assert rows[2][1] == 15.0 and "50.0% of frames, 16% of the time, 0 over 50 ms" in rows[2][2]
+    assert "1 over 50 ms" in rows[0][2]
 
 
 def test_rows_and_the_one_command(one_thread, capsys, monkeypatch):
@@ -64,5 +80,6 @@ def test_recordings_rows_time_every_recording(tmp_path, one_thread):
     rows = recordings_rows(tmp_path, "cpu")
     assert rows[0][0] == "median frame (2 recordings, 4 frames)"
     assert [r[0].strip() for r in rows[-2:]] == ["a", "b"]
+    assert any(r[0].strip() == "detector" for r in rows)  # the first frames are detected
     assert all(r[1] > 0 for r in rows)
     assert recordings_rows(tmp_path / "notes", "cpu") == []
