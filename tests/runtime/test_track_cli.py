@@ -518,8 +518,10 @@ def test_realtime_newest_frame_wins_and_timing_is_reported():
 
     w, est = Writer(), FakeEstimator(delay_s=0.03)
     stats = track(ListStream([person_frame()] * 30, fps=100.0), est, w, realtime=True)
-    assert w.indices == est.calls and w.indices == sorted(w.indices)
-    assert w.indices[0] == 0 and w.indices[-1] == 29
+    assert w.indices == est.calls and w.indices == sorted(set(w.indices))
+    # The last frame waits for the estimator; the first may be replaced by the second before
+    # a loaded machine wakes the estimator (10 ms apart), as the newest frame wins.
+    assert w.indices[-1] == 29
     assert stats.dropped == 30 - stats.frames and stats.dropped > 0
     timing = stats.timing()
     assert len(stats.latency_ms) == stats.frames == len(stats.frame_ms)
