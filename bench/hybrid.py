@@ -77,15 +77,25 @@ def benchmark_hybrid(source: str, device: str, frames: int | None, warmup: int =
 def frame_work(status: str, errors: dict, sized: bool) -> str:
     """What a frame ran beyond its own track, from its estimate: "size search" (the frame was
     refitted at every candidate size), "detector" (the detector ran: the frame was detected,
-    or the detector questioned its track), "arm search" (arm refits were tried); joined by
-    " + ", or "track only"."""
+    its track was kept over the detection after failing or being rechecked, or it was lost
+    after it), "arm search" (arm refits were tried); joined by " + ", or "track only"; "no
+    person" for a lost frame where nothing ran."""
     ran = []
     if sized:
         ran.append("size search")
-    if status == "detected" or any(k.startswith("tracker_") for k in errors):
+    # Keys only the detector's path writes: its labelled pixels (a detection, found or not),
+    # a track kept over it, a fit too poor to report after it.
+    asked = ("labelled_pixels", "kept_over_detector", "rechecked", "unsupported")
+    if (
+        status == "detected"
+        or any(k in errors for k in asked)
+        or any(k.startswith("tracker_") for k in errors)
+    ):
         ran.append("detector")
     if "arms_searched" in errors:
         ran.append("arm search")
+    if not ran and status == "lost":
+        return "no person"  # the frame held nobody: nothing ran
     return " + ".join(ran) or "track only"
 
 

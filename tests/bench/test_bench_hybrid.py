@@ -20,7 +20,11 @@ def test_frames_are_classed_by_what_they_ran():
 
     assert frame_work("tracked", {"depth_error_cm": 1.0}, False) == "track only"
     assert frame_work("detected", {}, False) == "detector"
-    assert frame_work("tracked", {"tracker_overlap": 0.5, "rechecked": 1.0}, False) == "detector"
+    assert frame_work("tracked", {"depth_error_cm": 3.1, "rechecked": 1.0}, False) == "detector"
+    assert frame_work("tracked", {"kept_over_detector": 1.0}, False) == "detector"
+    assert frame_work("lost", {"tracker_overlap": 0.1, "labelled_pixels": 0.0}, False) == "detector"
+    assert frame_work("lost", {"labelled_pixels": 3.0}, False) == "detector"  # found nobody
+    assert frame_work("lost", {}, False) == "no person"  # nobody in the frame: nothing ran
     assert frame_work("tracked", {"arms_searched": 1.0}, True) == "size search + arm search"
     ms = np.array([10.0, 20.0, 100.0, 60.0])
     work = np.array(["track only", "track only", "detector", "arm search"])
