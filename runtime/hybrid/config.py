@@ -114,8 +114,15 @@ class KeepBetterConfig:
         None,
         "also run the detector on a passed frame whose badness exceeds this (None: never)",
     )
+    wait_frames: int = field_doc(
+        0,
+        "after the detector's pose was refused (the track kept), the detector is not run "
+        "again for this many frames: a failed or suspect track is kept meanwhile (0: it runs "
+        "on every failed or suspect frame)",
+    )
 
     def __post_init__(self) -> None:
+        _check(self.wait_frames >= 0, "keep_better.wait_frames must be >= 0", self.wait_frames)
         t = self.max_turn_rad
         _check(t is None or t >= 0, "max_turn_rad must be >= 0 or None", t)
         b = self.recheck_badness

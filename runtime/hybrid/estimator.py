@@ -55,12 +55,14 @@ class TrackState:
         q_prev, q_prev2: (34,) the last two poses (None: no track).
         passed: frames tracked since the detector last ran.
         turned_round: failed frames in a row whose detection turned the person round.
+        refused_at: the frame whose detection was last refused (None: none since the reset).
     """
 
     q_prev: torch.Tensor | None = None
     q_prev2: torch.Tensor | None = None
     passed: int = 0
     turned_round: int = 0
+    refused_at: int | None = None
 
 
 class HybridEstimator:
@@ -250,6 +252,12 @@ class HybridEstimator:
         if not verdict.run_detector:
             state.turned_round = 0
             return self._tracked(res, errors, frame)
+        wait = 0 if cfg.keep_better is None else cfg.keep_better.wait_frames
+        if state.refused_at is not None and frame.index - state.refused_at <= wait:
+            # The detector was just refused: the track is kept without asking it again.
+            if self._unsupported(res.signals.overlap):
+                return self._lose({**errors, "unsupported": 1.0})
+            return self._tracked(res, {**errors, "detector_waited": 1.0}, frame)
         state.passed = 0
         failed = {f"tracker_{k}": v for k, v in errors.items()}
         det = self._run_detector(frame)
@@ -265,6 +273,7 @@ class HybridEstimator:
             self.arm_search.reset()
         state.turned_round = decision.turned_round
         if decision.keep_track:
+            state.refused_at = frame.index
             if self._unsupported(res.signals.overlap):
                 return self._lose({**errors, "unsupported": 1.0})
             kept = {"kept_over_detector": 1.0} if verdict.failed else {"rechecked": 1.0}

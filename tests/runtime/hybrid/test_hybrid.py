@@ -65,8 +65,8 @@ def cfg_of(**flat) -> HybridConfig:
                if k in flat}  # fmt: skip
     if "epsilon3_mm" in failure:
         failure["epsilon3_mm"] = _off(failure["epsilon3_mm"])
-    keep = {k: flat.pop(k) for k in ("compare_all_tests", "max_turn_rad", "recheck_badness")
-            if k in flat}  # fmt: skip
+    keep = {k: flat.pop(k) for k in ("compare_all_tests", "max_turn_rad", "recheck_badness",
+                                     "wait_frames") if k in flat}  # fmt: skip
     for k in ("max_turn_rad", "recheck_badness"):
         if k in keep:
             keep[k] = _off(keep[k])
@@ -311,6 +311,27 @@ def test_recheck_badness_questions_suspect_fits(scene, threshold, rechecked):
     assert ("rechecked" in got[1].errors) == rechecked
 
 
+@pytest.mark.parametrize("wait, asked", [(0, [1, 2, 3, 4, 5, 6]), (2, [1, 4])])
+def test_a_refused_detection_makes_the_detector_wait(scene, wait, asked):
+    """Every tracked frame is suspect and the track always fits better: the detector is asked
+    and refused; with a wait it is not asked again for that many frames, and a failed track
+    is kept meanwhile too. A reset (lost frame) forgets the wait."""
+    q, depth, labels, mask = scene
+    tracker = FakeTracker(fail_calls={3}, surface_mm=0.0)  # frame 3's track fails
+    est, calls = make_hybrid(
+        scene, tracker, refine_iterations=1, keep_better=True, recheck_badness=0.5,
+        wait_frames=wait,
+    )  # fmt: skip
+    got = [estimate_frame(est, frame_of(depth, i, mask)) for i in range(7)]
+    assert [g.status for g in got] == ["detected"] + ["tracked"] * 6
+    assert len(calls) == 1 + len(asked)  # the forest's labels run when the detector does
+    waited = [i for i, g in enumerate(got) if "detector_waited" in g.errors]
+    assert waited == [i for i in range(1, 7) if i not in asked]
+    assert ("kept_over_detector" in got[3].errors) == (3 in asked)
+    estimate_frame(est, frame_of(depth * 0, 7, torch.zeros_like(mask)))
+    assert est.state.refused_at is None
+
+
 def test_recheck_is_off_without_keep_better_and_never_turns_the_track(scene, constants):
     q, depth, labels, mask = scene
     est, calls = make_hybrid(scene, FakeTracker(surface_mm=1e4), recheck_badness=0.0)
@@ -439,8 +460,9 @@ def test_config_and_factory_errors(tmp_path):
         ("failure", {"epsilon3_mm": float("nan")}),
         ("keep_better", {"recheck_badness": float("nan")}),
         ("keep_better", {"max_turn_rad": -1.0}),
+        ("keep_better", {"wait_frames": -1}),
     ):
-        with pytest.raises(HybridError, match="epsilon|recheck|max_turn"):
+        with pytest.raises(HybridError, match="epsilon|recheck|max_turn|wait_frames"):
             config_from_mapping({section: bad})
     with pytest.raises(HybridError, match="recheck_every"):  # a setting that is no more
         create_estimator(
