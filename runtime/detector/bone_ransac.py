@@ -32,9 +32,10 @@ from dataclasses import dataclass
 import torch
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.body import BodyShape
+from depthmocap.shared.compiled import compiled_module
 from depthmocap.shared.labels import PART_SEGMENT
 
-__all__ = ["BoneFit", "bone_reach", "fit_bones"]
+__all__ = ["BoneFit", "bone_reach", "fit_bones", "inlier_counts"]
 
 
 @dataclass
@@ -72,6 +73,37 @@ def _inliers(
     t = (rel * u).sum(-1)
     perp2 = (rel * rel).sum(-1) - t * t
     return (perp2 <= max_perp * max_perp) & (t >= d - reach) & (t <= reach)
+
+
+def _compiled_kernel():
+    """:mod:`runtime.detector.ransac_kernel` (numba's compiled scoring), or None without numba."""
+    return compiled_module("depthmocap.runtime.detector.ransac_kernel")
+
+
+def inlier_counts(
+    sub: torch.Tensor,
+    sub_ok: torch.Tensor,
+    a: torch.Tensor,
+    u: torch.Tensor,
+    d: torch.Tensor,
+    reach: torch.Tensor,
+    max_perp: torch.Tensor,
+) -> torch.Tensor:
+    """Each pair's inliers among its bone's valid subset points: (K, S) int64.
+
+    Args:
+        sub: (K, P, 3) subset points per bone; sub_ok: (K, P) bool, valid entries.
+        a: (K, S, 3) first point of each pair; u: (K, S, 3) its unit direction; d: (K, S)
+            pair distance; reach, max_perp: (K,) per bone.
+    On the CPU with numba a compiled loop (the same counts); otherwise torch over (K, S, P)."""
+    kernel = _compiled_kernel() if sub.device.type == "cpu" else None
+    if kernel is not None and not sub.requires_grad:
+        return kernel.inlier_counts_cpu(sub, sub_ok, a, u, d, reach, max_perp)
+    hit = _inliers(
+        sub[:, None], a[:, :, None], u[:, :, None], d[..., None], reach[:, None, None],
+        max_perp[:, None, None],
+    ) & sub_ok[:, None]  # fmt: skip
+    return hit.sum(-1)
 
 
 def fit_bones(
@@ -133,11 +165,8 @@ def fit_bones(
     a, b, d, ok = a[kk, pick], b[kk, pick], d[kk, pick], ok[kk, pick]  # (K, S', ...)
     u = (b - a) / d[..., None].clamp_min(1e-9)
 
-    hit = _inliers(
-        sub[:, None], a[:, :, None], u[:, :, None], d[..., None], reach[:, None, None],
-        max_perp[:, None, None],
-    ) & sub_ok[:, None]  # fmt: skip
-    score = torch.where(ok, hit.sum(-1), torch.full_like(d, -1, dtype=torch.long))
+    counts = inlier_counts(sub, sub_ok, a, u, d, reach, max_perp)
+    score = torch.where(ok, counts, torch.full_like(d, -1, dtype=torch.long))
     best = score.argmax(1)  # (K,)
     found = ok[torch.arange(K, device=dev), best]
     p1 = a[torch.arange(K, device=dev), best]

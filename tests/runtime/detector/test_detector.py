@@ -172,6 +172,58 @@ def test_fit_bones_rejects_outliers_on_a_line():
     assert not bool(fit.inlier[200:].any())
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_compiled_inlier_counts_equal_torch(dtype):
+    """The RANSAC scoring's compiled loop counts what the torch test counts, pair by pair,
+    points on the test's borders included."""
+    pytest.importorskip("numba")
+    from depthmocap.runtime.detector import bone_ransac
+    from depthmocap.runtime.detector.ransac_kernel import inlier_counts_cpu
+
+    g = torch.Generator().manual_seed(3)
+    K, S, P = 15, 64, 300
+    sub = (torch.rand(K, P, 3, generator=g) * 0.6 + torch.tensor([0.0, 0.0, 2.5])).to(dtype)
+    ok = torch.rand(K, P, generator=g) < 0.8
+    a = sub[:, torch.randint(0, P, (S,), generator=g)]
+    b = sub[:, torch.randint(0, P, (S,), generator=g)]
+    d = (b - a).norm(dim=-1)
+    u = (b - a) / d[..., None].clamp_min(1e-9)
+    reach = (torch.rand(K, generator=g) * 0.3 + 0.2).to(dtype)
+    max_perp = (torch.rand(K, generator=g) * 0.1 + 0.05).to(dtype)
+    # Points exactly on the axial borders: t = reach and t = d - reach along a pair's line.
+    sub[0, :2] = torch.stack(
+        [a[0, 0] + reach[0] * u[0, 0], a[0, 0] + (d[0, 0] - reach[0]) * u[0, 0]]
+    )
+    ok[0, :2] = True
+    want = (
+        bone_ransac._inliers(
+            sub[:, None], a[:, :, None], u[:, :, None], d[..., None], reach[:, None, None],
+            max_perp[:, None, None],
+        ) & ok[:, None]
+    ).sum(-1)  # fmt: skip
+    got = inlier_counts_cpu(sub, ok, a, u, d, reach, max_perp)
+    assert got.dtype == torch.int64 and torch.equal(got, want)
+
+
+def test_fit_bones_is_the_same_without_the_compiled_scoring(monkeypatch):
+    from depthmocap.runtime.detector import bone_ransac
+
+    q = make_pose("walk")
+    depth, labels, mask = render_labels(q, BODY)
+    use = labels > 0
+    from depthmocap.shared.camera import depth_to_points
+
+    points = depth_to_points(depth[None], INTR)[0][use]
+    fits = []
+    for kernel in (bone_ransac._compiled_kernel, lambda: None):
+        monkeypatch.setattr(bone_ransac, "_compiled_kernel", kernel)
+        fits.append(
+            fit_bones(points, labels[use], BODY, generator=torch.Generator().manual_seed(5))
+        )
+    assert torch.equal(fits[0].inlier, fits[1].inlier) and torch.equal(fits[0].score, fits[1].score)
+    assert torch.equal(fits[0].line_point, fits[1].line_point)
+
+
 def test_part_markers_split_halves():
     m = part_markers(BODY)
     upper, lower = PART_NAMES.index("l_thigh_upper") - 1, PART_NAMES.index("l_thigh_lower") - 1
