@@ -204,6 +204,14 @@ class HybridEstimator:
         self.reset()
         return lost(**errors)
 
+    def _keep(self, res: TrackResult, errors: dict, flags: dict, frame: Frame) -> PoseEstimate:
+        """A failed or suspect track kept instead of a detection: tracked with ``flags`` added
+        to its errors, unless it explains too little of the silhouette to be the person's pose
+        (then lost)."""
+        if self._unsupported(res.signals.overlap):
+            return self._lose({**errors, "unsupported": 1.0})
+        return self._tracked(res, {**errors, **flags}, frame)
+
     def _detected(self, det: DetectionResult, errors: dict) -> PoseEstimate:
         errors["labelled_pixels"] = float(det.labelled_pixels)
         if not det.found:
@@ -255,9 +263,7 @@ class HybridEstimator:
         wait = 0 if cfg.keep_better is None else cfg.keep_better.wait_frames
         if state.refused_at is not None and frame.index - state.refused_at <= wait:
             # The detector was just refused: the track is kept without asking it again.
-            if self._unsupported(res.signals.overlap):
-                return self._lose({**errors, "unsupported": 1.0})
-            return self._tracked(res, {**errors, "detector_waited": 1.0}, frame)
+            return self._keep(res, errors, {"detector_waited": 1.0}, frame)
         state.passed = 0
         failed = {f"tracker_{k}": v for k, v in errors.items()}
         det = self._run_detector(frame)
@@ -274,8 +280,6 @@ class HybridEstimator:
         state.turned_round = decision.turned_round
         if decision.keep_track:
             state.refused_at = frame.index
-            if self._unsupported(res.signals.overlap):
-                return self._lose({**errors, "unsupported": 1.0})
             kept = {"kept_over_detector": 1.0} if verdict.failed else {"rechecked": 1.0}
-            return self._tracked(res, {**errors, **kept}, frame)
+            return self._keep(res, errors, kept, frame)
         return self._detected(det, failed)
