@@ -55,7 +55,13 @@ def _print_tracker(device: str, name: str) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--batch", type=int, default=1000, help="poses per FK call")
-    parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch CPU threads (default 1, runtime-track's: the whole hybrid's second thread "
+        "prepares the next frame)",
+    )
     parser.add_argument("--device", default="cpu", choices=["cpu", "cuda", "all"])
     parser.add_argument(
         "--recordings",
@@ -91,7 +97,10 @@ def main(argv: list[str] | None = None) -> None:
     torch.set_num_threads(args.threads)
     devices = ["cpu", "cuda"] if args.device == "all" else [args.device]
     devices = [d for d in devices if d == "cpu" or torch.cuda.is_available()]
-    print(f"torch {torch.__version__}, {args.threads} CPU threads")
+    print(
+        f"torch {torch.__version__}, {args.threads} CPU threads "
+        "(the whole hybrid: one more thread prepares the next frame)"
+    )
     for dev in devices:
         name = torch.cuda.get_device_name() if dev == "cuda" else "CPU"
         print(f"\n== kinematics on {name} ==")

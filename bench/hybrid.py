@@ -1,7 +1,9 @@
 """The whole hybrid, frame by frame, on one device: what ``runtime-bench --device cuda`` is
 for, and ``make bench``'s end-to-end figure (issue 38). Each frame goes through
-:class:`runtime.api.Tracker` (depth to metres, the person's mask, forest, tracker, arm search,
-detections), exactly as ``runtime-track`` runs it, without the file outputs.
+``runtime-track``'s own loop (:func:`runtime.track_loop.track`: depth to metres, the person's
+mask and the forest's labels on the reader thread, then tracker, arm search, detections),
+exactly as ``runtime-track`` runs a file, without the file outputs. A frame's time is the
+interval between two poses: the rate a recording is processed at.
 
 Frame rate is reported as the median frame time over all frames (pooled over recordings),
 with the 95th percentile, because recovery (the arm search, detections, the one-off size
@@ -20,9 +22,10 @@ from pathlib import Path
 
 import numpy as np
 from depthmocap.runtime.api import Tracker
-from depthmocap.runtime.streams import open_stream
-
-from .timing import wall_ms
+from depthmocap.runtime.estimator import make_estimator
+from depthmocap.runtime.estimator_setup import load_body
+from depthmocap.runtime.streams import FrameRange, open_stream
+from depthmocap.runtime.track_loop import track
 
 __all__ = [
     "CAMERA_FPS",
@@ -39,37 +42,62 @@ __all__ = [
 CAMERA_FPS = 30.0
 
 
-def benchmark_hybrid(source: str, device: str, frames: int | None, warmup: int = 3) -> dict:
+class _FrameLog:
+    """The result writer of a timed run: each frame's status and what it ran, no files."""
+
+    def __init__(self, estimator) -> None:
+        self.estimator = estimator
+        self.statuses: list[str] = []
+        self.work: list[str] = []
+        self._samples = self._size_samples()
+
+    def _size_samples(self) -> int:
+        search = getattr(self.estimator, "scale_search", None)
+        return 0 if search is None else search.samples
+
+    def write_frame(self, index, time, status, joints, q, errors, observed=None) -> None:
+        samples = self._size_samples()
+        self.statuses.append(status)
+        self.work.append(frame_work(status, errors or {}, samples > self._samples))
+        self._samples = samples
+
+    def update_body(self, body) -> None:
+        pass
+
+
+def benchmark_hybrid(
+    source: str, device: str, frames: int | None, warmup: int = 3, pipelined: bool = True
+) -> dict:
     """Per-frame wall times of the shipped hybrid on the first ``frames`` frames of ``source``
     (any ``open_stream`` name; None: all of them), after ``warmup`` untimed frames of the
-    same source.
+    same source, run by ``runtime-track``'s own loop (:func:`runtime.track_loop.track`).
+
+    ``pipelined``: as ``runtime-track`` runs a file, each frame's mask and forest labels
+    made on the reader thread beside the previous frame's estimate, a frame's time the
+    interval between two poses; False: one frame after the other on one thread.
 
     Returns:
-        ``ms`` (F,) per-frame milliseconds, ``statuses`` (F,) str, ``device``.
+        ``ms`` (F,) per-frame milliseconds, ``statuses`` (F,) str, ``work`` (F,) str (what
+        each frame ran, :func:`frame_work`), ``device``.
     """
-    tracker = Tracker(device=device)
+    tracker = Tracker(device=device)  # the shipped preset and default body, as runtime-track
     with open_stream(source) as stream:
         for frame in itertools.islice(stream, warmup):  # allocator growth, kernel caches
             tracker.track(frame)
-    tracker.reset()
-    times, statuses, work = [], [], []
-
-    def track(frame) -> None:
-        search = tracker.size_search  # None until the first frame builds the estimator
-        sampled = 0 if search is None else search.samples
-        est = tracker.track(frame)
-        search = tracker.size_search
-        sized = search is not None and search.samples > sampled
-        statuses.append(est.status)
-        work.append(frame_work(est.status, est.errors or {}, sized))
-
-    with open_stream(source) as stream:
-        for frame in itertools.islice(stream, frames):
-            times.append(wall_ms(lambda f=frame: track(f), device))
+        intrinsics = stream.intrinsics
+    estimator = make_estimator(
+        tracker.mode, tracker.model, load_body(None), intrinsics, tracker.device,
+        tracker.settings,
+    )  # fmt: skip
+    log = _FrameLog(estimator)
+    with open_stream(source, frame_range=FrameRange(0, frames)) as stream:
+        stats = track(
+            stream, estimator, log, tracker.segmentation, tracker.device, pipelined=pipelined
+        )
     return {
-        "ms": np.asarray(times),
-        "statuses": np.asarray(statuses),
-        "work": np.asarray(work),
+        "ms": np.asarray(stats.frame_ms),
+        "statuses": np.asarray(log.statuses),
+        "work": np.asarray(log.work),
         "device": tracker.device,
     }
 

@@ -37,9 +37,12 @@ class TrackStats:
         wall_s: seconds spent.
         latency_ms: per written frame, milliseconds from its arrival (read from the source)
             to its pose being written.
-        frame_ms: per written frame, milliseconds of its own processing (mask, estimate,
-            outputs), without the time it waited; live, the mask and the forest's labels are
-            made on the reader thread, beside the previous frame's estimate, and not counted.
+        frame_ms: per written frame, milliseconds the system spent on it. A file: from the
+            previous frame's pose written to this one's (the frame rate it is processed at;
+            its mask and labels were made on the reader thread beside the previous estimate,
+            and a wait for them counts). Live: from taking the frame to its pose written,
+            without the wait for the camera; its mask and labels, made on the reader thread,
+            are not counted.
     """
 
     frames: int = 0
@@ -135,6 +138,7 @@ def track(
     stop: threading.Event | None = None,
     stats: TrackStats | None = None,
     view=None,
+    pipelined: bool = True,
 ) -> TrackStats:
     """Run the pipeline over ``stream``, writing every frame to ``writer``.
 
@@ -147,6 +151,9 @@ def track(
             are counted in ``stats.dropped``.
         stop: set it to end the loop after the frame in flight (Ctrl-C handler).
         stats: filled in place (so a caller sees the counts even if the loop raises).
+        pipelined: prepare frames on a reader thread beside the estimate (a file keeps every
+            frame); False: read and prepare each frame on this thread, then estimate it (a
+            live source is always read on its own thread).
     Raises:
         whatever the stream raises (StreamError, SensorDisconnected, KeyboardInterrupt); the
         frames written before are complete.
@@ -163,14 +170,18 @@ def track(
 
     t_begin = time.perf_counter()
     live = realtime or stream.is_live
-    # Live, each frame is prepared (mask, forest labels) on the reader thread while the
-    # estimator works on the one before: that work then costs no frame time of its own.
-    reader = LatestFrameReader(stream, pace=not stream.is_live, prepare=prepare) if live else None
+    # Each frame is prepared (mask, forest labels) on the reader thread while the estimator
+    # works on the one before. Live, the newest frame wins; a file keeps every frame.
+    reader = LatestFrameReader(
+        stream, pace=realtime and not stream.is_live, prepare=prepare, skip=live
+    ) if pipelined or live else None  # fmt: skip
     frames = iter(reader) if reader is not None else timed_frames(stream)
     body = getattr(estimator, "body", None)
+    t_frame = time.perf_counter()
     try:
         for item, arrival in frames:
-            t_frame = time.perf_counter()
+            if live:  # the wait for the camera is not the system's time
+                t_frame = time.perf_counter()
             prepared = item if reader is not None else prepare(item)
             est = estimate_frame(estimator, prepared)
             if getattr(estimator, "body", None) is not body:  # e.g. the person's size found
@@ -183,6 +194,7 @@ def track(
             t_written = time.perf_counter()
             stats.latency_ms.append((t_written - arrival) * 1e3)
             stats.frame_ms.append((t_written - t_frame) * 1e3)
+            t_frame = t_written
             stats.frames += 1
             stats.status_counts[est.status] = stats.status_counts.get(est.status, 0) + 1
             stats.last_index = prepared.index

@@ -13,6 +13,10 @@ then plays it back like a camera would deliver it.
 The reader thread can also prepare each frame (``prepare``: the person mask, the forest's
 labels), so that work overlaps the estimator's on the previous frame: the tracker's small
 torch ops leave the second core mostly idle (issue 38).
+
+A file read as fast as possible keeps every frame (``skip=False``): the reader then prepares
+one frame ahead and waits for the consumer to take it, so a recording is processed as a
+two-stage pipeline (mask and labels beside the previous frame's estimate) with nothing lost.
 """
 
 from __future__ import annotations
@@ -44,8 +48,11 @@ class LatestFrameReader:
         prepare: run on the reader thread on every frame read; iterating then yields
             ``(prepare(frame), arrival)`` (``arrival``: when the frame was read, before its
             preparation). Its errors reach the consumer like the stream's.
+        skip: the newest frame wins (a camera). False: every frame is delivered in order;
+            the reader holds at most one finished frame and waits until the consumer takes it.
     Attributes:
-        skipped: frames replaced by a newer one before the consumer took them.
+        skipped: frames replaced by a newer one before the consumer took them (0 with
+            ``skip=False``).
     Errors the stream raises on the reader thread (a disconnected camera, a corrupt file) are
     raised by the consumer's iteration after the frames read before them.
     """
@@ -55,8 +62,9 @@ class LatestFrameReader:
         stream: DepthStream,
         pace: bool = False,
         prepare: Callable[[DepthFrame], Any] | None = None,
+        skip: bool = True,
     ) -> None:
-        self.stream, self.pace, self.prepare = stream, pace, prepare
+        self.stream, self.pace, self.prepare, self.skip = stream, pace, prepare, skip
         self.skipped = 0
         self._slot: tuple[Any, float] | None = None
         self._ended = False
@@ -80,6 +88,10 @@ class LatestFrameReader:
                 arrival = time.perf_counter()
                 item = frame if self.prepare is None else self.prepare(frame)
                 with self._cond:
+                    while not self.skip and self._slot is not None and not self._stop.is_set():
+                        self._cond.wait(0.1)
+                    if self._stop.is_set():
+                        break
                     if self._slot is not None:
                         self.skipped += 1
                     self._slot = (item, arrival)
@@ -102,6 +114,7 @@ class LatestFrameReader:
                     self._cond.wait(0.1)
                 item, self._slot = self._slot, None
                 ended, error = self._ended, self._error
+                self._cond.notify()  # a reader keeping every frame waits for the slot
             if item is not None:
                 yield item
             elif ended:
@@ -112,5 +125,7 @@ class LatestFrameReader:
     def close(self, timeout_s: float = 2.0) -> None:
         """Stop reading (after the frame being read) and wait for the reader thread."""
         self._stop.set()
+        with self._cond:
+            self._cond.notify_all()
         if self._thread is not None:
             self._thread.join(timeout_s)

@@ -121,3 +121,30 @@ def test_preparation_errors_reach_the_consumer():
             got.append(index)
             time.sleep(0.005)
     assert got and got[-1] < 2
+
+
+def test_keeping_every_frame_delivers_all_in_order_and_reads_at_most_two_ahead():
+    """``skip=False`` (a file read as fast as possible): a slow consumer still gets every
+    frame in order; the reader holds one finished frame and prepares the next, no more."""
+    ahead = []
+    got: list[int] = []
+
+    def prepare(frame):
+        ahead.append(frame.index - (got[-1] if got else -1))
+        return frame.index
+
+    reader = LatestFrameReader(CountingStream(15), prepare=prepare, skip=False)
+    for index, _ in reader:
+        got.append(index)
+        time.sleep(0.003)
+    assert got == list(range(15)) and reader.skipped == 0
+    assert max(ahead) <= 3  # the one taken, the one waiting, the one being prepared
+
+
+def test_close_stops_a_reader_waiting_for_the_consumer():
+    reader = LatestFrameReader(CountingStream(100), skip=False)
+    frames = iter(reader)
+    next(frames)
+    time.sleep(0.05)  # the reader fills the slot and waits
+    reader.close()
+    assert not reader._thread.is_alive()
