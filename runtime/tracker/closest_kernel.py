@@ -28,13 +28,15 @@ __all__ = ["closest_points_cpu"]
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def _closest(q, q_group, c, c_index, start, end, gate, max_d2, index, found):  # pragma: no cover
-    """Each query's closest candidate of its group within the depth gate. A group's
-    candidates are sorted by height (y, the axis a standing person spreads most along), so
-    the scan walks outwards from the query's height and stops where the height difference
-    alone exceeds the best distance so far."""
+    """Each query's closest candidate of its group within the depth gate and ``max_d2``. A
+    group's candidates are sorted by height (y, the axis a standing person spreads most
+    along), so the scan walks outwards from the query's height and stops where the height
+    difference alone exceeds the best distance so far (at first ``max_d2``)."""
     for i in range(q.shape[0]):
         g = q_group[i]
-        best = np.inf
+        # Nothing beyond max_d2 is ever a match, so the walk stops there even when no
+        # eligible candidate is near (otherwise it would scan the pose's every candidate).
+        best = max_d2
         best_j = -1
         qx, qy, qz = q[i, 0], q[i, 1], q[i, 2]
         lo, hi = start[g], end[g]
@@ -50,13 +52,13 @@ def _closest(q, q_group, c, c_index, start, end, gate, max_d2, index, found):  #
                     dx = qx - c[j, 0]
                     d2 = dx * dx + dy * dy + dz * dz
                     # Ties go to the candidate first in the caller's order, as in torch's.
-                    if d2 < best or (d2 == best and c_index[j] < c_index[best_j]):
+                    if d2 < best or (d2 == best and (best_j < 0 or c_index[j] < c_index[best_j])):
                         best = d2
                         best_j = j
                 j += step
         if best_j >= 0:
             index[i] = c_index[best_j]
-            found[i] = best <= max_d2
+            found[i] = True
 
 
 def closest_points_cpu(
@@ -68,7 +70,9 @@ def closest_points_cpu(
     max_distance: float,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The same contract as :func:`runtime.tracker.extra_depth_term.closest_points`, for CPU
-    tensors: index (N,) into ``cand`` (0 where nothing was eligible) and found (N,) bool."""
+    tensors: index (N,) into ``cand`` and found (N,) bool; where nothing eligible lies within
+    ``max_distance`` the index is 0 (the torch search's is the farther closest one: callers
+    read the index only where found)."""
     q = query.detach().numpy().astype(np.float64, copy=False)
     c = cand.detach().numpy().astype(np.float64, copy=False)
     qb = query_batch.numpy().astype(np.int64, copy=False)

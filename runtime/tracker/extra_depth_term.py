@@ -125,7 +125,8 @@ def closest_points(
     Args:
         query: (N, 3); cand: (M, 3); *_batch: pose index of each.
     Returns:
-        index (N,) into cand, and found (N,) bool (eligible match within max_distance).
+        index (N,) into cand, and found (N,) bool (eligible match within max_distance);
+        the index is meaningful only where found.
     """
     kernel = _closest_kernel() if query.device.type == "cpu" else None
     if kernel is not None and query.shape[0] and cand.shape[0]:
