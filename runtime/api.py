@@ -5,8 +5,10 @@
     from depthmocap import Tracker, open_stream, read_poses
 
     tracker = Tracker()                      # shipped forest and preset; body optional
-    for frame in open_stream("demo"):        # or "device", a recording, a .oni, a folder
-        pose = tracker.track(frame)          # status, joints (m), observed flags, q
+    with open_stream("demo") as stream:      # or "device", a recording, a .oni, a folder
+        for frame, pose in tracker.track_stream(stream):  # status, joints (m), flags, q
+            ...
+    pose = tracker.track(depth_frame)        # or one frame at a time, in your own loop
 
 :class:`Tracker` runs the same per-frame pipeline as ``runtime-track`` (depth to metres, the
 person's mask, the estimator of the mode with the preset's settings) and checks its inputs with
@@ -16,7 +18,7 @@ from the internals, so that what a script runs is what ``runtime-track`` runs.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +37,7 @@ from .estimator_setup import (
 from .forest.inference import DEFAULT_MODEL
 from .frame import Frame
 from .segmentation import PersonSegmenter, SegmentationConfig
-from .streams import DepthFrame
+from .streams import DepthFrame, DepthStream
 
 __all__ = ["Tracker", "TrackError", "PoseEstimate"]
 
@@ -83,6 +85,7 @@ class Tracker:
         self._estimator: PoseEstimator | None = None
         self._intrinsics: Intrinsics | None = None
         self._next_index = 0
+        self.skipped = 0  # frames track_stream skipped on a live camera (newest wins)
 
     def track(
         self,
@@ -109,6 +112,47 @@ class Tracker:
         estimator = self._estimator_for(frame.intrinsics)
         prepared = Frame.from_depth(frame, device=self.device, segment=self._segmenter)
         return estimate_frame(estimator, prepared)
+
+    def track_stream(self, stream: DepthStream) -> Iterator[tuple[Frame, PoseEstimate]]:
+        """Every frame of ``stream`` tracked, as ``runtime-track`` runs it: each frame is read,
+        its person cut out and its forest labels made on a reader thread while the previous
+        frame is estimated, so the two cores share the work (:meth:`track` on a file's
+        frames gives the same poses, more slowly).
+
+        A file keeps every frame, in order. A live camera's newest frame wins: frames that
+        arrived while the estimator was busy are skipped and counted in :attr:`skipped`.
+        Closing the iteration early (``break``) stops the reader; the stream stays open for
+        its ``with`` block. Do not call :meth:`reset` or :meth:`track` meanwhile.
+
+        Yields:
+            (frame, pose): the prepared :class:`~runtime.frame.Frame` (``index``, ``time``,
+            ``depth_m``, ``mask``) and its :class:`PoseEstimate`.
+        Raises:
+            whatever the stream raises (a disconnected camera, a corrupt file), after the
+            poses of the frames read before it.
+        """
+        from .streams.latest_frame import LatestFrameReader
+
+        estimator = self._estimator_for(stream.intrinsics)
+        prefetch = getattr(estimator, "prefetch", None)
+
+        def prepare(frame: DepthFrame) -> Frame:
+            prepared = Frame.from_depth(frame, device=self.device, segment=self._segmenter)
+            if prefetch is not None and prepared.has_person:
+                prefetch(prepared)
+            return prepared
+
+        self.skipped = 0
+        reader = LatestFrameReader(stream, prepare=prepare, skip=stream.is_live)
+        try:
+            for prepared, _ in reader:
+                self._next_index = prepared.index + 1
+                pose = estimate_frame(estimator, prepared)
+                self.skipped = reader.skipped
+                yield prepared, pose
+        finally:
+            reader.close()
+            self.skipped = reader.skipped
 
     @property
     def body(self) -> BodyShape:

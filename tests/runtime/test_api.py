@@ -183,3 +183,42 @@ def test_a_missing_population_body_says_so(tmp_path, monkeypatch):
     monkeypatch.setattr(setup, "POPULATION_BODY", tmp_path / "gone.json")
     with pytest.raises(TrackError, match="shipped population body is missing"):
         Tracker()
+
+
+@pytest.mark.slow
+def test_track_stream_gives_the_poses_of_track(one_thread, demo_frames):
+    """track_stream prepares the next frame on a reader thread: every frame, in order, with
+    the poses frame-by-frame track() gives; break stops the reader."""
+    one_by_one = _track_all(Tracker(), demo_frames)
+    tracker = Tracker()
+    with open_stream("demo", frame_range=FrameRange(0, FRAMES)) as stream:
+        got = list(tracker.track_stream(stream))
+    assert [f.index for f, _ in got] == [f.index for f in demo_frames] and tracker.skipped == 0
+    for (_, a), b in zip(got, one_by_one, strict=True):
+        assert a.status == b.status
+        np.testing.assert_array_equal(a.joints, b.joints)
+        np.testing.assert_array_equal(a.observed, b.observed)
+    import threading
+
+    with open_stream("demo") as stream:
+        first = next(iter(Tracker().track_stream(stream)))
+    assert first[0].index == 0
+    assert not any(t.name == "depth-reader" and t.is_alive() for t in threading.enumerate())
+
+
+def test_track_stream_reports_stream_errors_after_the_frames_before(one_thread, demo_frames):
+    from depthmocap.runtime.streams import DepthStream, StreamError
+
+    class Broken(DepthStream):
+        source, is_live = "test:broken", False
+        intrinsics, fps, frame_count = demo_frames[0].intrinsics, 30.0, None
+
+        def __iter__(self):
+            yield from demo_frames[:2]
+            raise StreamError("frame 2 is corrupt")
+
+    got = []
+    with pytest.raises(StreamError, match="corrupt"):
+        for frame, pose in Tracker().track_stream(Broken()):
+            got.append((frame.index, pose.status))
+    assert [i for i, _ in got] == [0, 1]
