@@ -108,6 +108,12 @@ def _closest_kernel():
     return compiled_module("depthmocap.runtime.tracker.closest_kernel")
 
 
+def _extra_kernel():
+    """:mod:`runtime.tracker.extra_kernel` (the whole term as one compiled loop), or None
+    without numba."""
+    return compiled_module("depthmocap.runtime.tracker.extra_kernel")
+
+
 def closest_points(
     query: torch.Tensor,
     query_batch: torch.Tensor,
@@ -215,6 +221,19 @@ def extra_rows(
     batch_size: int,
 ) -> ExtraResult:
     """Correspondences of types 1-4 and their linearized rows."""
+    # The compiled term: CPU float32 (the tracker's dtype) without autograd; float64 keeps
+    # the torch code, whose norms' fused multiply-adds it cannot reproduce to the bit.
+    depth = render.depth
+    compiled = depth.device.type == "cpu" and depth.dtype == torch.float32
+    kernel = _extra_kernel() if compiled and not depth.requires_grad else None
+    if kernel is not None:
+        points, segment, batch, offset, weight, error, count = kernel.extra_correspondences_cpu(
+            render, obs, regions, observed, batch_size, EXTRA_MARGIN_PX,
+            max(1, MAX_EXTRA_POINTS // 2), MAX_CANDIDATES, cfg.extra_gate_m,
+            EXTRA_MAX_DISTANCE_M, cfg.depth_gate_m, SIGMA_EXTRA_TORSO_M, cfg.sigma_extra_m,
+            sk.FIRST_LIMB_SEGMENT,
+        )  # fmt: skip
+        return ExtraResult(_rows(points, segment, batch, offset, weight), error, count)
     intr, dtype = obs.intr, render.depth.dtype
     half = max(1, MAX_EXTRA_POINTS // 2)
     error = render.depth.new_zeros(batch_size)
@@ -272,10 +291,14 @@ def extra_rows(
     weight = torch.cat([found * (q_ratio64**0.5).to(dtype), found_o * (o_ratio64**0.5).to(dtype)])
     sigma = weight.new_tensor([SIGMA_EXTRA_TORSO_M, cfg.sigma_extra_m])
     weight = weight / sigma[(segment >= sk.FIRST_LIMB_SEGMENT).long()]
-    # One row per camera axis.
+    return ExtraResult(_rows(points, segment, batch, offset, weight), error, count)
+
+
+def _rows(points, segment, batch, offset, weight) -> Rows:
+    """One row per camera axis of each correspondence."""
     n = points.shape[0]
-    eye = torch.eye(3, dtype=dtype, device=points.device)
-    rows = Rows(
+    eye = torch.eye(3, dtype=points.dtype, device=points.device)
+    return Rows(
         batch.repeat_interleave(3),
         points.repeat_interleave(3, 0),
         segment.repeat_interleave(3),
@@ -283,4 +306,3 @@ def extra_rows(
         offset.reshape(-1),
         weight.repeat_interleave(3),
     )
-    return ExtraResult(rows, error, count)

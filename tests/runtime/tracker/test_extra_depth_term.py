@@ -68,6 +68,42 @@ class TestExtraRows:
         torch.testing.assert_close(scaled.weight[~torso], rows.weight[~torso])
 
 
+def test_the_compiled_term_gives_the_torch_rows_bit_for_bit(make_pose, render_frame):
+    """runtime.tracker.extra_kernel (the whole term in one compiled call, float32) against
+    the torch code it replaces: the same rows, error sums and counts to the bit, for a batch
+    of poses off the truth by different amounts (every correspondence type)."""
+    pytest.importorskip("depthmocap.runtime.tracker.extra_kernel")
+    dtype = torch.float32
+    body = BodyShape.default(dtype)
+    truth = make_pose(dtype)
+    q = truth.repeat(3, 1)
+    q[1, D["l_humerus_abd"]] += 0.35
+    q[2, D["root_tx"]] += 0.05
+    q[2, D["r_femur_flex"]] -= 0.4
+    single = render_frame(truth, body)
+    from depthmocap.runtime.tracker.tracker import expand_observation
+
+    obs = expand_observation(single, 3)
+    render = render_body(q, body, obs.intr)
+    regions = classify(render, obs, 0.08, True)
+    cfg = TrackerConfig()
+    observed = observed_candidates(obs, 800)  # thinned: the sampling ratios matter too
+    got = extra_rows(render, obs, regions, observed, cfg, 3)
+    kernel = extra_depth_term._extra_kernel
+    try:
+        extra_depth_term._extra_kernel = lambda: None
+        want = extra_rows(render, obs, regions, observed, cfg, 3)
+    finally:
+        extra_depth_term._extra_kernel = kernel
+    assert len(want.rows) > 0 and bool((want.rows.weight > 0).any())
+    assert bool((want.rows.weight == 0).any())  # unmatched queries too
+    for name in ("batch", "points", "segment", "direction", "residual", "weight"):
+        a, b = getattr(got.rows, name), getattr(want.rows, name)
+        assert a.dtype == b.dtype or name == "segment", name
+        assert torch.equal(a.to(b.dtype), b), name
+    assert torch.equal(got.error_sum, want.error_sum) and torch.equal(got.count, want.count)
+
+
 class TestClosestPoints:
     @pytest.fixture(params=["dispatch", "torch"])
     def closest_points(self, request):
