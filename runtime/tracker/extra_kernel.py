@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from .closest_kernel import _closest
-from .sampling_kernel import _count, _rendered_points, _sample
+from .sampling_kernel import points_at, sampled
 
 __all__ = ["extra_correspondences_cpu"]
 
@@ -58,39 +58,6 @@ def _query_masks(b1, front, behind, b3, good, silhouette, rendered, r):  # pragm
                 elif behind[b, v, u] and not (r > 0 and _near(good, r, b, v, u)):
                     o[b, v, u] = True
     return q, o
-
-
-@numba.njit(cache=True, nogil=True, boundscheck=False)
-def _sampled(mask, max_count):  # pragma: no cover - compiled
-    """``sample_pixels_cpu``: rows (N, 3) and the float64 ratio each stands for."""
-    nb = mask.shape[0]
-    total = np.zeros(nb, np.int64)
-    kept = np.zeros(nb, np.int64)
-    n = _count(mask, total)
-    thin = max_count > 0 and n > max_count
-    idx = np.empty((n, 3), np.int64)
-    rows = _sample(mask, max_count, thin, total, idx, kept)
-    idx = idx[:rows]
-    ratio = np.ones(rows, np.float64)
-    if thin:
-        for i in range(rows):
-            b = idx[i, 0]
-            ratio[i] = np.float64(total[b]) / np.float64(max(kept[b], 1))
-    return idx, ratio
-
-
-@numba.njit(cache=True, nogil=True, boundscheck=False)
-def _points_at(depth, segment, idx, centre, focal):  # pragma: no cover - compiled
-    """``rendered_points_cpu``: points (N, 3) in the depth's dtype and segments (N,)."""
-    n = idx.shape[0]
-    uv = np.empty((n, 2), depth.dtype)
-    for i in range(n):
-        uv[i, 0] = idx[i, 2]
-        uv[i, 1] = idx[i, 1]
-    points = np.empty((n, 3), depth.dtype)
-    seg = np.empty(n, segment.dtype)
-    _rendered_points(depth, segment, idx, uv, centre, focal, points, seg)
-    return points, seg
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
@@ -151,8 +118,8 @@ def _correspondences(
     count = np.zeros(batch_size, dt)
 
     # Types 1 and 3: rendered point -> closest observed point.
-    q_idx, q_ratio64 = _sampled(qmask, half)
-    q_pts, q_seg = _points_at(depth, segment, q_idx, centre, focal)
+    q_idx, q_ratio64 = sampled(qmask, half)
+    q_pts, q_seg = points_at(depth, segment, q_idx, centre, focal)
     nq = q_idx.shape[0]
     j, found = _closest_of(q_pts, q_idx[:, 0].copy(), cand_points, cand_batch, gate, max_d2)
     q_ratio = q_ratio64.astype(dt)
@@ -167,15 +134,15 @@ def _correspondences(
         count[q_idx[i, 0]] += q_ratio[i]
 
     # Types 2 and 4: observed point -> closest rendered point (a model point to pull).
-    o_idx, o_ratio64 = _sampled(omask, half)
+    o_idx, o_ratio64 = sampled(omask, half)
     o_ratio = o_ratio64.astype(dt)
     no = o_idx.shape[0]
     o_pts = np.empty((no, 3), dt)
     for i in range(no):
         for a in range(3):
             o_pts[i, a] = obs_points[o_idx[i, 0], o_idx[i, 1], o_idx[i, 2], a]
-    c_idx, _ = _sampled(rendered, max_candidates)
-    c_pts, c_seg = _points_at(depth, segment, c_idx, centre, focal)
+    c_idx, _ = sampled(rendered, max_candidates)
+    c_pts, c_seg = points_at(depth, segment, c_idx, centre, focal)
     o_batch = o_idx[:, 0].copy()
     k, found_o = _closest_of(o_pts, o_batch, c_pts, c_idx[:, 0].copy(), gate, max_d2)
     have = c_pts.shape[0] > 0

@@ -21,7 +21,7 @@ import numba
 import numpy as np
 import torch
 
-__all__ = ["sample_pixels_cpu", "rendered_points_cpu"]
+__all__ = ["sample_pixels_cpu", "rendered_points_cpu", "sampled", "points_at"]
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
@@ -116,3 +116,38 @@ def rendered_points_cpu(
     seg = np.empty(ix.shape[0], segments.dtype)
     _rendered_points(d, segments, ix, uv, centre, focal, points, seg)
     return torch.from_numpy(points), torch.from_numpy(seg)
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def sampled(mask, max_count):  # pragma: no cover - compiled
+    """:func:`sample_pixels_cpu` inside compiled code: rows (N, 3) and the float64 ratio
+    each stands for."""
+    nb = mask.shape[0]
+    total = np.zeros(nb, np.int64)
+    kept = np.zeros(nb, np.int64)
+    n = _count(mask, total)
+    thin = max_count > 0 and n > max_count
+    idx = np.empty((n, 3), np.int64)
+    rows = _sample(mask, max_count, thin, total, idx, kept)
+    idx = idx[:rows]
+    ratio = np.ones(rows, np.float64)
+    if thin:
+        for i in range(rows):
+            b = idx[i, 0]
+            ratio[i] = np.float64(total[b]) / np.float64(max(kept[b], 1))
+    return idx, ratio
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def points_at(depth, segment, idx, centre, focal):  # pragma: no cover - compiled
+    """:func:`rendered_points_cpu` inside compiled code: points (N, 3) in the depth's dtype
+    and segments (N,)."""
+    n = idx.shape[0]
+    uv = np.empty((n, 2), depth.dtype)
+    for i in range(n):
+        uv[i, 0] = idx[i, 2]
+        uv[i, 1] = idx[i, 1]
+    points = np.empty((n, 3), depth.dtype)
+    seg = np.empty(n, segment.dtype)
+    _rendered_points(depth, segment, idx, uv, centre, focal, points, seg)
+    return points, seg

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import torch
 from depthmocap.runtime.raycast import BodyRender
+from depthmocap.shared.compiled import compiled_module
 
 from .config import TrackerConfig
 from .gauss_newton import Rows
@@ -47,6 +48,16 @@ def silhouette_boundary(mask: torch.Tensor) -> torch.Tensor:
 
 def silhouette_rows(render: BodyRender, obs: Observation, cfg: TrackerConfig) -> Rows:
     """Rows for the rendered boundary pixels that lie outside the observed silhouette."""
+    depth = render.depth
+    if depth.device.type == "cpu" and depth.dtype == torch.float32 and not depth.requires_grad:
+        kernel = compiled_module("depthmocap.runtime.tracker.silhouette_kernel")
+        if kernel is not None:  # one compiled call, the same rows (CPU, float32)
+            return Rows(
+                *kernel.silhouette_rows_cpu(
+                    render, obs, MAX_SILHOUETTE_PIXELS, SILHOUETTE_DEADZONE_PX,
+                    cfg.sigma_silhouette_px,
+                )
+            )  # fmt: skip
     outside = silhouette_boundary(render.mask) & (obs.distance > 0)
     idx, _, ratio = sample_pixels(outside, MAX_SILHOUETTE_PIXELS)
     points, segment = rendered_points(render, idx, obs.intr)

@@ -57,3 +57,30 @@ class TestSilhouetteRows:
             dq[0, dof] = eps
             fd = ((pixels(dq) - pixels(-dq)) * grad).sum(-1) / (2 * eps)
             assert torch.allclose(jac[:, dof], fd, atol=1e-4, rtol=1e-4), sk.DOF_NAMES[dof]
+
+
+def test_the_compiled_term_gives_the_torch_rows_bit_for_bit(monkeypatch, make_pose, render_frame):
+    """runtime.tracker.silhouette_kernel (one compiled call, CPU float32) against the torch
+    code it replaces, on a batch of poses spilling over the observed silhouette by different
+    amounts, thinned and not: the same rows to the bit."""
+    pytest.importorskip("depthmocap.runtime.tracker.silhouette_kernel")
+    from depthmocap.runtime.tracker.tracker import expand_observation
+
+    body = BodyShape.default(torch.float32)
+    truth = make_pose(torch.float32)
+    obs = expand_observation(render_frame(truth, body), 3)
+    q = truth.repeat(3, 1)
+    q[1, 0] += 0.04
+    q[2, D["l_humerus_abd"]] += 0.4
+    render = render_body(q, body, obs.intr)
+    cfg = TrackerConfig()
+    for cap in (60, 100000):
+        monkeypatch.setattr(silhouette_term, "MAX_SILHOUETTE_PIXELS", cap)
+        got = silhouette_rows(render, obs, cfg)
+        with monkeypatch.context() as m:  # the torch code (its sampling still compiled)
+            m.setattr(silhouette_term, "compiled_module", lambda name: None)
+            want = silhouette_rows(render, obs, cfg)
+        assert len(want) > 20
+        for name in ("batch", "points", "segment", "direction", "residual", "weight"):
+            a, b = getattr(got, name), getattr(want, name)
+            assert a.dtype == b.dtype and torch.equal(a, b), (cap, name)
