@@ -57,3 +57,31 @@ class TestDepthRows:
             minus = render_body(pose_update(q, -dq), body, obs.intr).depth
             fd = (plus - minus)[idx[:, 0], idx[:, 1], idx[:, 2]] / (2 * eps)
             assert torch.allclose(jac[:, dof] / cos, fd, atol=1e-4, rtol=1e-4), sk.DOF_NAMES[dof]
+
+
+def test_the_compiled_term_gives_the_torch_rows_bit_for_bit(monkeypatch, make_pose, render_frame):
+    """runtime.tracker.depth_kernel (the term and its surface normals in one compiled call,
+    CPU float32) against the torch code it replaces, on a batch of poses off the truth by
+    different amounts, thinned and not: the same rows to the bit."""
+    pytest.importorskip("depthmocap.runtime.tracker.depth_kernel")
+    from depthmocap.runtime.tracker.tracker import expand_observation
+
+    body = BodyShape.default(torch.float32)
+    truth = make_pose(torch.float32)
+    obs = expand_observation(render_frame(truth, body), 3)
+    q = truth.repeat(3, 1)
+    q[1, 0] += 0.02
+    q[2, D["l_humerus_abd"]] += 0.3
+    render = render_body(q, body, obs.intr, details=False)
+    regions = classify(render, obs, 0.08, True)
+    cfg = TrackerConfig()
+    for cap in (150, 100000):
+        monkeypatch.setattr(depth_term, "MAX_DEPTH_PIXELS", cap)
+        got = depth_term.depth_rows(render, obs, regions, cfg)
+        with monkeypatch.context() as m:  # the torch code (its sampling still compiled)
+            m.setattr(depth_term, "compiled_module", lambda name: None)
+            want = depth_term.depth_rows(render, obs, regions, cfg)
+        assert len(want) > 100
+        for name in ("batch", "points", "segment", "direction", "residual", "weight"):
+            a, b = getattr(got, name), getattr(want, name)
+            assert a.dtype == b.dtype and torch.equal(a, b), (cap, name)
