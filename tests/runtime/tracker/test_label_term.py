@@ -170,3 +170,30 @@ def test_label_term_pulls_a_misplaced_arm_back():
 def test_bad_noise_scales_are_rejected(bad):
     with pytest.raises(TrackerConfigError, match="positive and finite"):
         TrackerConfig(**bad)
+
+
+def test_the_compiled_term_gives_the_torch_rows_bit_for_bit(monkeypatch):
+    """runtime.tracker.label_kernel (one compiled call, CPU float32) against the torch code
+    it replaces, on a batch of poses off the labelled observation by different amounts,
+    thinned and not, the gate biting: the same rows to the bit."""
+    pytest.importorskip("depthmocap.runtime.tracker.label_kernel")
+    from depthmocap.runtime.tracker.tracker import expand_observation
+
+    body = BodyShape.default(torch.float32)
+    q_obs = _pose(torch.float32)
+    obs = expand_observation(_labelled_observation(q_obs, body, 2), 3)
+    q = q_obs.repeat(3, 1)
+    q[1, D["l_humerus_abd"]] += 0.3
+    q[2, 0] += 0.2  # most pixels beyond the gate
+    kin, geom = forward_kinematics(q, body), segment_geometry(body, q)
+    cfg = TrackerConfig()
+    for cap in (40, 100000):
+        monkeypatch.setattr(label_term, "MAX_LABEL_PIXELS", cap)
+        got = label_rows(kin, geom, obs, cfg)
+        with monkeypatch.context() as m:  # the torch code (its sampling still compiled)
+            m.setattr(label_term, "compiled_module", lambda name: None)
+            want = label_rows(kin, geom, obs, cfg)
+        assert len(want) > 30 and bool((want.weight == 0).any() and (want.weight > 0).any())
+        for name in ("batch", "points", "segment", "direction", "residual", "weight"):
+            a, b = getattr(got, name), getattr(want, name)
+            assert a.dtype == b.dtype and torch.equal(a, b), (cap, name)
