@@ -199,3 +199,24 @@ def test_a_batch_gives_the_rows_of_each_pose():
         torch.testing.assert_close(hess[b], h1[0])
         torch.testing.assert_close(grad[b], g1_[0])
         assert bool((rows.weight > 0).any())
+
+
+def test_the_compiled_term_gives_the_torch_rows_bit_for_bit(monkeypatch):
+    """runtime.tracker.collision_kernel (one compiled call, CPU float32) against the torch
+    code it replaces, on poses with the arms out and swung into the torso: the same rows
+    and columns to the bit, contacts included."""
+    pytest.importorskip("depthmocap.runtime.tracker.collision_kernel")
+    body = BodyShape.default(torch.float32)
+    q = rest_pose(3, root_position=(0.0, 0.1, 2.5))
+    q[1, D["l_humerus_abd"]] = -0.5  # the left arm into the torso
+    q[2, D["l_humerus_abd"]], q[2, D["l_radius_flex"]] = -1.5, 2.5  # and across it
+    q[2, D["r_humerus_flex"]] = 1.5  # the right arm forward, clear
+    kin, geom = forward_kinematics(q, body), segment_geometry(body, q)
+    got, got_columns = collision_term.collision_rows(kin, geom)
+    monkeypatch.setattr(collision_term, "compiled_module", lambda name: None)
+    want, want_columns = collision_term.collision_rows(kin, geom)
+    assert bool((want.weight > 0).any()) and bool((want.weight == 0).any())
+    for name in ("batch", "points", "segment", "direction", "residual", "weight"):
+        a, b = getattr(got, name), getattr(want, name)
+        assert a.dtype == b.dtype and torch.equal(a, b), name
+    assert torch.equal(got_columns, want_columns)
