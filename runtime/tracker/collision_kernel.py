@@ -18,38 +18,9 @@ import numba
 import numpy as np
 import torch
 
-from .extra_kernel import _norm32
+from .label_kernel import capsule_offset
 
 __all__ = ["collision_rows_cpu"]
-
-
-@numba.njit(cache=True, nogil=True, boundscheck=False)
-def _signed_offset(x, rot, origin, basis, span, scale, b, p, consts):  # pragma: no cover
-    """runtime.tracker.label_term.capsule_offsets for one point and capsule p of pose b:
-    signed distance and the camera-frame unit direction (3,)."""
-    d = np.empty(3, x.dtype)
-    local = np.empty(3, x.dtype)
-    c = np.empty(3, x.dtype)
-    t = np.empty(3, x.dtype)
-    out = np.empty(3, x.dtype)
-    for k in range(3):
-        d[k] = x[k] - origin[b, p, k]
-    for j in range(3):
-        local[j] = (d[0] * rot[b, p, 0, j] + d[1] * rot[b, p, 1, j]) + d[2] * rot[b, p, 2, j]
-    for r in range(3):
-        c[r] = (basis[p, r, 0] * local[0] + basis[p, r, 1] * local[1]) + basis[p, r, 2] * local[2]
-    c[2] = c[2] - min(max(c[2], span[b, p, 0]), span[b, p, 1])
-    length = _norm32(c[0], c[1], c[2])
-    rho = _norm32(c[0] / scale[b, p, 0], c[1] / scale[b, p, 1], c[2] / scale[b, p, 2])
-    signed = length * (consts[3] - consts[3] / max(rho, consts[4]))
-    unit_len = max(length, consts[5])
-    for k in range(3):
-        c[k] = c[k] / unit_len
-    for k in range(3):
-        t[k] = (basis[p, 0, k] * c[0] + basis[p, 1, k] * c[1]) + basis[p, 2, k] * c[2]
-    for r in range(3):
-        out[r] = (rot[b, p, r, 0] * t[0] + rot[b, p, r, 1] * t[1]) + rot[b, p, r, 2] * t[2]
-    return signed, out
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
@@ -72,19 +43,20 @@ def _collision(
     for b in range(B):
         for m in range(M):
             i = b * M + m
-            best, best_dir, best_t = np.inf, np.zeros(3, dt), 0
+            best, best_t = np.inf, 0
+            d0 = d1 = d2 = zero
             for t in range(torso.shape[0]):
-                s, dirn = _signed_offset(
+                s, e0, e1, e2 = capsule_offset(
                     points[b, m], rot, origin, basis, span, scale, b, torso[t], consts
                 )
                 if s < best:  # argmin: the first of equal values
-                    best, best_dir, best_t = s, dirn, t
+                    best, best_t, d0, d1, d2 = s, t, e0, e1, e2
             tolerance = consts[1] if hand[m] else consts[0]
             e = max(-tolerance - best, zero)
             batch[i] = b
             for k in range(3):
                 pts[i, k] = points[b, m, k]
-                direction[i, k] = best_dir[k]
+            direction[i, 0], direction[i, 1], direction[i, 2] = d0, d1, d2
             segment[i] = seg[m]
             excess[i] = e
             weight[i] = (consts[3] if e > zero else zero) / consts[2]

@@ -21,14 +21,45 @@ import torch
 from .extra_kernel import _norm32
 from .sampling_kernel import sampled
 
-__all__ = ["label_rows_cpu"]
+__all__ = ["capsule_offset", "label_rows_cpu"]
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def capsule_offset(x, rot, origin, basis, span, scale, b, p, consts):  # pragma: no cover
+    """runtime.tracker.label_term.capsule_offsets for one point ``x`` (3,) and capsule ``p``
+    of pose ``b``: the signed distance and the camera-frame unit direction's three
+    components; ``consts`` (..., 1, 1e-9, 1e-12) at indices 3-5 in the points' dtype."""
+    R, A = rot[b, p], basis[p]
+    d0, d1, d2 = x[0] - origin[b, p, 0], x[1] - origin[b, p, 1], x[2] - origin[b, p, 2]
+    # local = (x - o) R, then c = basis local: torch's 3 x 3 products, summed in order.
+    l0 = (d0 * R[0, 0] + d1 * R[1, 0]) + d2 * R[2, 0]
+    l1 = (d0 * R[0, 1] + d1 * R[1, 1]) + d2 * R[2, 1]
+    l2 = (d0 * R[0, 2] + d1 * R[1, 2]) + d2 * R[2, 2]
+    c0 = (A[0, 0] * l0 + A[0, 1] * l1) + A[0, 2] * l2
+    c1 = (A[1, 0] * l0 + A[1, 1] * l1) + A[1, 2] * l2
+    c2 = (A[2, 0] * l0 + A[2, 1] * l1) + A[2, 2] * l2
+    c2 = c2 - min(max(c2, span[b, p, 0]), span[b, p, 1])
+    length = _norm32(c0, c1, c2)
+    rho = _norm32(c0 / scale[b, p, 0], c1 / scale[b, p, 1], c2 / scale[b, p, 2])
+    signed = length * (consts[3] - consts[3] / max(rho, consts[4]))
+    unit = max(length, consts[5])
+    u0, u1, u2 = c0 / unit, c1 / unit, c2 / unit
+    t0 = (A[0, 0] * u0 + A[1, 0] * u1) + A[2, 0] * u2
+    t1 = (A[0, 1] * u0 + A[1, 1] * u1) + A[2, 1] * u2
+    t2 = (A[0, 2] * u0 + A[1, 2] * u1) + A[2, 2] * u2
+    return (
+        signed,
+        (R[0, 0] * t0 + R[0, 1] * t1) + R[0, 2] * t2,
+        (R[1, 0] * t0 + R[1, 1] * t1) + R[1, 2] * t2,
+        (R[2, 0] * t0 + R[2, 1] * t1) + R[2, 2] * t2,
+    )
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def _label_rows(
     use, labels, obs_points, rot, origin, basis, span, scale, max_pixels, consts, sigma
 ):  # pragma: no cover - compiled
-    """The rows of ``label_rows``; ``consts``: (gate, 1e-9, 1e-12, 1) in float32."""
+    """The rows of ``label_rows``; ``consts``: (gate, -, -, 1, 1e-9, 1e-12) in float32."""
     idx, ratio = sampled(use, max_pixels)
     n = idx.shape[0]
     dt = obs_points.dtype
@@ -39,40 +70,13 @@ def _label_rows(
     segment = np.empty(n, np.int64)
     scale_w = (np.sqrt(ratio) / sigma).astype(dt)
     zero = consts[3] - consts[3]
-    d = np.empty(3, dt)
-    local = np.empty(3, dt)
-    c = np.empty(3, dt)
-    off = np.empty(3, dt)
-    t = np.empty(3, dt)
     for i in range(n):
         b, v, u = idx[i, 0], idx[i, 1], idx[i, 2]
         s = labels[b, v, u]
         segment[i] = s
-        # runtime.tracker.label_term.capsule_offsets: the point in its capsule's coordinates.
-        for k in range(3):
-            d[k] = obs_points[b, v, u, k] - origin[b, s, k]
-        for j in range(3):
-            local[j] = (d[0] * rot[b, s, 0, j] + d[1] * rot[b, s, 1, j]) + d[2] * rot[b, s, 2, j]
-        for r in range(3):
-            c[r] = (basis[s, r, 0] * local[0] + basis[s, r, 1] * local[1]) + basis[s, r, 2] * local[
-                2
-            ]
-        # runtime.raycast.capsule_signed_distance.
-        off[0] = c[0]
-        off[1] = c[1]
-        off[2] = c[2] - min(max(c[2], span[b, s, 0]), span[b, s, 1])
-        length = _norm32(off[0], off[1], off[2])
-        rho = _norm32(off[0] / scale[b, s, 0], off[1] / scale[b, s, 1], off[2] / scale[b, s, 2])
-        signed = length * (consts[3] - consts[3] / max(rho, consts[1]))
-        unit_len = max(length, consts[2])
-        for k in range(3):
-            off[k] = off[k] / unit_len
-        for k in range(3):
-            t[k] = (basis[s, 0, k] * off[0] + basis[s, 1, k] * off[1]) + basis[s, 2, k] * off[2]
-        for r in range(3):
-            direction[i, r] = (rot[b, s, r, 0] * t[0] + rot[b, s, r, 1] * t[1]) + rot[
-                b, s, r, 2
-            ] * t[2]
+        signed, direction[i, 0], direction[i, 1], direction[i, 2] = capsule_offset(
+            obs_points[b, v, u], rot, origin, basis, span, scale, b, s, consts
+        )
         for r in range(3):
             surface[i, r] = obs_points[b, v, u, r] - signed * direction[i, r]
         signed_out[i] = signed
@@ -92,6 +96,6 @@ def label_rows_cpu(kin, geom, obs, use, max_pixels: int, gate: float, sigma: flo
         origin.contiguous().numpy(), geom.basis.contiguous().numpy(),
         geom.span.expand(B, -1, -1).contiguous().numpy(),
         geom.scale.expand(B, -1, -1).contiguous().numpy(), int(max_pixels),
-        np.array([gate, 1e-9, 1e-12, 1.0], points.dtype), float(sigma),
+        np.array([gate, 0.0, 0.0, 1.0, 1e-9, 1e-12], points.dtype), float(sigma),
     )  # fmt: skip
     return tuple(torch.from_numpy(x) for x in out)
