@@ -23,7 +23,7 @@ import numba
 import numpy as np
 import torch
 
-__all__ = ["closest_points_cpu"]
+__all__ = ["closest_of", "closest_points_cpu"]
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
@@ -61,6 +61,40 @@ def _closest(q, q_group, c, c_index, start, end, gate, max_d2, index, found):  #
             found[i] = True
 
 
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def closest_of(query, query_batch, cand, cand_batch, gate, max_d2):  # pragma: no cover
+    """:func:`closest_points_cpu` on numpy arrays (also inside compiled code): index into
+    ``cand`` (0 where not found) and found."""
+    nq, nc = query.shape[0], cand.shape[0]
+    index = np.full(nq, -1, np.int64)
+    found = np.zeros(nq, np.bool_)
+    if nq == 0 or nc == 0:
+        return np.maximum(index, 0), found
+    q = query.astype(np.float64)
+    c = cand.astype(np.float64)
+    groups = 0
+    for i in range(nq):
+        groups = max(groups, query_batch[i] + 1)
+    y_max, y_min = 0.0, 0.0
+    for i in range(nc):
+        groups = max(groups, cand_batch[i] + 1)
+        y_max = max(y_max, c[i, 1])
+        y_min = min(y_min, c[i, 1])
+    key = cand_batch * (y_max - y_min + 1.0) + c[:, 1]
+    presorted = True
+    for i in range(1, nc):
+        if not key[i] >= key[i - 1]:  # as numpy's all(key[1:] >= key[:-1]): NaN unsorted
+            presorted = False
+            break
+    # Ties in the key may come out in any order: the walk breaks ties by candidate index.
+    order = np.arange(nc) if presorted else np.argsort(key)
+    sorted_batch = cand_batch[order]
+    bounds = np.searchsorted(sorted_batch, np.arange(groups + 1))
+    c_sorted = np.ascontiguousarray(c[order])
+    _closest(q, query_batch, c_sorted, order, bounds[:-1], bounds[1:], gate, max_d2, index, found)
+    return np.maximum(index, 0), found
+
+
 def closest_points_cpu(
     query: torch.Tensor,
     query_batch: torch.Tensor,
@@ -73,22 +107,9 @@ def closest_points_cpu(
     tensors: index (N,) into ``cand`` and found (N,) bool; where nothing eligible lies within
     ``max_distance`` the index is 0 (the torch search's is the farther closest one: callers
     read the index only where found)."""
-    q = query.detach().numpy().astype(np.float64, copy=False)
-    c = cand.detach().numpy().astype(np.float64, copy=False)
-    qb = query_batch.numpy().astype(np.int64, copy=False)
-    cb = cand_batch.numpy().astype(np.int64, copy=False)
-    groups = int(max(qb.max(initial=-1), cb.max(initial=-1))) + 1
-    # By pose, then by height within each pose (one argsort of a combined key; candidates the
-    # caller already sorted, as observed_candidates does, skip it).
-    y = c[:, 1]
-    key = cb * (y.max(initial=0.0) - y.min(initial=0.0) + 1.0) + y
-    presorted = bool(np.all(key[1:] >= key[:-1]))
-    order = np.arange(len(c)) if presorted else np.argsort(key)
-    bounds = np.searchsorted(cb[order], np.arange(groups + 1))
-    index = np.full(len(q), -1, dtype=np.int64)
-    found = np.zeros(len(q), dtype=np.bool_)
-    _closest(
-        q, qb, np.ascontiguousarray(c[order]), order, bounds[:-1], bounds[1:],
-        float(depth_gate), float(max_distance) ** 2, index, found,
+    index, found = closest_of(
+        query.detach().numpy(), query_batch.numpy().astype(np.int64, copy=False),
+        cand.detach().numpy(), cand_batch.numpy().astype(np.int64, copy=False),
+        float(depth_gate), float(max_distance) ** 2,
     )  # fmt: skip
-    return torch.from_numpy(np.maximum(index, 0)), torch.from_numpy(found)
+    return torch.from_numpy(index), torch.from_numpy(found)

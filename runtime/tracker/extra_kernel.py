@@ -21,7 +21,7 @@ import numba
 import numpy as np
 import torch
 
-from .closest_kernel import _closest
+from .closest_kernel import closest_of
 from .sampling_kernel import points_at, sampled
 
 __all__ = ["extra_correspondences_cpu"]
@@ -61,39 +61,6 @@ def _query_masks(b1, front, behind, b3, good, silhouette, rendered, r):  # pragm
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
-def _closest_of(query, query_batch, cand, cand_batch, gate, max_d2):  # pragma: no cover
-    """``closest_points_cpu``: index into ``cand`` (0 where not found) and found."""
-    nq, nc = query.shape[0], cand.shape[0]
-    index = np.full(nq, -1, np.int64)
-    found = np.zeros(nq, np.bool_)
-    if nq == 0 or nc == 0:
-        return np.maximum(index, 0), found
-    q = query.astype(np.float64)
-    c = cand.astype(np.float64)
-    groups = 0
-    for i in range(nq):
-        groups = max(groups, query_batch[i] + 1)
-    y_max, y_min = 0.0, 0.0
-    for i in range(nc):
-        groups = max(groups, cand_batch[i] + 1)
-        y_max = max(y_max, c[i, 1])
-        y_min = min(y_min, c[i, 1])
-    key = cand_batch * (y_max - y_min + 1.0) + c[:, 1]
-    presorted = True
-    for i in range(1, nc):
-        if not key[i] >= key[i - 1]:  # as numpy's all(key[1:] >= key[:-1]): NaN unsorted
-            presorted = False
-            break
-    # Ties in the key may come out in any order: the walk breaks ties by candidate index.
-    order = np.arange(nc) if presorted else np.argsort(key)
-    sorted_batch = cand_batch[order]
-    bounds = np.searchsorted(sorted_batch, np.arange(groups + 1))
-    c_sorted = np.ascontiguousarray(c[order])
-    _closest(q, query_batch, c_sorted, order, bounds[:-1], bounds[1:], gate, max_d2, index, found)
-    return np.maximum(index, 0), found
-
-
-@numba.njit(cache=True, nogil=True, boundscheck=False)
 def _norm32(x, y, z):  # pragma: no cover - compiled
     """torch's float32 norm of 3 values: fma(z, z, fma(y, y, x * x)), then the root."""
     acc = np.float32(np.float64(x) * np.float64(x))
@@ -121,7 +88,7 @@ def _correspondences(
     q_idx, q_ratio64 = sampled(qmask, half)
     q_pts, q_seg = points_at(depth, segment, q_idx, centre, focal)
     nq = q_idx.shape[0]
-    j, found = _closest_of(q_pts, q_idx[:, 0].copy(), cand_points, cand_batch, gate, max_d2)
+    j, found = closest_of(q_pts, q_idx[:, 0].copy(), cand_points, cand_batch, gate, max_d2)
     q_ratio = q_ratio64.astype(dt)
     off_r = np.zeros((nq, 3), dt)
     for i in range(nq):
@@ -144,7 +111,7 @@ def _correspondences(
     c_idx, _ = sampled(rendered, max_candidates)
     c_pts, c_seg = points_at(depth, segment, c_idx, centre, focal)
     o_batch = o_idx[:, 0].copy()
-    k, found_o = _closest_of(o_pts, o_batch, c_pts, c_idx[:, 0].copy(), gate, max_d2)
+    k, found_o = closest_of(o_pts, o_batch, c_pts, c_idx[:, 0].copy(), gate, max_d2)
     have = c_pts.shape[0] > 0
     n = nq + no
     q_weight = np.sqrt(q_ratio64).astype(dt)
