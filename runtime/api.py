@@ -25,7 +25,7 @@ import numpy as np
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.camera import Intrinsics
 
-from .estimator import PoseEstimate, PoseEstimator, estimate_frame, make_estimator
+from .estimator import PoseEstimate, PoseEstimator, estimate_frame, make_estimator, prepare_frame
 from .estimator_setup import (
     TrackError,
     check_model,
@@ -134,13 +134,9 @@ class Tracker:
         from .streams.latest_frame import LatestFrameReader
 
         estimator = self._estimator_for(stream.intrinsics)
-        prefetch = getattr(estimator, "prefetch", None)
 
         def prepare(frame: DepthFrame) -> Frame:
-            prepared = Frame.from_depth(frame, device=self.device, segment=self._segmenter)
-            if prefetch is not None and prepared.has_person:
-                prefetch(prepared)
-            return prepared
+            return prepare_frame(estimator, frame, self._segmenter, self.device)
 
         self.skipped = 0
         reader = LatestFrameReader(stream, prepare=prepare, skip=stream.is_live)

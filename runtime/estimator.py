@@ -23,7 +23,11 @@ from depthmocap.shared.camera import Intrinsics
 from depthmocap.shared.poses_format import STATUSES
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    import torch
     from depthmocap.runtime.frame import Frame
+    from depthmocap.runtime.streams.base import DepthFrame
 
 __all__ = [
     "PoseEstimate",
@@ -35,6 +39,7 @@ __all__ = [
     "STATUSES",
     "make_estimator",
     "estimate_frame",
+    "prepare_frame",
     "lost",
     "observed_of",
 ]
@@ -123,6 +128,26 @@ class PoseEstimator(Protocol):
     def estimate(self, frame: Frame) -> PoseEstimate:
         """Pose of the person in ``frame`` (a :class:`runtime.frame.Frame` whose mask is not
         empty: :func:`estimate_frame` handles frames without a person)."""
+
+
+def prepare_frame(
+    estimator: PoseEstimator,
+    frame: DepthFrame,
+    segment: Callable[[torch.Tensor, Intrinsics], torch.Tensor],
+    device: str | torch.device = "cpu",
+) -> Frame:
+    """``frame`` in metres with the person's mask (``segment``), and what ``estimator``
+    computes of it before the estimate (its optional ``prefetch``: the forest's labels), so
+    that a reader thread can prepare the next frame while this one is estimated
+    (``runtime-track``'s loop and ``Tracker.track_stream``). A frame without a person is
+    not prefetched."""
+    from depthmocap.runtime.frame import Frame  # the frame module imports heavier things
+
+    prepared = Frame.from_depth(frame, device=device, segment=segment)
+    prefetch = getattr(estimator, "prefetch", None)
+    if prefetch is not None and prepared.has_person:
+        prefetch(prepared)
+    return prepared
 
 
 def estimate_frame(estimator: PoseEstimator, frame: Frame) -> PoseEstimate:

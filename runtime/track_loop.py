@@ -15,7 +15,7 @@ from typing import TextIO
 
 import numpy as np
 
-from .estimator import PoseEstimator, estimate_frame
+from .estimator import PoseEstimator, estimate_frame, prepare_frame
 from .frame import Frame
 from .segmentation import PersonSegmenter, SegmentationConfig
 from .streams import DepthStream
@@ -160,13 +160,9 @@ def track(
     """
     stats = stats if stats is not None else TrackStats()
     segment = PersonSegmenter(seg_cfg or SegmentationConfig())
-    prefetch = getattr(estimator, "prefetch", None)
 
     def prepare(frame) -> Frame:
-        prepared = Frame.from_depth(frame, device=device, segment=segment)
-        if prefetch is not None and prepared.has_person:
-            prefetch(prepared)
-        return prepared
+        return prepare_frame(estimator, frame, segment, device)
 
     t_begin = time.perf_counter()
     live = realtime or stream.is_live
