@@ -24,7 +24,7 @@ from __future__ import annotations
 import torch
 from depthmocap.runtime.raycast import SegmentGeometry
 from depthmocap.shared import skeleton as sk
-from depthmocap.shared.compiled import compiled_module
+from depthmocap.shared.compiled import compiled_float32
 from depthmocap.shared.kinematics import Kinematics, segment_axis_points
 
 from .gauss_newton import Rows
@@ -89,16 +89,14 @@ def collision_rows(kin: Kinematics, geom: SegmentGeometry) -> tuple[Rows, torch.
     points, seg = arm_sample_points(kin)  # (B, M, 3)
     B, M = points.shape[:2]
     torso = torch.as_tensor(TORSO_SEGMENTS, device=points.device)
-    compiled = points.device.type == "cpu" and points.dtype == torch.float32
-    if compiled and not points.requires_grad:
-        kernel = compiled_module("depthmocap.runtime.tracker.collision_kernel")
-        if kernel is not None:  # one compiled call, the same rows and columns (CPU, float32)
-            rot, origin = geom.frames(kin)
-            *rows, columns = kernel.collision_rows_cpu(
+    kernel = compiled_float32("depthmocap.runtime.tracker.collision_kernel", points)
+    if kernel is not None:  # one compiled call, the same rows and columns
+        rot, origin = geom.frames(kin)
+        *rows, columns = kernel.collision_rows_cpu(
                 points, seg, torso, torch.as_tensor(HAND_SAMPLES), rot, origin, geom,
                 (COLLISION_TOLERANCE_M, COLLISION_HAND_TOLERANCE_M, SIGMA_COLLISION_M),
             )  # fmt: skip
-            return Rows(*rows), columns
+        return Rows(*rows), columns
     T = torso.shape[0]
     # Every (pose, point, torso capsule) triple, flattened: b and p index pose and capsule.
     b = torch.arange(B, device=points.device)[:, None, None].expand(B, M, T).reshape(-1)

@@ -19,7 +19,7 @@ import numba
 import numpy as np
 import torch
 
-from .extra_kernel import _norm32
+from .extra_kernel import norm3_float32
 from .sampling_kernel import points_at, sampled
 
 __all__ = ["depth_rows_cpu"]
@@ -64,12 +64,12 @@ def _depth_rows(
         g[2] = axial / (scale[b, p, 2] * scale[b, p, 2])
         for r in range(3):
             nrm[r] = (a[0, r] * g[0] + a[1, r] * g[1]) + a[2, r] * g[2]
-        length = max(_norm32(nrm[0], nrm[1], nrm[2]), consts[2])
+        length = max(norm3_float32(nrm[0], nrm[1], nrm[2]), consts[2])
         for r in range(3):
             nrm[r] = nrm[r] / length
         # The row (runtime.tracker.depth_term.depth_rows).
         x, y, z = points[i, 0], points[i, 1], points[i, 2]
-        dist = _norm32(x, y, z)
+        dist = norm3_float32(x, y, z)
         ray_len = dist / max(z, consts[1])
         cosine = ((nrm[0] * x + nrm[1] * y) + nrm[2] * z) / max(dist, consts[1])
         weight[i] = scale_w[i] if abs(cosine) >= consts[0] else consts[3]

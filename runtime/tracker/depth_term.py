@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import torch
 from depthmocap.runtime.raycast import BodyRender, surface_normals
-from depthmocap.shared.compiled import compiled_module
+from depthmocap.shared.compiled import compiled_float32
 
 from .config import TrackerConfig
 from .gauss_newton import Rows
@@ -37,16 +37,13 @@ MIN_COSINE = 0.2
 
 def depth_rows(render: BodyRender, obs: Observation, regions: Regions, cfg: TrackerConfig) -> Rows:
     """Linearized depth-term rows for (a strided subsample of) the pixels in G."""
-    depth = render.depth
-    compiled = depth.device.type == "cpu" and depth.dtype == torch.float32
-    if compiled and not depth.requires_grad and render.normals is None:
-        kernel = compiled_module("depthmocap.runtime.tracker.depth_kernel")
-        if kernel is not None:  # one compiled call, the same rows (CPU, float32)
-            return Rows(
-                *kernel.depth_rows_cpu(
-                    render, obs, regions, MAX_DEPTH_PIXELS, MIN_COSINE, cfg.sigma_depth_m
-                )
+    kernel = compiled_float32("depthmocap.runtime.tracker.depth_kernel", render.depth)
+    if render.normals is None and kernel is not None:  # one compiled call, the same rows
+        return Rows(
+            *kernel.depth_rows_cpu(
+                render, obs, regions, MAX_DEPTH_PIXELS, MIN_COSINE, cfg.sigma_depth_m
             )
+        )
     idx, _, ratio = sample_pixels(regions.good, MAX_DEPTH_PIXELS)
     points, segment = rendered_points(render, idx, obs.intr)
     b, v, u = idx.unbind(1)

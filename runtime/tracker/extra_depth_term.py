@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import torch
 from depthmocap.runtime.raycast import BodyRender
 from depthmocap.shared import skeleton as sk
-from depthmocap.shared.compiled import compiled_module
+from depthmocap.shared.compiled import compiled_float32, compiled_module
 
 from .config import TrackerConfig
 from .gauss_newton import Rows
@@ -106,12 +106,6 @@ def observed_candidates(obs: Observation, max_count: int) -> ObservedCandidates:
 def _closest_kernel():
     """:mod:`runtime.tracker.closest_kernel` (numba's compiled search), or None without numba."""
     return compiled_module("depthmocap.runtime.tracker.closest_kernel")
-
-
-def _extra_kernel():
-    """:mod:`runtime.tracker.extra_kernel` (the whole term as one compiled loop), or None
-    without numba."""
-    return compiled_module("depthmocap.runtime.tracker.extra_kernel")
 
 
 def closest_points(
@@ -221,11 +215,9 @@ def extra_rows(
     batch_size: int,
 ) -> ExtraResult:
     """Correspondences of types 1-4 and their linearized rows."""
-    # The compiled term: CPU float32 (the tracker's dtype) without autograd; float64 keeps
-    # the torch code, whose norms' fused multiply-adds it cannot reproduce to the bit.
-    depth = render.depth
-    compiled = depth.device.type == "cpu" and depth.dtype == torch.float32
-    kernel = _extra_kernel() if compiled and not depth.requires_grad else None
+    # One compiled call, the same rows (float64 keeps the torch code, whose norms' fused
+    # multiply-adds the compiled one cannot reproduce to the bit there).
+    kernel = compiled_float32("depthmocap.runtime.tracker.extra_kernel", render.depth)
     if kernel is not None:
         points, segment, batch, offset, weight, error, count = kernel.extra_correspondences_cpu(
             render, obs, regions, observed, batch_size, EXTRA_MARGIN_PX,

@@ -24,7 +24,7 @@ import torch
 from .closest_kernel import closest_of
 from .sampling_kernel import points_at, sampled
 
-__all__ = ["extra_correspondences_cpu"]
+__all__ = ["extra_correspondences_cpu", "norm3_float32"]
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
@@ -61,7 +61,7 @@ def _query_masks(b1, front, behind, b3, good, silhouette, rendered, r):  # pragm
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
-def _norm32(x, y, z):  # pragma: no cover - compiled
+def norm3_float32(x, y, z):  # pragma: no cover - compiled
     """torch's float32 norm of 3 values: fma(z, z, fma(y, y, x * x)), then the root."""
     acc = np.float32(np.float64(x) * np.float64(x))
     acc = np.float32(np.float64(y) * np.float64(y) + np.float64(acc))
@@ -96,7 +96,7 @@ def _correspondences(
         if found[i]:
             for a in range(3):
                 off_r[i, a] = cand_points[j[i], a] - q_pts[i, a]
-            dist = _norm32(off_r[i, 0], off_r[i, 1], off_r[i, 2])
+            dist = norm3_float32(off_r[i, 0], off_r[i, 1], off_r[i, 2])
         error[q_idx[i, 0]] += dist * q_ratio[i]
         count[q_idx[i, 0]] += q_ratio[i]
 
@@ -137,7 +137,7 @@ def _correspondences(
         if found_o[i]:
             for a in range(3):
                 offset[r, a] = o_pts[i, a] - points[r, a]
-            dist = _norm32(offset[r, 0], offset[r, 1], offset[r, 2])
+            dist = norm3_float32(offset[r, 0], offset[r, 1], offset[r, 2])
         error[o_batch[i]] += dist * o_ratio[i]
         count[o_batch[i]] += o_ratio[i]
         weight[r] = o_weight[i] if found_o[i] else zero

@@ -18,7 +18,7 @@ import numba
 import numpy as np
 import torch
 
-from .extra_kernel import _norm32
+from .extra_kernel import norm3_float32
 from .sampling_kernel import sampled
 
 __all__ = ["capsule_offset", "label_rows_cpu"]
@@ -39,8 +39,8 @@ def capsule_offset(x, rot, origin, basis, span, scale, b, p, consts):  # pragma:
     c1 = (A[1, 0] * l0 + A[1, 1] * l1) + A[1, 2] * l2
     c2 = (A[2, 0] * l0 + A[2, 1] * l1) + A[2, 2] * l2
     c2 = c2 - min(max(c2, span[b, p, 0]), span[b, p, 1])
-    length = _norm32(c0, c1, c2)
-    rho = _norm32(c0 / scale[b, p, 0], c1 / scale[b, p, 1], c2 / scale[b, p, 2])
+    length = norm3_float32(c0, c1, c2)
+    rho = norm3_float32(c0 / scale[b, p, 0], c1 / scale[b, p, 1], c2 / scale[b, p, 2])
     signed = length * (consts[3] - consts[3] / max(rho, consts[4]))
     unit = max(length, consts[5])
     u0, u1, u2 = c0 / unit, c1 / unit, c2 / unit

@@ -18,7 +18,7 @@ from __future__ import annotations
 import torch
 from depthmocap.runtime.raycast import SegmentGeometry, capsule_signed_distance
 from depthmocap.shared import skeleton as sk
-from depthmocap.shared.compiled import compiled_module
+from depthmocap.shared.compiled import compiled_float32
 from depthmocap.shared.kinematics import Kinematics
 
 from .config import TrackerConfig
@@ -73,16 +73,13 @@ def label_rows(
     ``obs.labels``; no rows without it)."""
     labels = obs.labels if obs.labels is not None else torch.full_like(obs.depth, -1).long()
     use = obs.valid & (labels >= sk.FIRST_LIMB_SEGMENT)
-    points = obs.points
-    compiled = points.device.type == "cpu" and points.dtype == torch.float32
-    if compiled and obs.labels is not None and not kin.origins.requires_grad:
-        kernel = compiled_module("depthmocap.runtime.tracker.label_kernel")
-        if kernel is not None:  # one compiled call, the same rows (CPU, float32)
-            return Rows(
-                *kernel.label_rows_cpu(
-                    kin, geom, obs, use, MAX_LABEL_PIXELS, LABEL_GATE_M, cfg.sigma_label_m
-                )
+    kernel = compiled_float32("depthmocap.runtime.tracker.label_kernel", obs.points, kin.origins)
+    if obs.labels is not None and kernel is not None:  # one compiled call, the same rows
+        return Rows(
+            *kernel.label_rows_cpu(
+                kin, geom, obs, use, MAX_LABEL_PIXELS, LABEL_GATE_M, cfg.sigma_label_m
             )
+        )
     idx, _, ratio = sample_pixels(use, MAX_LABEL_PIXELS)
     b, v, u = idx.unbind(1)
     points, segment = obs.points[b, v, u], labels[b, v, u]

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import torch
 from depthmocap.runtime.raycast import BodyRender
-from depthmocap.shared.compiled import compiled_module
+from depthmocap.shared.compiled import compiled_float32
 
 from .config import TrackerConfig
 from .gauss_newton import Rows
@@ -48,11 +48,9 @@ def silhouette_boundary(mask: torch.Tensor) -> torch.Tensor:
 
 def silhouette_rows(render: BodyRender, obs: Observation, cfg: TrackerConfig) -> Rows:
     """Rows for the rendered boundary pixels that lie outside the observed silhouette."""
-    depth = render.depth
-    if depth.device.type == "cpu" and depth.dtype == torch.float32 and not depth.requires_grad:
-        kernel = compiled_module("depthmocap.runtime.tracker.silhouette_kernel")
-        if kernel is not None:  # one compiled call, the same rows (CPU, float32)
-            return Rows(
+    kernel = compiled_float32("depthmocap.runtime.tracker.silhouette_kernel", render.depth)
+    if kernel is not None:  # one compiled call, the same rows
+        return Rows(
                 *kernel.silhouette_rows_cpu(
                     render, obs, MAX_SILHOUETTE_PIXELS, SILHOUETTE_DEADZONE_PX,
                     cfg.sigma_silhouette_px,

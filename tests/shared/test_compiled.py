@@ -6,7 +6,8 @@ from __future__ import annotations
 import sys
 
 import pytest
-from depthmocap.shared.compiled import compiled_module
+import torch
+from depthmocap.shared.compiled import compiled_float32, compiled_module
 
 
 def test_loads_a_kernel_module_and_remembers_it():
@@ -23,3 +24,12 @@ def test_none_without_numba(monkeypatch, request):
     monkeypatch.setitem(sys.modules, "numba", None)  # "import numba" raises ImportError
     monkeypatch.delitem(sys.modules, "depthmocap.shared.smoothing_kernel", raising=False)
     assert compiled_module("depthmocap.shared.smoothing_kernel") is None
+
+
+def test_compiled_float32_only_for_cpu_float32_without_gradients():
+    pytest.importorskip("numba")
+    name = "depthmocap.runtime.tracker.moments_kernel"
+    x = torch.zeros(3)
+    assert compiled_float32(name, x, x) is compiled_module(name)
+    assert compiled_float32(name, x, x.double()) is None
+    assert compiled_float32(name, x.requires_grad_()) is None

@@ -65,3 +65,16 @@ def render_sequence() -> Callable[..., tuple]:
     """``(body, truth, depth, mask)`` of a ``bench.scenes.camera_motion`` sequence rendered
     from the default body."""
     return _sequence
+
+
+def _assert_same_rows(got, want, context=None) -> None:
+    for name in ("batch", "points", "segment", "direction", "residual", "weight"):
+        a, b = getattr(got, name), getattr(want, name)
+        assert a.dtype == b.dtype and torch.equal(a, b), (context, name)
+
+
+@pytest.fixture
+def assert_same_rows() -> Callable[..., None]:
+    """``assert_same_rows(got, want, context)``: two terms' ``Rows`` equal field by field, in
+    dtype and to the bit (a compiled term against the torch code it replaces)."""
+    return _assert_same_rows

@@ -59,7 +59,9 @@ class TestDepthRows:
             assert torch.allclose(jac[:, dof] / cos, fd, atol=1e-4, rtol=1e-4), sk.DOF_NAMES[dof]
 
 
-def test_the_compiled_term_gives_the_torch_rows_bit_for_bit(monkeypatch, make_pose, render_frame):
+def test_the_compiled_term_gives_the_torch_rows_bit_for_bit(
+    assert_same_rows, monkeypatch, make_pose, render_frame
+):
     """runtime.tracker.depth_kernel (the term and its surface normals in one compiled call,
     CPU float32) against the torch code it replaces, on a batch of poses off the truth by
     different amounts, thinned and not: the same rows to the bit."""
@@ -79,9 +81,7 @@ def test_the_compiled_term_gives_the_torch_rows_bit_for_bit(monkeypatch, make_po
         monkeypatch.setattr(depth_term, "MAX_DEPTH_PIXELS", cap)
         got = depth_term.depth_rows(render, obs, regions, cfg)
         with monkeypatch.context() as m:  # the torch code (its sampling still compiled)
-            m.setattr(depth_term, "compiled_module", lambda name: None)
+            m.setattr(depth_term, "compiled_float32", lambda name, *t: None)
             want = depth_term.depth_rows(render, obs, regions, cfg)
         assert len(want) > 100
-        for name in ("batch", "points", "segment", "direction", "residual", "weight"):
-            a, b = getattr(got, name), getattr(want, name)
-            assert a.dtype == b.dtype and torch.equal(a, b), (cap, name)
+        assert_same_rows(got, want, cap)

@@ -59,7 +59,9 @@ class TestSilhouetteRows:
             assert torch.allclose(jac[:, dof], fd, atol=1e-4, rtol=1e-4), sk.DOF_NAMES[dof]
 
 
-def test_the_compiled_term_gives_the_torch_rows_bit_for_bit(monkeypatch, make_pose, render_frame):
+def test_the_compiled_term_gives_the_torch_rows_bit_for_bit(
+    assert_same_rows, monkeypatch, make_pose, render_frame
+):
     """runtime.tracker.silhouette_kernel (one compiled call, CPU float32) against the torch
     code it replaces, on a batch of poses spilling over the observed silhouette by different
     amounts, thinned and not: the same rows to the bit."""
@@ -78,9 +80,7 @@ def test_the_compiled_term_gives_the_torch_rows_bit_for_bit(monkeypatch, make_po
         monkeypatch.setattr(silhouette_term, "MAX_SILHOUETTE_PIXELS", cap)
         got = silhouette_rows(render, obs, cfg)
         with monkeypatch.context() as m:  # the torch code (its sampling still compiled)
-            m.setattr(silhouette_term, "compiled_module", lambda name: None)
+            m.setattr(silhouette_term, "compiled_float32", lambda name, *t: None)
             want = silhouette_rows(render, obs, cfg)
         assert len(want) > 20
-        for name in ("batch", "points", "segment", "direction", "residual", "weight"):
-            a, b = getattr(got, name), getattr(want, name)
-            assert a.dtype == b.dtype and torch.equal(a, b), (cap, name)
+        assert_same_rows(got, want, cap)
