@@ -31,7 +31,7 @@ def _depth_rows(
     focal, max_pixels, consts, sigma,
 ):  # pragma: no cover - compiled  # fmt: skip
     """The rows of ``depth_rows``; ``consts``: (min cosine, 1e-9, 1e-12, 0) in float32."""
-    idx, ratio = sampled(good, max_pixels)
+    idx, _, ratio = sampled(good, max_pixels)
     points, seg = points_at(depth, segment, idx, centre, focal)
     n = idx.shape[0]
     dt = depth.dtype

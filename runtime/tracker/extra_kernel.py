@@ -85,7 +85,7 @@ def _correspondences(
     count = np.zeros(batch_size, dt)
 
     # Types 1 and 3: rendered point -> closest observed point.
-    q_idx, q_ratio64 = sampled(qmask, half)
+    q_idx, _, q_ratio64 = sampled(qmask, half)
     q_pts, q_seg = points_at(depth, segment, q_idx, centre, focal)
     nq = q_idx.shape[0]
     j, found = closest_of(q_pts, q_idx[:, 0].copy(), cand_points, cand_batch, gate, max_d2)
@@ -101,14 +101,14 @@ def _correspondences(
         count[q_idx[i, 0]] += q_ratio[i]
 
     # Types 2 and 4: observed point -> closest rendered point (a model point to pull).
-    o_idx, o_ratio64 = sampled(omask, half)
+    o_idx, _, o_ratio64 = sampled(omask, half)
     o_ratio = o_ratio64.astype(dt)
     no = o_idx.shape[0]
     o_pts = np.empty((no, 3), dt)
     for i in range(no):
         for a in range(3):
             o_pts[i, a] = obs_points[o_idx[i, 0], o_idx[i, 1], o_idx[i, 2], a]
-    c_idx, _ = sampled(rendered, max_candidates)
+    c_idx, _, _ = sampled(rendered, max_candidates)
     c_pts, c_seg = points_at(depth, segment, c_idx, centre, focal)
     o_batch = o_idx[:, 0].copy()
     k, found_o = closest_of(o_pts, o_batch, c_pts, c_idx[:, 0].copy(), gate, max_d2)

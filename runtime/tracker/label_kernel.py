@@ -60,7 +60,7 @@ def _label_rows(
     use, labels, obs_points, rot, origin, basis, span, scale, max_pixels, consts, sigma
 ):  # pragma: no cover - compiled
     """The rows of ``label_rows``; ``consts``: (gate, -, -, 1, 1e-9, 1e-12) in float32."""
-    idx, ratio = sampled(use, max_pixels)
+    idx, _, ratio = sampled(use, max_pixels)
     n = idx.shape[0]
     dt = obs_points.dtype
     surface = np.empty((n, 3), dt)

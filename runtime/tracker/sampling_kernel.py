@@ -73,19 +73,7 @@ def sample_pixels_cpu(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """:func:`runtime.tracker.regions.sample_pixels` for a CPU ``mask`` (B, H, W) bool: the
     same (N, 3) int64 rows, (B,) int64 counts and (N,) float64 ratios."""
-    m = mask.numpy()
-    total = np.zeros(m.shape[0], np.int64)
-    kept = np.zeros(m.shape[0], np.int64)
-    n = _count(m, total)
-    thin = max_count > 0 and n > max_count
-    idx = np.empty((n, 3), np.int64)  # the True pixels bound the kept ones
-    rows = _sample(m, int(max_count), thin, total, idx, kept)
-    idx = idx[:rows]
-    if thin:
-        ratio = (total.astype(np.float64) / np.maximum(kept, 1).astype(np.float64))[idx[:, 0]]
-    else:
-        ratio = np.ones(rows, np.float64)
-    return torch.from_numpy(idx), torch.from_numpy(total), torch.from_numpy(ratio)
+    return tuple(torch.from_numpy(a) for a in sampled(mask.numpy(), int(max_count)))
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
@@ -107,27 +95,22 @@ def rendered_points_cpu(
     """:func:`runtime.tracker.regions.rendered_points` for CPU tensors without autograd:
     ``depth`` (B, H, W) float, ``segment`` (B, H, W) int, ``idx`` (N, 3) int64."""
     d = depth.numpy()
-    ix = np.ascontiguousarray(idx.numpy())
-    uv = ix[:, :0:-1].astype(d.dtype)  # (u, v) as the torch code casts them
     centre = np.array([intr.cx, intr.cy], d.dtype)
     focal = np.array([intr.fx, intr.fy], d.dtype)
-    points = np.empty((ix.shape[0], 3), d.dtype)
-    segments = segment.numpy()
-    seg = np.empty(ix.shape[0], segments.dtype)
-    _rendered_points(d, segments, ix, uv, centre, focal, points, seg)
+    points, seg = points_at(d, segment.numpy(), np.ascontiguousarray(idx.numpy()), centre, focal)
     return torch.from_numpy(points), torch.from_numpy(seg)
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def sampled(mask, max_count):  # pragma: no cover - compiled
-    """:func:`sample_pixels_cpu` inside compiled code: rows (N, 3) and the float64 ratio
-    each stands for."""
+    """The pixel sampling on numpy arrays (also inside compiled code): rows (N, 3) int64,
+    each mask's count of True pixels (B,) and the float64 ratio each row stands for (N,)."""
     nb = mask.shape[0]
     total = np.zeros(nb, np.int64)
     kept = np.zeros(nb, np.int64)
     n = _count(mask, total)
     thin = max_count > 0 and n > max_count
-    idx = np.empty((n, 3), np.int64)
+    idx = np.empty((n, 3), np.int64)  # the True pixels bound the kept ones
     rows = _sample(mask, max_count, thin, total, idx, kept)
     idx = idx[:rows]
     ratio = np.ones(rows, np.float64)
@@ -135,13 +118,13 @@ def sampled(mask, max_count):  # pragma: no cover - compiled
         for i in range(rows):
             b = idx[i, 0]
             ratio[i] = np.float64(total[b]) / np.float64(max(kept[b], 1))
-    return idx, ratio
+    return idx, total, ratio
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def points_at(depth, segment, idx, centre, focal):  # pragma: no cover - compiled
-    """:func:`rendered_points_cpu` inside compiled code: points (N, 3) in the depth's dtype
-    and segments (N,)."""
+    """The rendered points on numpy arrays (also inside compiled code): points (N, 3) in the
+    depth's dtype and segments (N,) at pixels ``idx`` (b, v, u)."""
     n = idx.shape[0]
     uv = np.empty((n, 2), depth.dtype)
     for i in range(n):

@@ -48,7 +48,7 @@ def _silhouette(
 ):  # pragma: no cover - compiled
     """The rows of ``silhouette_rows``; ``consts``: (fx, fy, 1e-6, deadzone) in the depth's
     dtype, as torch holds them."""
-    idx, ratio = sampled(_outside(rendered, distance), max_count)
+    idx, _, ratio = sampled(_outside(rendered, distance), max_count)
     points, seg = points_at(depth, segment, idx, centre, focal)
     n = idx.shape[0]
     dt = depth.dtype
