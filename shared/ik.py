@@ -6,7 +6,8 @@ the segment's length (the named joints are markers). The solver is Levenberg-Mar
 the analytic Jacobians of :mod:`shared.kinematics` and the damped solve of
 :mod:`shared.least_squares`, batched over poses, with joint limits enforced by projection
 after every step and a weak prior towards a reference pose that settles what the markers
-leave free (e.g. the twist of a straight arm).
+leave free (e.g. the twist of a straight arm). On the CPU without autograd the same loop runs
+compiled, in float64 (:mod:`shared.ik_kernel`; torch's loop stays for GPUs and gradients).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import torch
 
 from . import skeleton as sk
 from .body import BodyShape
+from .compiled import compiled_module
 from .kinematics import (
     Kinematics,
     clamp_to_limits,
@@ -85,6 +87,14 @@ def _cost(q, targets, weights, body, markers, q_ref, prior):
     return data + reg, kin, p, r
 
 
+def _compiled_kernel(*tensors: torch.Tensor):
+    """:mod:`shared.ik_kernel` where every tensor is on the CPU without autograd and numba is
+    installed, else None (the torch loop below)."""
+    if any(t.device.type != "cpu" or t.requires_grad for t in tensors):
+        return None
+    return compiled_module("depthmocap.shared.ik_kernel")
+
+
 def fit_pose(
     targets: torch.Tensor,
     q_init: torch.Tensor,
@@ -120,6 +130,13 @@ def fit_pose(
     q = clamp_to_limits(q_init.clone())
     q_ref = q if q_ref is None else q_ref
     seg = torch.as_tensor(markers.segment, dtype=torch.long, device=targets.device)
+    kernel = _compiled_kernel(targets, weights, q, q_ref, body.lengths)
+    if kernel is not None:
+        frac = torch.as_tensor(markers.fraction, dtype=torch.float64)
+        q, rms, its = kernel.fit_pose_cpu(
+            targets, weights, q, q_ref.to(q), body, seg, frac, prior, iterations, tolerance
+        )
+        return IKResult(q, rms, its)
     lam = targets.new_full((B,), 1e-3)
     prior_diag = torch.cat([targets.new_zeros(6), targets.new_full((28,), prior)])
     cost, kin, p, r = _cost(q, targets, weights, body, markers, q_ref, prior)

@@ -1,3 +1,4 @@
+import pytest
 import torch
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.body import BodyShape
@@ -73,3 +74,49 @@ def test_custom_markers_shape_check():
         assert "marker set has 1" in str(err)
     else:
         raise AssertionError("expected a ValueError")
+
+
+def _torch_only(monkeypatch):
+    import depthmocap.shared.ik as ik
+
+    monkeypatch.setattr(ik, "_compiled_kernel", lambda *tensors: None)
+
+
+def test_the_compiled_loop_follows_the_torch_loop(monkeypatch):
+    """The CPU path (shared.ik_kernel) takes the torch loop's steps: in float64 the same poses
+    and errors to rounding, over a batch with a missing marker, a prior and joints at their
+    limits, and the same iteration count."""
+    pytest.importorskip("numba")
+    body = BodyShape.default(torch.float64)
+    q = poses(6, scale=0.9, seed=3)
+    targets = named_joint_positions(forward_kinematics(q, body))
+    targets[1, 4] = float("nan")
+    g = torch.Generator().manual_seed(2)
+    targets = targets + 0.01 * torch.randn(targets.shape, generator=g, dtype=torch.float64)
+    weights = torch.rand(6, len(sk.JOINT_NAMES), generator=g, dtype=torch.float64)
+    q0 = q + 0.2 * torch.randn(q.shape, generator=g, dtype=torch.float64)
+    args = (targets, q0, body, weights)
+    compiled = fit_pose(*args, prior=1e-3, iterations=15)
+    _torch_only(monkeypatch)
+    reference = fit_pose(*args, prior=1e-3, iterations=15)
+    assert compiled.iterations == reference.iterations
+    torch.testing.assert_close(compiled.q, reference.q, atol=1e-7, rtol=0)
+    torch.testing.assert_close(compiled.rms, reference.rms, atol=1e-9, rtol=0)
+
+
+def test_the_compiled_loop_in_float32_and_with_autograd(monkeypatch):
+    """float32 in, float32 out (computed in float64, so within float32's drift of the torch
+    loop); a pose needing gradients takes the torch loop."""
+    pytest.importorskip("numba")
+    import depthmocap.shared.ik as ik
+
+    body = BodyShape.default(torch.float32)
+    q = poses(3, seed=4).float()
+    targets = named_joint_positions(forward_kinematics(q, body))
+    res = fit_pose(targets, q + 0.05, body, iterations=30)
+    assert res.q.dtype == torch.float32 and res.rms.dtype == torch.float32
+    assert res.rms.max() < 2e-3
+    assert ik._compiled_kernel(targets.requires_grad_(True)) is None
+    _torch_only(monkeypatch)
+    ref = fit_pose(targets.detach(), q + 0.05, body, iterations=30)
+    torch.testing.assert_close(res.q, ref.q, atol=2e-3, rtol=0)
