@@ -52,9 +52,8 @@ class _FrameLog:
         self._samples = self._size_samples()
 
     def _size_samples(self) -> int:
-        """Refit iterations the size search has run so far."""
         search = getattr(self.estimator, "scale_search", None)
-        return 0 if search is None else search.steps
+        return 0 if search is None else search.samples
 
     def write_frame(self, index, time, status, joints, q, errors, observed=None) -> None:
         samples = self._size_samples()
@@ -104,8 +103,8 @@ def benchmark_hybrid(
 
 
 def frame_work(status: str, errors: dict, sized: bool) -> str:
-    """What a frame ran beyond its own track, from its estimate: "size search" (refits at
-    every candidate size ran), "detector" (the detector ran: the frame was detected,
+    """What a frame ran beyond its own track, from its estimate: "size search" (the frame was
+    refitted at every candidate size), "detector" (the detector ran: the frame was detected,
     its track was kept over the detection after failing or being rechecked, or it was lost
     after it), "arm search" (arm refits were tried); joined by " + ", or "track only"; "no
     person" for a lost frame where nothing ran."""

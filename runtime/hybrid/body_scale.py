@@ -11,16 +11,12 @@ factor, and the factor whose fits cover the person's silhouette best wins (the m
 ``|R and O| / |R or O|``, peak refined by a parabola through the best grid point and its
 neighbours). The silhouette decides because it measures size directly; the depth residual
 favours small bodies, which hide inside the observed surface.
-
-A sample's refits are spread over the tracked frames that follow it, a few Gauss-Newton
-iterations per frame (``iterations_per_frame``), so that no frame stalls: run at once they
-made their frame three to four times slower than a tracked one (issue 38).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Generator
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,12 +38,6 @@ class BodyScaleConfig:
     max_scale: float = field_doc(1.16, "largest factor tried on the body tracked")
     step: float = field_doc(0.04, "spacing of the factors tried")
     iterations: int = field_doc(5, "Gauss-Newton iterations of each refit")
-    iterations_per_frame: int = field_doc(
-        2,
-        "refit iterations run per tracked frame: a sample's refits go on over the frames "
-        "after it (with 5 iterations, its frame and the next two), and the next sample waits "
-        "for them; at least `iterations`: each sample refitted at once on its own frame",
-    )
     correction: float = field_doc(
         1.0,
         "factor applied to the size found, kept within min_scale..max_scale (1: none). "
@@ -62,14 +52,13 @@ class BodyScaleConfig:
             self.samples >= 1
             and self.every >= 1
             and self.iterations >= 1
-            and self.iterations_per_frame >= 1
             and 0 < self.min_scale < self.max_scale
             and 0 < self.step <= self.max_scale - self.min_scale
             and 0.5 < self.correction < 2.0
         )
         if not ok:
             raise ConfigError(
-                "body_scale: need samples, every, iterations, iterations_per_frame >= 1 and "
+                "body_scale: need samples, every, iterations >= 1 and "
                 f"0 < min_scale < max_scale, 0 < step <= their difference, "
                 f"0.5 < correction < 2, got {self}"
             )
@@ -92,26 +81,17 @@ def peak_of(scales: np.ndarray, score: np.ndarray) -> float:
     return float(scales[k] + shift * (scales[k + 1] - scales[k]))
 
 
-# A refit of one sample: a generator that pauses between Gauss-Newton iterations and returns
-# the (S,) overlaps (``Tracker.fit_starts_stepwise``).
-Refit = Generator[None, None, object]
-
-
 class BodyScaleSearch:
     """Refits tracked frames of a stream at every candidate size, then picks the factor on
     the default body.
 
-    ``offer(frame, q, refit)`` after each tracked frame. A frame is taken as a sample when
-    no refit is under way and ``cfg.every`` frames have passed since the last sample:
-    ``refit(bodies, frame, q)`` starts its refit at all S candidate sizes, ``bodies`` the
-    default body scaled by each factor (a batch of S: one batched fit), as a generator that
-    pauses between Gauss-Newton iterations and returns the (S,) overlaps; each offer runs
-    ``cfg.iterations_per_frame`` of its iterations, so a refit's cost is spread over the
-    frames after its sample instead of stalling one. The offer that completes
-    ``cfg.samples`` refits returns the factor (also :attr:`scale`): the overlaps' peak
-    (:attr:`peak`) times ``cfg.correction``. A search runs once per estimator;
-    :attr:`curves` keeps each sample's (S,) overlaps for diagnostics, :attr:`steps` counts
-    the refit iterations run.
+    ``offer(frame, q, fit)`` after each tracked frame: every ``cfg.every``-th is refitted at
+    once at all S candidate sizes, ``fit(bodies, frame, q) -> (S,) overlaps`` with
+    ``bodies`` the default body scaled by each factor (a batch of S: one batched fit), so
+    the cost is spread over the first tracked frames instead of stalling one. The call that
+    completes ``cfg.samples`` frames returns the factor (also :attr:`scale`): the overlaps'
+    peak (:attr:`peak`) times ``cfg.correction``. A search runs once per estimator;
+    :attr:`curves` keeps each sample's (S,) overlaps for diagnostics.
     """
 
     def __init__(self, cfg: BodyScaleConfig, body: BodyShape) -> None:
@@ -120,40 +100,25 @@ class BodyScaleSearch:
         self.bodies = body.scaled(torch.as_tensor(self.factors, dtype=body.lengths.dtype))
         self._score = np.zeros(len(self.factors))
         self.samples = 0  # frames refitted so far
-        self.steps = 0  # refit iterations run so far
-        self._since: int | None = None  # offers since the last sample was taken
-        self._refit: Refit | None = None  # the refit under way
+        self._seen = 0
         self.scale: float | None = None  # the result, once found
         self.peak: float | None = None  # the overlaps' peak, before the correction
         self.curves: list[np.ndarray] = []
 
     def offer(
-        self, frame, q: torch.Tensor, refit: Callable[[BodyShape, object, torch.Tensor], Refit]
+        self, frame, q: torch.Tensor, fit: Callable[[BodyShape, object, torch.Tensor], object]
     ) -> float | None:
         """A tracked frame and its pose (34,); returns the factor on the call that finds it,
         None otherwise."""
         if self.scale is not None:
             return None
-        if self._refit is None and (self._since is None or self._since >= self.cfg.every):
-            self._refit, self._since = refit(self.bodies, frame, q.detach()), 0
-        self._since = None if self._since is None else self._since + 1
-        if self._refit is None:
+        take = self._seen % self.cfg.every == 0
+        self._seen += 1
+        if not take:
             return None
-        overlaps = None
-        for _ in range(self.cfg.iterations_per_frame):
-            self.steps += 1
-            try:
-                next(self._refit)
-            except StopIteration as stop:
-                overlaps, self._refit = stop.value, None
-                break
-        return None if overlaps is None else self._add(overlaps)
-
-    def _add(self, overlaps) -> float | None:
-        """One sample's (S,) overlaps; the factor once the last sample is in."""
-        overlaps = np.asarray(overlaps, dtype=np.float64)
+        overlaps = np.asarray(fit(self.bodies, frame, q.detach()), dtype=np.float64)
         if overlaps.shape != self._score.shape:
-            raise ValueError(f"refit returned {overlaps.shape} overlaps for {self._score.shape}")
+            raise ValueError(f"fit returned {overlaps.shape} overlaps for {self._score.shape}")
         self._score += overlaps
         self.curves.append(overlaps)
         self.samples += 1

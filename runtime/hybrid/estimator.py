@@ -21,7 +21,6 @@ frame when the tracker's label term is on).
 
 from __future__ import annotations
 
-from collections.abc import Generator
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,12 +39,6 @@ from .config import HybridConfig
 from .policy import Detection, choose, judge_track
 
 __all__ = ["HybridEstimator", "TrackState", "root_turn"]
-
-
-def _overlaps_of(steps: Generator) -> Generator[None, None, np.ndarray]:
-    """A stepwise batched fit (``Tracker.fit_starts_stepwise``) returning its (S,) overlaps."""
-    results = yield from steps
-    return np.array([r.overlap for r in results])
 
 
 def root_turn(q_a: torch.Tensor, q_b: torch.Tensor) -> float:
@@ -173,22 +166,22 @@ class HybridEstimator:
             q.cpu().double().numpy(), self._joints(q), "tracked", errors, observed=observed_of(res)
         )
         if self.scale_search is not None:
-            scale = self.scale_search.offer(frame, q, self._size_refit)
+            scale = self.scale_search.offer(frame, q, self._size_overlaps)
             if scale is not None:
                 self._use_body(self.body.scaled(scale))
         return estimate
 
-    def _size_refit(self, bodies, frame: Frame, q: torch.Tensor) -> Generator:
-        """The refit of ``frame`` from ``q`` with each of the S candidate ``bodies`` of the
-        size search, one batched fit on the frame's observation (which does not depend on
-        the body), run one iteration per ``next()``; returns the (S,) silhouette overlaps."""
+    def _size_overlaps(self, bodies, frame: Frame, q: torch.Tensor) -> np.ndarray:
+        """(S,) silhouette overlaps of ``frame`` refitted from ``q`` with each of the S
+        candidate ``bodies`` of the size search, in one batched fit on the frame's
+        observation (the observation does not depend on the body)."""
         t = self.tracker
         if self._sizes is None:
             self._sizes = Tracker(bodies, t.intr, t.cfg, device=t.device, dtype=t.dtype)
         obs = frame.observation(t, self._tracker_labels(frame))
         starts = q[None].expand(bodies.lengths.shape[0], -1)
-        steps = self._sizes.fit_starts_stepwise(obs, starts, self.cfg.body_scale.iterations)
-        return _overlaps_of(steps)
+        fits = self._sizes.fit_starts(obs, starts, self.cfg.body_scale.iterations)
+        return np.array([r.overlap for r in fits])
 
     def _use_body(self, body) -> None:
         """Track and detect with ``body`` from now on; the track goes on from its pose."""

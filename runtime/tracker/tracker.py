@@ -20,7 +20,6 @@ Everything is batch-first (B poses on B frames) and follows the device/dtype of 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Generator
 from dataclasses import dataclass
 
 import torch
@@ -56,8 +55,6 @@ __all__ = [
     "TrackResult",
     "FrameFit",
     "fit_frames",
-    "fit_frames_stepwise",
-    "run_to_end",
     "expand_observation",
     "Tracker",
     "track_sequence",
@@ -163,32 +160,7 @@ def fit_frames(
     body: BodyShape,
     cfg: TrackerConfig,
 ) -> FrameFit:
-    """Gauss-Newton fit of B poses to B observed frames (:func:`fit_frames_stepwise` run to
-    its end)."""
-    return run_to_end(fit_frames_stepwise(obs, q_prev, q_prev2, body, cfg))
-
-
-def run_to_end(steps: Generator):
-    """What a stepwise fit (a generator that pauses between iterations) returns, run in full."""
-    while True:
-        try:
-            next(steps)
-        except StopIteration as stop:
-            return stop.value
-
-
-def fit_frames_stepwise(
-    obs: Observation,
-    q_prev: torch.Tensor,
-    q_prev2: torch.Tensor | None,
-    body: BodyShape,
-    cfg: TrackerConfig,
-) -> Generator[None, None, FrameFit]:
-    """Gauss-Newton fit of B poses to B observed frames, one iteration per ``next()``: a
-    generator that pauses between two iterations and returns the :class:`FrameFit` (as
-    ``StopIteration.value``) from the call that runs the last one, signals included. A
-    caller can so spread a fit over several frames (the size search's refits,
-    :mod:`runtime.hybrid.body_scale`) with the same result as :func:`fit_frames`.
+    """Gauss-Newton fit of B poses to B observed frames.
 
     Each pose is fitted as it would be alone: pixel sampling caps and closest points are per
     pose, and a pose whose stop test passes keeps its result while the others iterate on, its
@@ -216,9 +188,7 @@ def fit_frames_stepwise(
     iterations = 0
     last = None
     q_cast = q  # the poses rendered: q, but a converged pose's last step's start
-    for it in range(cfg.iterations):
-        if it > 0:
-            yield  # between two iterations: the call that ends the loop also makes the signals
+    for _ in range(cfg.iterations):
         render = render_body(q_cast, body, obs.intr, geom=geom, details=False)
         regions = classify(render, obs, cfg.depth_gate_m, cfg.occlusion_handling)
         extra = extra_rows(render, obs, regions, observed, cfg, B) if observed is not None else None
@@ -397,14 +367,6 @@ class Tracker:
         same results as K calls of :meth:`fit` at a fraction of their cost (the refits of
         the arm search and the detector's refinement). A tracker of a batch of K bodies
         fits start k with body k (the size search's candidates)."""
-        return run_to_end(self.fit_starts_stepwise(obs, starts, iterations))
-
-    def fit_starts_stepwise(
-        self, obs: Observation, starts: torch.Tensor, iterations: int | None = None
-    ) -> Generator[None, None, list[TrackResult]]:
-        """:meth:`fit_starts` one Gauss-Newton iteration per ``next()``
-        (:func:`fit_frames_stepwise`): returns its list of results from the call that runs
-        the last iteration."""
         if starts.dim() != 2 or starts.shape[1] != sk.NUM_DOFS:
             raise TrackerError(f"starts must be (K, {sk.NUM_DOFS}), got {tuple(starts.shape)}")
         K = starts.shape[0]
@@ -414,7 +376,7 @@ class Tracker:
             self.cfg if iterations is None else dataclasses.replace(self.cfg, iterations=iterations)
         )
         q0 = starts.to(device=self.device, dtype=self.dtype)
-        fit = yield from fit_frames_stepwise(expand_observation(obs, K), q0, None, self.body, cfg)
+        fit = fit_frames(expand_observation(obs, K), q0, None, self.body, cfg)
         return [self._result(fit, k) for k in range(K)]
 
     def _result(self, fit: FrameFit, k: int) -> TrackResult:

@@ -38,15 +38,6 @@ def test_peak_of_a_parabola_is_its_vertex():
     assert peak_of(scales, step) == pytest.approx(0.98)
 
 
-def _done_at_once(overlaps_of):
-    """A refit that needs no iterations: ``overlaps_of(bodies, frame, q)`` as a generator."""
-
-    def refit(bodies, frame, q):
-        return (yield from ()) or overlaps_of(bodies, frame, q)
-
-    return refit
-
-
 def test_refits_every_kth_frame_at_all_sizes_then_stops():
     body = BodyShape.default()
     search = BodyScaleSearch(BodyScaleConfig(samples=3, every=2, correction=1.0), body)
@@ -57,65 +48,13 @@ def test_refits_every_kth_frame_at_all_sizes_then_stops():
         seen.append(frame)
         return -((bodies.stature().numpy() / stature - 1.08) ** 2)
 
-    refit = _done_at_once(fit)
-    found = [search.offer(f"frame{i}", torch.full((34,), float(i)), refit) for i in range(10)]
+    found = [search.offer(f"frame{i}", torch.full((34,), float(i)), fit) for i in range(10)]
     assert seen == ["frame0", "frame2", "frame4"]  # refitted as they come, no stall at the end
     assert found[:4] == [None] * 4 and found[5:] == [None] * 5
     assert found[4] == pytest.approx(1.08, abs=1e-6) and search.scale == found[4]
     assert search.bodies.lengths.shape == (len(search.factors), 15)
     with pytest.raises(ValueError, match="overlaps"):
-        BodyScaleSearch(BodyScaleConfig(), body).offer(
-            "f", torch.zeros(34), _done_at_once(lambda *a: [1.0])
-        )
-
-
-def test_a_refit_is_spread_over_the_frames_after_its_sample():
-    """Three iterations, two per frame: a sample's refit ends on the frame after it, and a
-    sample due while a refit is under way waits for it."""
-    body = BodyShape.default()
-    cfg = BodyScaleConfig(samples=2, every=1, iterations_per_frame=2, correction=1.0)
-    search = BodyScaleSearch(cfg, body)
-    log = []
-
-    def refit(bodies, frame, q):
-        for k in range(2):  # three iterations: paused twice between them
-            log.append((frame, k))
-            yield
-        log.append((frame, 2))
-        return np.full(len(bodies.lengths), float(frame))
-
-    found = [search.offer(i, torch.zeros(34), refit) for i in range(5)]
-    assert log == [(0, 0), (0, 1), (0, 2), (2, 0), (2, 1), (2, 2)]  # frame 1 finishes frame 0's
-    assert search.steps == 6 and found[:3] == [None] * 3
-    assert found[3] is not None and search.samples == 2 and found[4] is None
-    assert [c[0] for c in search.curves] == [0.0, 2.0]
-    with pytest.raises(ConfigError):
-        BodyScaleConfig(iterations_per_frame=0)
-
-
-def test_a_stepwise_fit_equals_the_whole_fit(one_thread):
-    """Tracker.fit_starts_stepwise, advanced an iteration at a time, returns what
-    fit_starts returns in one call."""
-    body = BodyShape.default()
-    truth = camera_motion("walk", 3, seed=0, body=body).float()
-    depth = render_body(truth, body, INTR).depth
-    tracker = Tracker(body.scaled(torch.tensor([0.95, 1.05])), INTR)
-    obs = Frame(2, 0.0, depth[2], depth[2] > 0, INTR).observation(tracker)
-    starts = truth[1][None].expand(2, -1)
-    whole = tracker.fit_starts(obs, starts, 3)
-    steps = tracker.fit_starts_stepwise(obs, starts, 3)
-    calls = 0
-    while True:
-        calls += 1
-        try:
-            next(steps)
-        except StopIteration as stop:
-            parts = stop.value
-            break
-    assert calls == max(r.iterations for r in whole)
-    for a, b in zip(whole, parts, strict=True):
-        assert torch.equal(a.q, b.q)
-        assert (a.overlap, a.depth_error_cm) == (b.overlap, b.depth_error_cm)
+        BodyScaleSearch(BodyScaleConfig(), body).offer("f", torch.zeros(34), lambda *a: [1.0])
 
 
 def test_on_in_the_shipped_system_and_off_by_config():
@@ -136,19 +75,17 @@ def test_the_search_finds_the_size_of_a_rendered_person(one_thread, true_scale):
     search = BodyScaleSearch(BodyScaleConfig(samples=6, every=4, correction=1.0), default)
     trackers: dict = {}
 
-    def refit(bodies, frame, q):  # as the hybrid does: one batched fit of all sizes
+    def fit(bodies, frame, q):  # as the hybrid does: one batched fit of all sizes
         tracker = trackers.setdefault("sizes", Tracker(bodies, INTR))
         starts = q[None].expand(bodies.lengths.shape[0], -1)
-        steps = tracker.fit_starts_stepwise(frame.observation(tracker), starts, 5)
-        return [r.overlap for r in (yield from steps)]
+        return [r.overlap for r in tracker.fit_starts(frame.observation(tracker), starts, 5)]
 
     found = [
-        search.offer(Frame(i, i / 30, depth[i], depth[i] > 0, INTR), truth[i], refit)
+        search.offer(Frame(i, i / 30, depth[i], depth[i] > 0, INTR), truth[i], fit)
         for i in range(len(truth))
     ]
-    # The 6th frame taken (every 4th), its refit's 5 iterations ending two frames later.
-    assert found[22] == pytest.approx(true_scale, abs=0.03)
-    assert [f for f in found if f is not None] == [found[22]]
+    assert found[20] == pytest.approx(true_scale, abs=0.03)  # the 6th frame taken, every 4th
+    assert [f for f in found if f is not None] == [found[20]]
 
 
 @pytest.mark.slow
@@ -189,7 +126,7 @@ def test_the_correction_multiplies_the_peak_and_the_curves_are_kept():
     def fit(bodies, frame, q):
         return -((bodies.stature().numpy() / stature - 0.96) ** 2)
 
-    found = [search.offer(i, torch.zeros(34), _done_at_once(fit)) for i in range(2)]
+    found = [search.offer(i, torch.zeros(34), fit) for i in range(2)]
     assert search.peak == pytest.approx(0.96, abs=1e-6)
     assert found[1] == pytest.approx(0.96 * 1.05, abs=1e-6) and search.scale == found[1]
     assert len(search.curves) == 2 and search.curves[0].shape == search.factors.shape
@@ -200,5 +137,5 @@ def test_the_correction_multiplies_the_peak_and_the_curves_are_kept():
 def test_the_corrected_size_stays_within_the_grid():
     body = BodyShape.default()
     search = BodyScaleSearch(BodyScaleConfig(samples=1, every=1, correction=1.1), body)
-    found = search.offer(0, torch.zeros(34), _done_at_once(lambda b, f, q: b.stature().numpy()))
+    found = search.offer(0, torch.zeros(34), lambda bodies, f, q: bodies.stature().numpy())
     assert search.peak == pytest.approx(1.16) and found == pytest.approx(1.16)
