@@ -85,8 +85,7 @@ class BodyScaleSearch:
     """Refits tracked frames of a stream at every candidate size, then picks the factor on
     the default body.
 
-    ``offer(frame, q, fit)`` after each tracked frame (the hybrid offers only plain tracks,
-    none its detector questioned or its arm search refitted): every ``cfg.every``-th is refitted at
+    ``offer(frame, q, fit)`` after each tracked frame: every ``cfg.every``-th is refitted at
     once at all S candidate sizes, ``fit(bodies, frame, q) -> (S,) overlaps`` with
     ``bodies`` the default body scaled by each factor (a batch of S: one batched fit), so
     the cost is spread over the first tracked frames instead of stalling one. The call that

@@ -159,18 +159,13 @@ class HybridEstimator:
 
     # ---- estimates, each updating the track ----
 
-    def _tracked(
-        self, res: TrackResult, errors: dict, frame: Frame, sample: bool = False
-    ) -> PoseEstimate:
-        """A tracked pose; ``sample``: a plain track (nothing questioned or searched), which
-        the size search may refit (a suspect pose is a poor sample of the person's size, and
-        its frame has already paid for the detector or the arm search)."""
+    def _tracked(self, res: TrackResult, errors: dict, frame: Frame) -> PoseEstimate:
         q = res.q.detach()
         self.state.q_prev, self.state.q_prev2 = q, self.state.q_prev
         estimate = PoseEstimate(
             q.cpu().double().numpy(), self._joints(q), "tracked", errors, observed=observed_of(res)
         )
-        if sample and self.scale_search is not None:
+        if self.scale_search is not None:
             scale = self.scale_search.offer(frame, q, self._size_overlaps)
             if scale is not None:
                 self._use_body(self.body.scaled(scale))
@@ -264,7 +259,7 @@ class HybridEstimator:
         verdict = judge_track(res.signals, badness, state.passed, cfg.failure, cfg.keep_better)
         if not verdict.run_detector:
             state.turned_round = 0
-            return self._tracked(res, errors, frame, sample="arms_searched" not in errors)
+            return self._tracked(res, errors, frame)
         wait = 0 if cfg.keep_better is None else cfg.keep_better.wait_frames
         if state.refused_at is not None and frame.index - state.refused_at <= wait:
             # The detector was just refused: the track is kept without asking it again.
