@@ -34,6 +34,7 @@ import torch
 from depthmocap.runtime.raycast import BodyRender
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.compiled import compiled_float32
 from depthmocap.shared.kinematics import named_joint_positions
 from depthmocap.shared.labels import JOINT_PARTS, PART_NAMES, PART_SEGMENT
 
@@ -90,6 +91,14 @@ def joint_support_cm2(
     """
     B, J = render.depth.shape[0], len(sk.JOINT_NAMES)
     idx = regions.good.nonzero()
+    joints = named_joint_positions(render.kin)
+    kernel = compiled_float32("depthmocap.runtime.tracker.support_kernel", render.depth, joints)
+    if kernel is not None:
+        padded = torch.cat([joints, joints.new_zeros(B, 1, 3)], 1)
+        return kernel.joint_support_cpu(
+            render.depth, render.segment, idx, intr, labels, _GROUP, padded, _SEGMENT_JOINTS,
+            _RADIUS,
+        )  # fmt: skip
     points, segment = rendered_points(render, idx, intr)
     seg = segment.clamp_min(0)
     b = idx[:, 0]
@@ -99,7 +108,7 @@ def joint_support_cm2(
         group = _GROUP.to(segment.device)
         counts = counts & (said >= 0) & (group[said.clamp_min(0)] == group[seg])
     # Each pixel is compared with the (at most two) joints its segment meets only.
-    joints = torch.cat([named_joint_positions(render.kin), points.new_zeros(B, 1, 3)], 1)
+    joints = torch.cat([joints, points.new_zeros(B, 1, 3)], 1)
     slots = _SEGMENT_JOINTS.to(seg.device)[seg]  # (N, 2) in [0, J]
     near = (points[:, None, :] - joints[b[:, None], slots]).norm(dim=-1) < _RADIUS.to(points)[slots]
     footprint = points[:, 2].double() ** 2 / (intr.fx * intr.fy) * 1e4  # cm^2 per pixel

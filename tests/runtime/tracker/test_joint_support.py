@@ -165,3 +165,29 @@ def test_forest_labels_on_another_body_group_do_not_confirm_a_joint():
     assert not bool(
         observed_joints(joint_support_cm2(render, regions, intr, unlabelled), limit).any()
     )
+
+
+def test_the_compiled_support_equals_torch_to_the_bit(monkeypatch):
+    """CPU float32: the compiled loop (runtime.tracker.support_kernel) gives the torch code's
+    areas to the bit, with labels (some off-group, some none) and without, on a batch of
+    poses against another pose's observation."""
+    pytest.importorskip("numba")
+    import depthmocap.runtime.tracker.joint_support as js
+
+    intr = Intrinsics.kinect_v1(160)
+    body = BodyShape.default(torch.float32)
+    q = _front(torch.float32).repeat(3, 1)
+    q[1] = _turned(q[1:2], 0.6)[0]
+    q[2, sk.DOF_NAMES.index("l_humerus_abd")] = 1.0
+    observed = render_body(_turned(_front(torch.float32), 0.2), body, intr).depth.expand(3, -1, -1)
+    render = render_body(q, body, intr)
+    regions = classify(render, observe(observed, observed > 0, intr, 1, 10.0), 0.08, True)
+    g = torch.Generator().manual_seed(0)
+    noise = torch.randint(-1, sk.NUM_SEGMENTS, render.segment.shape, generator=g)
+    labels = torch.where(torch.rand(noise.shape, generator=g) < 0.2, noise, render.segment)
+    compiled = [joint_support_cm2(render, regions, intr, lab) for lab in (labels, None)]
+    monkeypatch.setattr(js, "compiled_float32", lambda *a: None)
+    reference = [joint_support_cm2(render, regions, intr, lab) for lab in (labels, None)]
+    for a, b in zip(compiled, reference, strict=True):
+        assert a.dtype == torch.float64 and a.shape == (3, len(sk.JOINT_NAMES))
+        assert bool((b > 0).any()) and torch.equal(a, b)
