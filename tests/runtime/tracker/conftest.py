@@ -67,6 +67,30 @@ def render_sequence() -> Callable[..., tuple]:
     return _sequence
 
 
+def _off_truth_batch(changes: list[dict[str, float]], details: bool = True):
+    """``(body, obs, q, render)`` in float32: the test pose's observation as a batch of
+    ``1 + len(changes)`` views, the poses the truth followed by the truth with each
+    ``{dof name: added value}`` of ``changes``, and their rendering."""
+    from depthmocap.runtime.tracker.tracker import expand_observation
+
+    body = BodyShape.default(torch.float32)
+    truth = _pose(torch.float32)
+    obs = expand_observation(_frame(truth, body), 1 + len(changes))
+    q = truth.repeat(1 + len(changes), 1)
+    for k, change in enumerate(changes, 1):
+        for name, value in change.items():
+            q[k, D[name]] += value
+    return body, obs, q, render_body(q, body, obs.intr, details=details)
+
+
+@pytest.fixture
+def off_truth_batch() -> Callable[..., tuple]:
+    """``off_truth_batch(changes, details=True) -> (body, obs, q, render)``: a batch of poses
+    off the test pose by ``changes`` (one dict of DoF offsets per extra pose), rendered, and
+    the test pose's observation for each (the compiled terms' bit-for-bit tests)."""
+    return _off_truth_batch
+
+
 def _assert_same_rows(got, want, context=None) -> None:
     for name in ("batch", "points", "segment", "direction", "residual", "weight"):
         a, b = getattr(got, name), getattr(want, name)

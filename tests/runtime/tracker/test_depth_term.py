@@ -60,21 +60,14 @@ class TestDepthRows:
 
 
 def test_the_compiled_term_gives_the_torch_rows_bit_for_bit(
-    assert_same_rows, monkeypatch, make_pose, render_frame
+    assert_same_rows, monkeypatch, off_truth_batch
 ):
     """runtime.tracker.depth_kernel (the term and its surface normals in one compiled call,
     CPU float32) against the torch code it replaces, on a batch of poses off the truth by
     different amounts, thinned and not: the same rows to the bit."""
     pytest.importorskip("depthmocap.runtime.tracker.depth_kernel")
-    from depthmocap.runtime.tracker.tracker import expand_observation
-
-    body = BodyShape.default(torch.float32)
-    truth = make_pose(torch.float32)
-    obs = expand_observation(render_frame(truth, body), 3)
-    q = truth.repeat(3, 1)
-    q[1, 0] += 0.02
-    q[2, D["l_humerus_abd"]] += 0.3
-    render = render_body(q, body, obs.intr, details=False)
+    changes = [{"root_tx": 0.02}, {"l_humerus_abd": 0.3}]
+    _, obs, _, render = off_truth_batch(changes, details=False)
     regions = classify(render, obs, 0.08, True)
     cfg = TrackerConfig()
     for cap in (150, 100000):

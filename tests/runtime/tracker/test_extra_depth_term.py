@@ -69,24 +69,14 @@ class TestExtraRows:
 
 
 def test_the_compiled_term_gives_the_torch_rows_bit_for_bit(
-    assert_same_rows, monkeypatch, make_pose, render_frame
+    assert_same_rows, monkeypatch, off_truth_batch
 ):
     """runtime.tracker.extra_kernel (the whole term in one compiled call, float32) against
     the torch code it replaces: the same rows, error sums and counts to the bit, for a batch
     of poses off the truth by different amounts (every correspondence type)."""
     pytest.importorskip("depthmocap.runtime.tracker.extra_kernel")
-    dtype = torch.float32
-    body = BodyShape.default(dtype)
-    truth = make_pose(dtype)
-    q = truth.repeat(3, 1)
-    q[1, D["l_humerus_abd"]] += 0.35
-    q[2, D["root_tx"]] += 0.05
-    q[2, D["r_femur_flex"]] -= 0.4
-    single = render_frame(truth, body)
-    from depthmocap.runtime.tracker.tracker import expand_observation
-
-    obs = expand_observation(single, 3)
-    render = render_body(q, body, obs.intr)
+    changes = [{"l_humerus_abd": 0.35}, {"root_tx": 0.05, "r_femur_flex": -0.4}]
+    _, obs, _, render = off_truth_batch(changes)
     regions = classify(render, obs, 0.08, True)
     cfg = TrackerConfig()
     observed = observed_candidates(obs, 800)  # thinned: the sampling ratios matter too

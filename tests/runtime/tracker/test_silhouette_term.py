@@ -60,21 +60,13 @@ class TestSilhouetteRows:
 
 
 def test_the_compiled_term_gives_the_torch_rows_bit_for_bit(
-    assert_same_rows, monkeypatch, make_pose, render_frame
+    assert_same_rows, monkeypatch, off_truth_batch
 ):
     """runtime.tracker.silhouette_kernel (one compiled call, CPU float32) against the torch
     code it replaces, on a batch of poses spilling over the observed silhouette by different
     amounts, thinned and not: the same rows to the bit."""
     pytest.importorskip("depthmocap.runtime.tracker.silhouette_kernel")
-    from depthmocap.runtime.tracker.tracker import expand_observation
-
-    body = BodyShape.default(torch.float32)
-    truth = make_pose(torch.float32)
-    obs = expand_observation(render_frame(truth, body), 3)
-    q = truth.repeat(3, 1)
-    q[1, 0] += 0.04
-    q[2, D["l_humerus_abd"]] += 0.4
-    render = render_body(q, body, obs.intr)
+    _, obs, _, render = off_truth_batch([{"root_tx": 0.04}, {"l_humerus_abd": 0.4}])
     cfg = TrackerConfig()
     for cap in (60, 100000):
         monkeypatch.setattr(silhouette_term, "MAX_SILHOUETTE_PIXELS", cap)
