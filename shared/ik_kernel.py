@@ -97,12 +97,12 @@ def _cost(q, q_ref, targets, weights, points, prior, residual, cost):  # pragma:
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def _lm_step(b, q, q_ref, points, residual, weights, segment, dof_axes, dof_origins, affects,
-             prior_diag, lam, hess, grad, dq):  # fmt: skip  # pragma: no cover - compiled
+             prior_diag, lam, hess, grad, col, dq):  # fmt: skip  # pragma: no cover - compiled
     """Pose b's damped step ``dq`` (34,): the normal equations of its markers' point
     Jacobian (translations: the camera axes; rotations: ``a x (p - o)``, on the chain of
-    the marker's segment), the prior, Marquardt damping, a Cholesky solve."""
+    the marker's segment), the prior, Marquardt damping, a Cholesky solve; ``hess``,
+    ``grad`` and ``col`` (34, 3) are scratch space."""
     D = q.shape[1]
-    col = np.empty((D, 3))
     hess[:] = 0.0
     grad[:] = 0.0
     for m in range(points.shape[1]):
@@ -184,7 +184,7 @@ def _fit(targets, weights, q, q_ref, local, segment, prior, iterations, toleranc
     for d in range(6, D):
         prior_diag[d] = prior
     lam = np.full(B, 1e-3)
-    hess, grad = np.empty((D, D)), np.empty(D)
+    hess, grad, col = np.empty((D, D)), np.empty(D), np.empty((D, 3))
     kk._fk(q, lengths, hip, clavicle, tilt, parent, order, seg_axis, attach, lateral, slots,
            dof_axis, dof_segment, dof_slot, clav_dofs, chest, arms, mirror, rot, org, axes,
            dorg)  # fmt: skip
@@ -194,7 +194,7 @@ def _fit(targets, weights, q, q_ref, local, segment, prior, iterations, toleranc
     for it in range(1, iterations + 1):  # noqa: B007 (returned)
         for b in range(B):
             _lm_step(b, q, q_ref, pts, res, weights, segment, axes, dorg, affects, prior_diag,
-                     lam[b], hess, grad, dq[b])  # fmt: skip
+                     lam[b], hess, grad, col, dq[b])  # fmt: skip
             for d in range(D):
                 q_new[b, d] = q[b, d] + dq[b, d]
             q_new[b, 3], q_new[b, 4], q_new[b, 5] = _compose(
@@ -241,10 +241,6 @@ def _fit(targets, weights, q, q_ref, local, segment, prior, iterations, toleranc
     return it, rms
 
 
-def _array(value: torch.Tensor, *shape: int) -> np.ndarray:
-    return np.ascontiguousarray(value.detach().to(torch.float64).expand(*shape).numpy())
-
-
 def fit_pose_cpu(
     targets: torch.Tensor,
     weights: torch.Tensor,
@@ -264,17 +260,18 @@ def fit_pose_cpu(
     iterations run."""
     B, M = targets.shape[:2]
     K = sk.NUM_SEGMENTS
-    lengths = _array(body.lengths, B, K)
+    lengths = kk._per_pose(body.lengths, B, K)
     seg = segment.detach().cpu().numpy().astype(np.int64)
     frac = fraction.detach().cpu().numpy().astype(np.float64)
     local = (frac * lengths[:, seg])[..., None] * kk._AXIS[seg]  # (B, M, 3)
-    q64 = _array(q, B, sk.NUM_DOFS).copy()
+    q64 = kk._per_pose(q, B, sk.NUM_DOFS).copy()
     its, rms = _fit(
-        _array(targets, B, M, 3), _array(weights, B, M), q64, _array(q_ref, B, sk.NUM_DOFS),
+        kk._per_pose(targets, B, M, 3), kk._per_pose(weights, B, M), q64,
+        kk._per_pose(q_ref, B, sk.NUM_DOFS),
         np.ascontiguousarray(local), seg, float(prior), int(iterations), float(tolerance),
-        _LIMITS, _AFFECTS, lengths, _array(body.hip_half_width, B),
-        _array(body.clavicle_rest, B, 2), _array(body.chest_tilt, B), kk._PARENT, kk._ORDER,
-        kk._AXIS, kk._ATTACH, kk._LATERAL, kk._SLOTS, kk._DOF_AXIS, kk._DOF_SEGMENT,
+        _LIMITS, _AFFECTS, lengths, kk._per_pose(body.hip_half_width, B),
+        kk._per_pose(body.clavicle_rest, B, 2), kk._per_pose(body.chest_tilt, B), kk._PARENT,
+        kk._ORDER, kk._AXIS, kk._ATTACH, kk._LATERAL, kk._SLOTS, kk._DOF_AXIS, kk._DOF_SEGMENT,
         kk._DOF_SLOT, kk._CLAVICLE, kk._CHEST, kk._ARMS, kk._MIRROR,
     )  # fmt: skip
     dt = targets.dtype

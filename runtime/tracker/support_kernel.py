@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from .extra_kernel import norm3_float32
-from .sampling_kernel import points_at
+from .sampling_kernel import rendered_points_cpu
 
 __all__ = ["joint_support_cpu"]
 
@@ -66,11 +66,8 @@ def joint_support_cpu(
     (B, H, W) or None, the body ``group`` of each segment (S,), the named ``joints`` padded
     with one zero joint (B, J + 1, 3), each segment's two joint ``slots`` (S, 2) and the
     padded ``radius`` (J + 1,). Returns (B, J) float64 cm^2."""
-    d = depth.numpy()
-    centre = np.array([intr.cx, intr.cy], d.dtype)
-    focal = np.array([intr.fx, intr.fy], d.dtype)
     rows = np.ascontiguousarray(idx.numpy())
-    points, segment = points_at(d, segment_map.numpy(), rows, centre, focal)
+    points, segment = (t.numpy() for t in rendered_points_cpu(depth, segment_map, idx, intr))
     has_labels = labels is not None
     lab = labels.numpy() if has_labels else np.zeros((1, 1, 1), np.int64)
     B, J1 = joints.shape[0], joints.shape[1]
