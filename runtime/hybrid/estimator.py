@@ -21,6 +21,8 @@ frame when the tracker's label term is on).
 
 from __future__ import annotations
 
+import os
+import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -52,6 +54,15 @@ def refit_overlaps(tracker: Tracker, obs, starts: torch.Tensor, iterations: int)
     """(K,) silhouette overlaps of the observation ``obs`` refitted by ``tracker`` (a batch
     of K bodies) from ``starts`` (K, 34), one start per body, in one batched fit."""
     return np.array([r.overlap for r in tracker.fit_starts(obs, starts, iterations)])
+
+
+def _lower_thread_priority() -> None:
+    """Let the calling thread run only where the others leave a core idle (Linux: a
+    thread's niceness is its own; elsewhere, or where refused, nothing changes)."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)
+    except (AttributeError, OSError):
+        pass
 
 
 @dataclass
@@ -193,7 +204,9 @@ class HybridEstimator:
         if not cfg.background:
             return refit_overlaps(self._sizes, obs, starts, cfg.iterations)
         if self._size_worker is None:
-            self._size_worker = ThreadPoolExecutor(1, thread_name_prefix="size-search")
+            self._size_worker = ThreadPoolExecutor(
+                1, thread_name_prefix="size-search", initializer=_lower_thread_priority
+            )
         return self._size_worker.submit(refit_overlaps, self._sizes, obs, starts, cfg.iterations)
 
     def _stop_size_worker(self) -> None:
