@@ -13,10 +13,12 @@ neighbours). The silhouette decides because it measures size directly; the depth
 favours small bodies, which hide inside the observed surface.
 
 The refits need nothing from the frames after them and change no pose, so they can run on a
-worker thread beside the tracking (``background``): a sample costs the tracked frame about
-70 ms on two cores, three times a plain track (issue 38). The size is decided at the sample
-slot after the last sample (``every`` tracked frames later), whichever thread did the refits,
-so the result does not depend on where, or how fast, they ran.
+worker thread beside the tracking (``background``, off): a sample costs the tracked frame
+about 65 ms, three times a plain track (issue 38), but the refits are many small torch ops
+whose Python overhead holds the interpreter's lock, so a worker slows the tracking beside it
+(``BodyScaleConfig.background`` gives the figures). The size is decided at the sample slot
+after the last sample (``every`` tracked frames later) either way, so the result does not
+depend on where, or how fast, the refits ran.
 """
 
 from __future__ import annotations
@@ -54,9 +56,12 @@ class BodyScaleConfig:
         "shipped",
     )
     background: bool = field_doc(
-        True,
+        False,
         "refit the samples on a worker thread beside the tracking instead of on the tracked "
-        "frame (the same size either way: it is decided at the slot after the last sample)",
+        "frame (the same size either way: it is decided at the slot after the last sample). "
+        "make bench-broad, same hour: median frame 30.3 -> 34.0 ms (the worker holds "
+        "Python's lock the tracking needs), 95th percentile 126 -> 119, mean 50.3 -> 48.5, "
+        "replayed latency 55.2 -> 52.6 ms, frames skipped 36 -> 30%: a trade, off",
     )
 
     def __post_init__(self) -> None:

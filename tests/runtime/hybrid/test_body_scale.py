@@ -130,8 +130,8 @@ def test_the_search_finds_the_size_of_a_rendered_person(one_thread, true_scale):
 @pytest.mark.slow
 def test_runtime_track_with_the_search_on(tmp_path, one_thread):
     """End to end: the factor is reported, and body.json and the BVH's skeleton are the
-    scaled default body; the refits on the estimator's thread give the same results as on
-    the worker; a given body file switches the search off."""
+    scaled default body; the refits on a worker thread (``background``) give the same
+    results as on the estimator's; a given body file switches the search off."""
     import json
 
     import depthmocap.runtime.track_cli as cli
@@ -150,13 +150,13 @@ def test_runtime_track_with_the_search_on(tmp_path, one_thread):
     population = BodyShape.load(POPULATION_BODY)  # the body tracked without a file
     torch.testing.assert_close(body.lengths, population.scaled(scale).lengths)
     assert bvh_hierarchy(body.to(torch.float64)) in (out / "motion.bvh").read_text()
-    inline_cfg = tmp_path / "inline.yaml"
-    inline_cfg.write_text(cfg.read_text().replace("step: 0.1}", "step: 0.1, background: false}"))
-    inline = tmp_path / "inline"
-    args = ["-i", "demo", "-o", str(inline), "--stop", "12", "-q", "--config", str(inline_cfg)]
+    worker_cfg = tmp_path / "worker.yaml"
+    worker_cfg.write_text(cfg.read_text().replace("step: 0.1}", "step: 0.1, background: true}"))
+    worker = tmp_path / "worker"
+    args = ["-i", "demo", "-o", str(worker), "--stop", "12", "-q", "--config", str(worker_cfg)]
     assert cli.main(args) == 0
-    assert json.loads((inline / "summary.json").read_text())["extra"]["body_scale"] == scale
-    assert (inline / "motion.bvh").read_text() == (out / "motion.bvh").read_text()
+    assert json.loads((worker / "summary.json").read_text())["extra"]["body_scale"] == scale
+    assert (worker / "motion.bvh").read_text() == (out / "motion.bvh").read_text()
     with_body = tmp_path / "with_body"
     args = ["-i", "demo", "-o", str(with_body), "--stop", "4", "-q", "--config", str(cfg)]
     assert cli.main([*args, "--body", str(out / "body.json")]) == 0
