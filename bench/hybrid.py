@@ -51,15 +51,14 @@ class _FrameLog:
         self.work: list[str] = []
         self._samples = self._size_samples()
 
-    def _size_samples(self) -> tuple[int, bool]:
-        # A frame that takes a sample, or decides the size (waiting for refits on a worker).
+    def _size_samples(self) -> int:
         search = getattr(self.estimator, "scale_search", None)
-        return (0, False) if search is None else (search.samples, search.scale is not None)
+        return 0 if search is None else search.samples
 
     def write_frame(self, index, time, status, joints, q, errors, observed=None) -> None:
         samples = self._size_samples()
         self.statuses.append(status)
-        self.work.append(frame_work(status, errors or {}, samples != self._samples))
+        self.work.append(frame_work(status, errors or {}, samples > self._samples))
         self._samples = samples
 
     def update_body(self, body) -> None:
@@ -105,10 +104,10 @@ def benchmark_hybrid(
 
 def frame_work(status: str, errors: dict, sized: bool) -> str:
     """What a frame ran beyond its own track, from its estimate: "size search" (the frame was
-    taken for refits at every candidate size, or decided the size), "detector" (the detector
-    ran: the frame was detected, its track was kept over the detection after failing or
-    being rechecked, or it was lost after it), "arm search" (arm refits were tried); joined
-    by " + ", or "track only"; "no person" for a lost frame where nothing ran."""
+    refitted at every candidate size), "detector" (the detector ran: the frame was detected,
+    its track was kept over the detection after failing or being rechecked, or it was lost
+    after it), "arm search" (arm refits were tried); joined by " + ", or "track only"; "no
+    person" for a lost frame where nothing ran."""
     ran = []
     if sized:
         ran.append("size search")

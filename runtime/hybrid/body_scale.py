@@ -11,21 +11,12 @@ factor, and the factor whose fits cover the person's silhouette best wins (the m
 ``|R and O| / |R or O|``, peak refined by a parabola through the best grid point and its
 neighbours). The silhouette decides because it measures size directly; the depth residual
 favours small bodies, which hide inside the observed surface.
-
-The refits need nothing from the frames after them and change no pose, so they can run on a
-worker thread beside the tracking (``background``, off): a sample costs the tracked frame
-about 65 ms, three times a plain track (issue 38), but the refits are many small torch ops
-whose Python overhead holds the interpreter's lock, so a worker slows the tracking beside it
-(``BodyScaleConfig.background`` gives the figures). The size is decided at the sample slot
-after the last sample (``every`` tracked frames later) either way, so the result does not
-depend on where, or how fast, the refits ran.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from concurrent.futures import Future
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,14 +45,6 @@ class BodyScaleConfig:
         "error: 3.5 cm short on the training population, but the taller bodies that remove it "
         "track worse (20 size-tuning recordings: 50.4 -> 53.6 mm with 1.034), so none is "
         "shipped",
-    )
-    background: bool = field_doc(
-        False,
-        "refit the samples on a worker thread beside the tracking instead of on the tracked "
-        "frame (the same size either way: it is decided at the slot after the last sample). "
-        "make bench-broad, same hour: median frame 30.3 -> 34.0 ms (the worker holds "
-        "Python's lock the tracking needs), 95th percentile 126 -> 119, mean 50.3 -> 48.5, "
-        "replayed latency 55.2 -> 52.6 ms, frames skipped 36 -> 30%: a trade, off",
     )
 
     def __post_init__(self) -> None:
@@ -103,21 +86,20 @@ class BodyScaleSearch:
     the default body.
 
     ``offer(frame, q, fit)`` after each tracked frame: every ``cfg.every``-th is refitted at
-    all S candidate sizes, ``fit(bodies, frame, q) -> (S,) overlaps`` (or a ``Future`` of
-    them, when the refit runs on another thread) with ``bodies`` the default body scaled by
-    each factor (a batch of S: one batched fit), so the cost is spread over the first
-    tracked frames instead of stalling one. At the slot after the ``cfg.samples``-th sample,
-    ``offer`` waits for the refits and returns the factor (also :attr:`scale`): the
-    overlaps' peak (:attr:`peak`) times ``cfg.correction``. A search runs once per
-    estimator; :attr:`curves` keeps each sample's (S,) overlaps for diagnostics.
+    once at all S candidate sizes, ``fit(bodies, frame, q) -> (S,) overlaps`` with
+    ``bodies`` the default body scaled by each factor (a batch of S: one batched fit), so
+    the cost is spread over the first tracked frames instead of stalling one. The call that
+    completes ``cfg.samples`` frames returns the factor (also :attr:`scale`): the overlaps'
+    peak (:attr:`peak`) times ``cfg.correction``. A search runs once per estimator;
+    :attr:`curves` keeps each sample's (S,) overlaps for diagnostics.
     """
 
     def __init__(self, cfg: BodyScaleConfig, body: BodyShape) -> None:
         self.cfg, self.body = cfg, body
         self.factors = cfg.scales()
         self.bodies = body.scaled(torch.as_tensor(self.factors, dtype=body.lengths.dtype))
-        self._pending: list = []  # each sample's (S,) overlaps, or a Future of them
-        self.samples = 0  # frames taken for refits so far
+        self._score = np.zeros(len(self.factors))
+        self.samples = 0  # frames refitted so far
         self._seen = 0
         self.scale: float | None = None  # the result, once found
         self.peak: float | None = None  # the overlaps' peak, before the correction
@@ -134,24 +116,15 @@ class BodyScaleSearch:
         self._seen += 1
         if not take:
             return None
-        if self.samples == self.cfg.samples:
-            return self._decide()
-        self._pending.append(fit(self.bodies, frame, q.detach()))
+        overlaps = np.asarray(fit(self.bodies, frame, q.detach()), dtype=np.float64)
+        if overlaps.shape != self._score.shape:
+            raise ValueError(f"fit returned {overlaps.shape} overlaps for {self._score.shape}")
+        self._score += overlaps
+        self.curves.append(overlaps)
         self.samples += 1
-        return None
-
-    def _decide(self) -> float:
-        """The factor from every sample's overlaps (waiting for refits still running)."""
-        score = np.zeros(len(self.factors))
-        for pending in self._pending:
-            result = pending.result() if isinstance(pending, Future) else pending
-            overlaps = np.asarray(result, dtype=np.float64)
-            if overlaps.shape != score.shape:
-                raise ValueError(f"fit returned {overlaps.shape} overlaps for {score.shape}")
-            score += overlaps
-            self.curves.append(overlaps)
-        self._pending = []
-        self.peak = peak_of(self.factors, score / self.samples)
+        if self.samples < self.cfg.samples:
+            return None
+        self.peak = peak_of(self.factors, self._score / self.samples)
         lo, hi = self.factors[0], self.factors[-1]
         self.scale = float(np.clip(self.peak * self.cfg.correction, lo, hi))
         return self.scale

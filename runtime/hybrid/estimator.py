@@ -21,9 +21,6 @@ frame when the tracker's label term is on).
 
 from __future__ import annotations
 
-import os
-import threading
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,28 +38,13 @@ from .body_scale import BodyScaleSearch
 from .config import HybridConfig
 from .policy import Detection, choose, judge_track
 
-__all__ = ["HybridEstimator", "TrackState", "refit_overlaps", "root_turn"]
+__all__ = ["HybridEstimator", "TrackState", "root_turn"]
 
 
 def root_turn(q_a: torch.Tensor, q_b: torch.Tensor) -> float:
     """Angle (rad) of the rotation between the root orientations of two (34,) poses."""
     r = rotvec_to_matrix(q_a[3:6]) @ rotvec_to_matrix(q_b[3:6]).T
     return float(torch.arccos(((torch.diagonal(r).sum() - 1.0) / 2.0).clamp(-1.0, 1.0)))
-
-
-def refit_overlaps(tracker: Tracker, obs, starts: torch.Tensor, iterations: int) -> np.ndarray:
-    """(K,) silhouette overlaps of the observation ``obs`` refitted by ``tracker`` (a batch
-    of K bodies) from ``starts`` (K, 34), one start per body, in one batched fit."""
-    return np.array([r.overlap for r in tracker.fit_starts(obs, starts, iterations)])
-
-
-def _lower_thread_priority() -> None:
-    """Let the calling thread run only where the others leave a core idle (Linux: a
-    thread's niceness is its own; elsewhere, or where refused, nothing changes)."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)
-    except (AttributeError, OSError):
-        pass
 
 
 @dataclass
@@ -113,7 +95,6 @@ class HybridEstimator:
             None if cfg.body_scale is None else BodyScaleSearch(cfg.body_scale, tracker.body)
         )
         self._sizes: Tracker | None = None  # the size search's tracker of all candidates
-        self._size_worker: ThreadPoolExecutor | None = None  # its thread, while it runs
 
     @property
     def body(self):
@@ -187,32 +168,20 @@ class HybridEstimator:
         if self.scale_search is not None:
             scale = self.scale_search.offer(frame, q, self._size_overlaps)
             if scale is not None:
-                self._stop_size_worker()
                 self._use_body(self.body.scaled(scale))
         return estimate
 
-    def _size_overlaps(self, bodies, frame: Frame, q: torch.Tensor) -> np.ndarray | Future:
+    def _size_overlaps(self, bodies, frame: Frame, q: torch.Tensor) -> np.ndarray:
         """(S,) silhouette overlaps of ``frame`` refitted from ``q`` with each of the S
         candidate ``bodies`` of the size search, in one batched fit on the frame's
-        observation (the observation does not depend on the body); a Future of them when
-        the search runs in the background (``body_scale.background``)."""
-        t, cfg = self.tracker, self.cfg.body_scale
+        observation (the observation does not depend on the body)."""
+        t = self.tracker
         if self._sizes is None:
             self._sizes = Tracker(bodies, t.intr, t.cfg, device=t.device, dtype=t.dtype)
         obs = frame.observation(t, self._tracker_labels(frame))
         starts = q[None].expand(bodies.lengths.shape[0], -1)
-        if not cfg.background:
-            return refit_overlaps(self._sizes, obs, starts, cfg.iterations)
-        if self._size_worker is None:
-            self._size_worker = ThreadPoolExecutor(
-                1, thread_name_prefix="size-search", initializer=_lower_thread_priority
-            )
-        return self._size_worker.submit(refit_overlaps, self._sizes, obs, starts, cfg.iterations)
-
-    def _stop_size_worker(self) -> None:
-        if self._size_worker is not None:
-            self._size_worker.shutdown(wait=False)
-            self._size_worker = None
+        fits = self._sizes.fit_starts(obs, starts, self.cfg.body_scale.iterations)
+        return np.array([r.overlap for r in fits])
 
     def _use_body(self, body) -> None:
         """Track and detect with ``body`` from now on; the track goes on from its pose."""

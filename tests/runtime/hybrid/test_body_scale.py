@@ -3,9 +3,6 @@ the collection of frames, and the search on frames rendered from a scaled body."
 
 from __future__ import annotations
 
-import time
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 import pytest
 import torch
@@ -53,46 +50,11 @@ def test_refits_every_kth_frame_at_all_sizes_then_stops():
 
     found = [search.offer(f"frame{i}", torch.full((34,), float(i)), fit) for i in range(10)]
     assert seen == ["frame0", "frame2", "frame4"]  # refitted as they come, no stall at the end
-    # Decided at the slot after the last sample, where refits on a worker have had time.
-    assert found[:6] == [None] * 6 and found[7:] == [None] * 3
-    assert found[6] == pytest.approx(1.08, abs=1e-6) and search.scale == found[6]
-    assert search.samples == 3 and search.bodies.lengths.shape == (len(search.factors), 15)
-    wrong = BodyScaleSearch(BodyScaleConfig(samples=1, every=1), body)
-    assert wrong.offer("f", torch.zeros(34), lambda *a: [1.0]) is None
+    assert found[:4] == [None] * 4 and found[5:] == [None] * 5
+    assert found[4] == pytest.approx(1.08, abs=1e-6) and search.scale == found[4]
+    assert search.bodies.lengths.shape == (len(search.factors), 15)
     with pytest.raises(ValueError, match="overlaps"):
-        wrong.offer("g", torch.zeros(34), lambda *a: [1.0])
-
-
-def test_refits_on_another_thread_give_the_same_size():
-    """Futures of the overlaps (the hybrid's worker thread) decide as the overlaps do, at the
-    same slot, waiting for refits still running; a failed refit's error reaches the caller."""
-    body = BodyShape.default()
-    stature = float(body.stature())
-
-    def fit(bodies, frame, q):
-        time.sleep(0.01 * (frame % 3))  # refits finishing late
-        return -((bodies.stature().numpy() / stature - 0.93 - 0.01 * frame) ** 2)
-
-    cfg = BodyScaleConfig(samples=4, every=2, correction=1.0)
-    inline, threaded = BodyScaleSearch(cfg, body), BodyScaleSearch(cfg, body)
-    with ThreadPoolExecutor(1) as worker:
-        found = [
-            (inline.offer(i, torch.zeros(34), fit),
-             threaded.offer(i, torch.zeros(34), lambda *a: worker.submit(fit, *a)))
-            for i in range(12)
-        ]  # fmt: skip
-    assert [a for a, _ in found] == [b for _, b in found]
-    assert found[8][0] is not None and inline.scale == threaded.scale
-    np.testing.assert_array_equal(np.stack(inline.curves), np.stack(threaded.curves))
-
-    def broken(bodies, frame, q):
-        raise RuntimeError("refit failed")
-
-    search = BodyScaleSearch(BodyScaleConfig(samples=1, every=1), body)
-    with ThreadPoolExecutor(1) as worker:
-        search.offer(0, torch.zeros(34), lambda *a: worker.submit(broken, *a))
-        with pytest.raises(RuntimeError, match="refit failed"):
-            search.offer(1, torch.zeros(34), lambda *a: worker.submit(broken, *a))
+        BodyScaleSearch(BodyScaleConfig(), body).offer("f", torch.zeros(34), lambda *a: [1.0])
 
 
 def test_on_in_the_shipped_system_and_off_by_config():
@@ -110,7 +72,7 @@ def test_the_search_finds_the_size_of_a_rendered_person(one_thread, true_scale):
     person = default.scaled(true_scale)
     truth = camera_motion("walk", 24, seed=0, body=person).float()
     depth = render_body(truth, person, INTR).depth
-    search = BodyScaleSearch(BodyScaleConfig(samples=6, every=3, correction=1.0), default)
+    search = BodyScaleSearch(BodyScaleConfig(samples=6, every=4, correction=1.0), default)
     trackers: dict = {}
 
     def fit(bodies, frame, q):  # as the hybrid does: one batched fit of all sizes
@@ -122,16 +84,14 @@ def test_the_search_finds_the_size_of_a_rendered_person(one_thread, true_scale):
         search.offer(Frame(i, i / 30, depth[i], depth[i] > 0, INTR), truth[i], fit)
         for i in range(len(truth))
     ]
-    # The 6th frame taken is the 15th; the slot after it, the 18th, decides.
-    assert found[18] == pytest.approx(true_scale, abs=0.03)
-    assert [f for f in found if f is not None] == [found[18]]
+    assert found[20] == pytest.approx(true_scale, abs=0.03)  # the 6th frame taken, every 4th
+    assert [f for f in found if f is not None] == [found[20]]
 
 
 @pytest.mark.slow
 def test_runtime_track_with_the_search_on(tmp_path, one_thread):
     """End to end: the factor is reported, and body.json and the BVH's skeleton are the
-    scaled default body; the refits on a worker thread (``background``) give the same
-    results as on the estimator's; a given body file switches the search off."""
+    scaled default body; a given body file switches the search off."""
     import json
 
     import depthmocap.runtime.track_cli as cli
@@ -150,13 +110,6 @@ def test_runtime_track_with_the_search_on(tmp_path, one_thread):
     population = BodyShape.load(POPULATION_BODY)  # the body tracked without a file
     torch.testing.assert_close(body.lengths, population.scaled(scale).lengths)
     assert bvh_hierarchy(body.to(torch.float64)) in (out / "motion.bvh").read_text()
-    worker_cfg = tmp_path / "worker.yaml"
-    worker_cfg.write_text(cfg.read_text().replace("step: 0.1}", "step: 0.1, background: true}"))
-    worker = tmp_path / "worker"
-    args = ["-i", "demo", "-o", str(worker), "--stop", "12", "-q", "--config", str(worker_cfg)]
-    assert cli.main(args) == 0
-    assert json.loads((worker / "summary.json").read_text())["extra"]["body_scale"] == scale
-    assert (worker / "motion.bvh").read_text() == (out / "motion.bvh").read_text()
     with_body = tmp_path / "with_body"
     args = ["-i", "demo", "-o", str(with_body), "--stop", "4", "-q", "--config", str(cfg)]
     assert cli.main([*args, "--body", str(out / "body.json")]) == 0
@@ -173,9 +126,9 @@ def test_the_correction_multiplies_the_peak_and_the_curves_are_kept():
     def fit(bodies, frame, q):
         return -((bodies.stature().numpy() / stature - 0.96) ** 2)
 
-    found = [search.offer(i, torch.zeros(34), fit) for i in range(3)]
+    found = [search.offer(i, torch.zeros(34), fit) for i in range(2)]
     assert search.peak == pytest.approx(0.96, abs=1e-6)
-    assert found[2] == pytest.approx(0.96 * 1.05, abs=1e-6) and search.scale == found[2]
+    assert found[1] == pytest.approx(0.96 * 1.05, abs=1e-6) and search.scale == found[1]
     assert len(search.curves) == 2 and search.curves[0].shape == search.factors.shape
     with pytest.raises(ConfigError):
         BodyScaleConfig(correction=0.0)
@@ -184,7 +137,5 @@ def test_the_correction_multiplies_the_peak_and_the_curves_are_kept():
 def test_the_corrected_size_stays_within_the_grid():
     body = BodyShape.default()
     search = BodyScaleSearch(BodyScaleConfig(samples=1, every=1, correction=1.1), body)
-    found = [search.offer(i, torch.zeros(34), lambda b, f, q: b.stature().numpy()) for i in (0, 1)]
-    assert found[0] is None and found[1] == search.scale
-    found = found[1]
+    found = search.offer(0, torch.zeros(34), lambda bodies, f, q: bodies.stature().numpy())
     assert search.peak == pytest.approx(1.16) and found == pytest.approx(1.16)
