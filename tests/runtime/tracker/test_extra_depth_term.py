@@ -4,6 +4,7 @@ search respects the depth gate and the batch."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 from depthmocap.runtime.raycast import render_body
@@ -135,3 +136,37 @@ class TestClosestPoints:
             got = kernel.closest_points_cpu(query, qb, cand, cb, 0.05, 0.08)
             assert torch.equal(got[1], want[1]) and bool(got[1].any()) and not bool(got[1].all())
             assert torch.equal(got[0][got[1]], want[0][want[1]])
+
+    def test_the_compiled_search_is_the_exact_nearest(self):
+        """Against brute force in float64: the smallest squared distance within the gates,
+        ties to the smallest index, in scenes built to break a grid search: exact ties on a
+        lattice, candidates with NaN coordinates, queries far outside the candidates' box,
+        candidates on a line (a degenerate box), empty poses."""
+        kernel = pytest.importorskip("depthmocap.runtime.tracker.closest_kernel")
+        rng = np.random.default_rng(0)
+        for trial in range(120):
+            nq, nc, poses = int(rng.integers(1, 200)), int(rng.integers(1, 400)), 3
+            q = (rng.random((nq, 3)) * [0.8, 1.8, 0.6]).astype(np.float32)
+            c = (rng.random((nc, 3)) * [0.8, 1.8, 0.6]).astype(np.float32)
+            if trial % 3 == 0:  # a 5 cm lattice: many candidates at exactly equal distances
+                q, c = np.round(q * 20) / 20, np.round(c * 20) / 20
+            if trial % 4 == 1:
+                c[:, 0] = 0.25  # a vertical line of candidates
+            if trial % 5 == 2:
+                c[: nc // 4, 1] = np.nan
+            if trial % 7 == 3:
+                q[: nq // 3, :2] += 3.0  # far outside the box
+            qb = rng.integers(0, poses, nq)
+            cb = rng.integers(0, poses - 1, nc)  # the last pose has no candidates
+            gate, max_d2 = float(rng.choice([0.03, 0.2, 10.0])), float(rng.choice([0.01, 1.0]))
+            index, found = kernel.closest_of(q, qb, c, cb, gate, max_d2)
+            q64, c64 = q.astype(np.float64), c.astype(np.float64)
+            for i in range(nq):
+                d = q64[i] - c64
+                d2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
+                ok = (cb == qb[i]) & (np.abs(d[:, 2]) <= gate) & (d2 <= max_d2)
+                if not ok.any():
+                    assert not found[i]
+                    continue
+                best = np.flatnonzero(ok & (d2 == d2[ok].min()))[0]
+                assert found[i] and index[i] == best, (trial, i)
