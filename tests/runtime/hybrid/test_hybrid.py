@@ -32,7 +32,6 @@ from depthmocap.runtime.tracker.signals import FitSignals
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.camera import Intrinsics
-from depthmocap.shared.config import ConfigError
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
 from depthmocap.shared.labels import PART_NAMES
 
@@ -67,7 +66,7 @@ def cfg_of(**flat) -> HybridConfig:
     if "epsilon3_mm" in failure:
         failure["epsilon3_mm"] = _off(failure["epsilon3_mm"])
     keep = {k: flat.pop(k) for k in ("compare_all_tests", "max_turn_rad", "recheck_badness",
-                                     "wait_frames", "confirm_m") if k in flat}  # fmt: skip
+                                     "wait_frames") if k in flat}  # fmt: skip
     for k in ("max_turn_rad", "recheck_badness"):
         if k in keep:
             keep[k] = _off(keep[k])
@@ -310,32 +309,6 @@ def test_recheck_badness_questions_suspect_fits(scene, threshold, rechecked):
     assert [g.status for g in got] == ["detected", "tracked", "tracked"]
     assert len(calls) == (3 if rechecked else 1)
     assert ("rechecked" in got[1].errors) == rechecked
-
-
-@pytest.mark.parametrize("confirm_m, confirmed", [(1.0, True), (1e-6, False)])
-def test_a_detection_near_the_track_confirms_it_unrefined(scene, confirm_m, confirmed):
-    """A failed track whose detection would win on the surface error: a detection whose
-    inverse-kinematics pose lies within confirm_m of the track keeps the track (flagged
-    confirmed) and is not refined; a farther one is refined and taken as before."""
-    q, depth, labels, mask = scene
-    tracker = FakeTracker(fail_calls={2}, surface_mm=1e4)
-    est, _ = make_hybrid(
-        scene, tracker, refine_iterations=1, keep_better=True, confirm_m=confirm_m
-    )  # fmt: skip
-    refined = []
-    fit_starts = est._fit_starts
-    est._fit_starts = lambda frame, starts, k=None: (
-        refined.append(k) or fit_starts(frame, starts, k)
-    )
-    got = [estimate_frame(est, frame_of(depth, i, mask)) for i in range(3)]
-    assert [g.status for g in got[:2]] == ["detected", "tracked"]
-    assert got[2].status == ("tracked" if confirmed else "detected")
-    assert ("confirmed" in got[2].errors) == confirmed
-    assert refined == ([1] if confirmed else [1, 1])  # the first frame's detection refines
-    if confirmed:
-        assert est.state.refused_at == 2 and est.state.q_prev2 is not None
-    with pytest.raises(ConfigError):
-        cfg_of(keep_better=True, confirm_m=0.0)
 
 
 @pytest.mark.parametrize("wait, asked", [(0, [1, 2, 3, 4, 5, 6]), (2, [1, 4])])
