@@ -105,15 +105,15 @@ def benchmark_hybrid(
 def frame_work(status: str, errors: dict, sized: bool) -> str:
     """What a frame ran beyond its own track, from its estimate: "size search" (the frame was
     refitted at every candidate size), "detector" (the detector ran: the frame was detected,
-    its track was kept over the detection after failing or being rechecked, or confirmed by
-    it, or it was lost after it), "arm search" (arm refits were tried); joined by " + ", or
-    "track only"; "no person" for a lost frame where nothing ran."""
+    its track was kept over the detection after failing or being rechecked, or it was lost
+    after it), "arm search" (arm refits were tried); joined by " + ", or "track only"; "no
+    person" for a lost frame where nothing ran."""
     ran = []
     if sized:
         ran.append("size search")
     # Keys only the detector's path writes: its labelled pixels (a detection, found or not),
     # a track kept over it, a fit too poor to report after it.
-    asked = ("labelled_pixels", "kept_over_detector", "rechecked", "confirmed", "unsupported")
+    asked = ("labelled_pixels", "kept_over_detector", "rechecked", "unsupported")
     if (
         status == "detected"
         or any(k in errors for k in asked)

@@ -94,7 +94,6 @@ class DetectionResult:
         labels: (H, W) uint8 part labels after outlier removal (rejected pixels set to 0).
         labelled_pixels: body pixels with a label before outlier removal.
         refined: the tracker's result of the refinement, or None.
-        confirmed: the caller's ``confirm`` accepted the IK pose, so it was not refined.
     """
 
     found: bool
@@ -108,7 +107,6 @@ class DetectionResult:
     labels: torch.Tensor
     labelled_pixels: int
     refined: TrackResult | None = None
-    confirmed: bool = False
 
 
 def labels_from(labels_or_posteriors: torch.Tensor | np.ndarray) -> torch.Tensor:
@@ -194,7 +192,6 @@ def detect_pose(
     mask: torch.Tensor | None = None,
     refine: Refine | None = None,
     generator: torch.Generator | None = None,
-    confirm: Callable[[torch.Tensor], bool] | None = None,
 ) -> DetectionResult:
     """Pose from one depth frame and its part labels (module docstring).
 
@@ -210,8 +207,6 @@ def detect_pose(
             iterations), applied to the IK pose and its limb swaps at once when given; the
             caller binds it to the frame (its observation, labels and iteration count).
         generator: random source of the RANSAC (default: seeded from ``cfg.seed``).
-        confirm: called with the IK pose (34,) before the refinement; True skips the
-            refinement (the caller's pose stands: the result is ``confirmed``).
     Returns:
         :class:`DetectionResult`.
     """
@@ -278,8 +273,7 @@ def detect_pose(
     best = int(torch.argmin(ik.rms))
     q_ik = ik.q[best]
     q, refined = q_ik, None
-    confirmed = confirm is not None and confirm(q_ik)
-    if refine is not None and not confirmed:
+    if refine is not None:
         # The forest confuses left and right limbs (about a fifth of forearm and shank pixels),
         # which IK turns into crossed legs or arms; refine the pose with each pair of limbs
         # swapped too and keep the one that explains the depth best.
@@ -293,7 +287,7 @@ def detect_pose(
     joints = named_joint_positions(forward_kinematics(q[None], body))[0]
     return DetectionResult(
         True, q, q_ik, joints, cen.targets, cen.weights, cen.counts, float(ik.rms[best]),
-        kept, n_lab, refined, confirmed,
+        kept, n_lab, refined,
     )  # fmt: skip
 
 
@@ -350,7 +344,6 @@ class Detector:
         mask: torch.Tensor | None = None,
         q_hint: torch.Tensor | None = None,
         refine: Refine | None = None,
-        confirm: Callable[[torch.Tensor], bool] | None = None,
     ) -> DetectionResult:
         """:func:`detect_pose` on one frame with this detector's settings."""
         return detect_pose(
@@ -358,5 +351,5 @@ class Detector:
             torch.as_tensor(labels).to(self.device),
             self.intr, self.body, self.cfg, q_hint,
             None if mask is None else torch.as_tensor(mask).to(self.device),
-            refine, self.generator, confirm,
+            refine, self.generator,
         )  # fmt: skip

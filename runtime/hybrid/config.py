@@ -120,17 +120,9 @@ class KeepBetterConfig:
         "again for this many frames: a failed or suspect track is kept meanwhile (0: it runs "
         "on every failed or suspect frame)",
     )
-    confirm_m: float | None = field_doc(
-        None,
-        "a detection whose inverse-kinematics pose puts the joints within this mean distance "
-        "of the track's (m) confirms the track: the track is kept (flagged confirmed) without "
-        "refining the detection, the detector's costliest part (None: always refine)",
-    )
 
     def __post_init__(self) -> None:
         _check(self.wait_frames >= 0, "keep_better.wait_frames must be >= 0", self.wait_frames)
-        c = self.confirm_m
-        _check(c is None or c > 0, "keep_better.confirm_m must be > 0 or None", c)
         t = self.max_turn_rad
         _check(t is None or t >= 0, "max_turn_rad must be >= 0 or None", t)
         b = self.recheck_badness

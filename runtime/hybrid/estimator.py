@@ -8,13 +8,11 @@ Per frame (a :class:`~runtime.frame.Frame` with a person in it):
    refitted from a few arm poses first (:class:`~runtime.hybrid.arm_search.ArmSearch`).
 3. :func:`~runtime.hybrid.policy.judge_track` tests the fit (Wei's epsilon1, epsilon2, and the
    optional surface error). A passed fit is the frame's pose ("tracked").
-4. A failed (or rechecked) fit goes to the detector. An inverse-kinematics pose near the
-   track confirms it (``keep_better.confirm_m``): kept, flagged ``confirmed``, with no
-   refinement. Otherwise :func:`~runtime.hybrid.policy.choose` keeps the track ("tracked",
-   flagged ``kept_over_detector`` or ``rechecked``) or takes the detection ("detected").
-   A detection that finds nobody leaves the frame "lost" and the next frame starts afresh.
-   So does a frame whose chosen fit explains almost none of the silhouette (overlap below
-   ``failure.lost_overlap``): it is not the person's pose.
+4. A failed (or rechecked) fit goes to the detector; :func:`~runtime.hybrid.policy.choose`
+   keeps the track ("tracked", flagged ``kept_over_detector`` or ``rechecked``) or takes the
+   detection ("detected"). A detection that finds nobody leaves the frame "lost" and the next
+   frame starts afresh. So does a frame whose chosen fit explains almost none of the
+   silhouette (overlap below ``failure.lost_overlap``): it is not the person's pose.
 
 One tracker serves the tracking, every refit and the detector's refinement, all on the frame's
 one observation. The forest's labels are computed once per frame, when first needed (every
@@ -151,29 +149,13 @@ class HybridEstimator:
             joints = apply_offsets(joints, kin.rotations, q[None], self.offsets, body.stature())
         return joints[0].detach().cpu().double().numpy()
 
-    def _run_detector(self, frame: Frame, track: torch.Tensor | None = None) -> DetectionResult:
-        """The detector on ``frame``, refined on the shared tracker; changes no state.
-        ``track``: the frame's tracked pose (34,), which an IK pose near it confirms
-        (``keep_better.confirm_m``: then no refinement)."""
+    def _run_detector(self, frame: Frame) -> DetectionResult:
+        """The detector on ``frame``, refined on the shared tracker; changes no state."""
         labels = frame.labels(self.label_source)
         hint = self.state.q_prev  # one more IK start, used only if it fits the centroids best
         k = self.detector.cfg.refine_iterations
         refine = None if k <= 0 else (lambda starts: self._fit_starts(frame, starts, k))
-        keep = self.cfg.keep_better
-        confirm = None
-        if track is not None and keep is not None and keep.confirm_m is not None:
-            limit = keep.confirm_m
-            confirm = lambda q_ik: self._mean_joint_distance(q_ik, track) < limit  # noqa: E731
-        return self.detector.detect(
-            frame.depth_m, labels, frame.mask, q_hint=hint, refine=refine, confirm=confirm
-        )
-
-    def _mean_joint_distance(self, q_a: torch.Tensor, q_b: torch.Tensor) -> float:
-        """Mean distance (m) between the model joints of two (34,) poses."""
-        body = self.tracker.body
-        kin = forward_kinematics(torch.stack([q_a, q_b]).to(body.lengths), body)
-        joints = named_joint_positions(kin)  # (2, J, 3)
-        return float((joints[0] - joints[1]).norm(dim=-1).mean())
+        return self.detector.detect(frame.depth_m, labels, frame.mask, q_hint=hint, refine=refine)
 
     # ---- estimates, each updating the track ----
 
@@ -284,11 +266,7 @@ class HybridEstimator:
             return self._keep(res, errors, {"detector_waited": 1.0}, frame)
         state.passed = 0
         failed = {f"tracker_{k}": v for k, v in errors.items()}
-        det = self._run_detector(frame, res.q.detach())
-        if det.confirmed:  # the detector sees the track's pose: keep it, unrefined
-            state.turned_round = 0
-            state.refused_at = frame.index
-            return self._keep(res, errors, {"confirmed": 1.0}, frame)
+        det = self._run_detector(frame)
         if cfg.keep_better is None:
             return self._detected(det, failed)
         turn = None if not det.found else root_turn(det.q.to(state.q_prev), state.q_prev)
