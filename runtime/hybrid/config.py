@@ -183,14 +183,9 @@ class ArmSearchConfig:
         "after a search of an arm found no refit to take, that arm is not searched again for "
         "this many frames (0: every suspect frame is searched)",
     )
-    iterations: int | None = field_doc(
-        None, "Gauss-Newton iterations of each refit (None: the tracker's own)"
-    )
 
     def __post_init__(self) -> None:
         _check(not math.isnan(self.badness), "arm_search.badness must be a number", self.badness)
-        it = self.iterations
-        _check(it is None or it >= 1, "arm_search.iterations must be >= 1 or None", it)
         _check(self.cooldown_frames >= 0, "arm_search.cooldown_frames must be >= 0",
                self.cooldown_frames)  # fmt: skip
         _check(self.other_arm_margin_m >= 0, "arm_search.other_arm_margin_m must be >= 0",

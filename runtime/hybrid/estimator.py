@@ -248,7 +248,7 @@ class HybridEstimator:
                 frame.labels(self.label_source),
                 res,
                 badness,
-                lambda starts: self._fit_starts(frame, starts, cfg.arm_search.iterations),
+                lambda starts: self._fit_starts(frame, starts),
                 cfg.failure.badness,
             )
             if found.best is not None:
