@@ -26,7 +26,7 @@ from . import skeleton as sk
 
 __all__ = ["fit_pose_cpu"]
 
-_SMALL = 1e-4  # shared.so3's switch to Taylor series
+_SMALL = kk._SMALL  # shared.so3's switch to Taylor series
 _AFFECTS = sk.DOF_AFFECTS_SEGMENT.astype(np.float64)  # (K, 34)
 _LIMITS = np.ascontiguousarray(sk.DOF_LIMITS, dtype=np.float64)  # (34, 2)
 

@@ -110,7 +110,7 @@ def _closest(q, q_group, c, grid, gate, max_d2, index, found):  # pragma: no cov
     for i in range(q.shape[0]):
         g = q_group[i]
         qx, qy, qz = q[i, 0], q[i, 1], q[i, 2]
-        if g >= shape.shape[0] or not (np.isfinite(qx) and np.isfinite(qy)):
+        if not (np.isfinite(qx) and np.isfinite(qy)):  # compares false with every candidate
             continue
         nx, ny, h = shape[g, 0], shape[g, 1], size[g]
         cx = int(np.floor((qx - lo[g, 0]) / h))
