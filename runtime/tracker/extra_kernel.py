@@ -161,7 +161,7 @@ def extra_correspondences_cpu(
         regions.b1.numpy(), regions.b2_front.numpy(), regions.b2_behind.numpy(),
         regions.b3.numpy(), regions.good.numpy(), obs.silhouette.numpy(),
         render.mask.numpy(), int(margin), depth, render.segment.numpy(), centre, focal,
-        obs.points.contiguous().numpy(), observed.points.numpy(),
+        obs.points.numpy(), observed.points.numpy(),
         observed.batch.numpy().astype(np.int64, copy=False), int(half), int(max_candidates),
         float(gate), float(max_distance) ** 2, float(depth_gate), float(sigma_torso),
         float(sigma_limb), int(first_limb), int(batch_size),

@@ -90,7 +90,7 @@ def label_rows_cpu(kin, geom, obs, use, max_pixels: int, gate: float, sigma: flo
     weight."""
     B = kin.origins.shape[0]
     rot, origin = geom.frames(kin)
-    points = obs.points.contiguous().numpy()
+    points = obs.points.numpy()
     out = _label_rows(
         use.numpy(), obs.labels.numpy(), points, rot.contiguous().numpy(),
         origin.contiguous().numpy(), geom.basis.contiguous().numpy(),

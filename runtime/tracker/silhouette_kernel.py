@@ -76,7 +76,7 @@ def silhouette_rows_cpu(render, obs, max_count: int, deadzone: float, sigma: flo
     dt = depth.dtype
     intr = obs.intr
     out = _silhouette(
-        render.mask.numpy(), obs.distance.numpy(), obs.distance_grad.contiguous().numpy(),
+        render.mask.numpy(), obs.distance.numpy(), obs.distance_grad.numpy(),
         depth, render.segment.numpy(), np.array([intr.cx, intr.cy], dt),
         np.array([intr.fx, intr.fy], dt), int(max_count),
         np.array([intr.fx, intr.fy, 1e-6, deadzone], dt), float(sigma),
