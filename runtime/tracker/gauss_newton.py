@@ -24,6 +24,7 @@ from depthmocap.shared.compiled import compiled_module
 from depthmocap.shared.kinematics import Kinematics, clamp_to_limits, pose_update
 from depthmocap.shared.least_squares import damped, solve, solve_with_fixed
 
+from .prior_term import prior_system
 from .regions import batch_slots
 
 __all__ = [
@@ -36,6 +37,7 @@ __all__ = [
     "limit_step",
     "apply_step",
     "predicted_decrease",
+    "gauss_newton_step",
 ]
 
 
@@ -106,6 +108,12 @@ def _compiled_kernel():
     return compiled_module("depthmocap.runtime.tracker.moments_kernel")
 
 
+def _assembly_kernel():
+    """:mod:`runtime.tracker.normal_kernel` (numba's compiled assembly), or None without
+    numba."""
+    return compiled_module("depthmocap.runtime.tracker.normal_kernel")
+
+
 def rows_jacobian(kin: Kinematics, rows: Rows) -> torch.Tensor:
     """Jacobian rows g^T dp/dq: (N, 34)."""
     g = rows.direction
@@ -145,6 +153,9 @@ def normal_equations(
     else:
         stats = lever.new_zeros(B * K, 6, 7).index_add_(0, group, lever[:, :, None] * ext[:, None])
     table = lever_table(kin).double()  # (B, 6, 34)
+    assembly = _assembly_kernel() if kernel is not None and not table.requires_grad else None
+    if assembly is not None:
+        return assembly.assemble_cpu(stats, table)
     D = table.shape[-1]
     # T^T M_k T for every segment k in two batched products, then each masked to the DoFs
     # that move segment k (a_k a_k^T) and summed over k.
@@ -161,6 +172,14 @@ def _normal_equations_with_columns(
     kin: Kinematics, rows: Rows, batch_size: int, columns: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`normal_equations` with per-row column masks: the Jacobian rows themselves."""
+    table = lever_table(kin).double()
+    grads = rows.points.requires_grad or rows.direction.requires_grad or table.requires_grad
+    assembly = _assembly_kernel() if table.device.type == "cpu" and not grads else None
+    if assembly is not None:
+        return assembly.column_rows_cpu(
+            _levers(rows), rows.residual, rows.weight, rows.batch, rows.segment, columns, table,
+            batch_size,
+        )  # fmt: skip
     jac = rows_jacobian(kin, rows) * (rows.weight[:, None] * columns)
     res = rows.residual * rows.weight
     if batch_size == 1:
@@ -228,3 +247,41 @@ def predicted_decrease(hess: torch.Tensor, dq: torch.Tensor) -> torch.Tensor:
     """
     d = dq.to(hess.dtype)
     return (d[:, None, :] @ hess @ d[:, :, None])[:, 0, 0]
+
+
+def _step_kernel():
+    """:mod:`runtime.tracker.step_kernel` (numba's compiled update), or None without numba."""
+    return compiled_module("depthmocap.runtime.tracker.step_kernel")
+
+
+def gauss_newton_step(
+    hess: torch.Tensor,
+    grad: torch.Tensor,
+    q: torch.Tensor,
+    q_pred: torch.Tensor | None,
+    damping: float,
+    max_angle: float,
+    sigma_rad: float,
+    sigma_m: float,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """One tracker update from the data terms' normal equations: add the constant-acceleration
+    prior towards ``q_pred`` (None: no prior), :func:`solve_step`, :func:`limit_step` to
+    ``max_angle``, :func:`apply_step`.
+
+    Args:
+        hess, grad: (B, 34, 34), (B, 34) float64, the data terms' normal equations at q.
+        q: (B, 34) the poses they were linearized at.
+    Returns:
+        the new poses (B, 34), the steps taken (B, 34), both in q's dtype, and each step's
+        :func:`predicted_decrease` (B,) under the prior-augmented normal matrix.
+    """
+    kernel = _step_kernel() if q.device.type == "cpu" and not q.requires_grad else None
+    if kernel is not None and not (hess.requires_grad or grad.requires_grad):
+        w2 = prior_system(q[:1], q[:1], sigma_rad, sigma_m)[0][0]
+        return kernel.gauss_newton_step_cpu(hess, grad, q, q_pred, w2, damping, max_angle)
+    if q_pred is not None:
+        diag, rhs, _ = prior_system(q, q_pred, sigma_rad, sigma_m)
+        hess = hess + torch.diag_embed(diag.double())
+        grad = grad + rhs.double()
+    dq = limit_step(solve_step(hess, grad, q, damping), max_angle)
+    return apply_step(q, dq), dq, predicted_decrease(hess, dq)

@@ -33,18 +33,11 @@ from .collision_term import collision_rows
 from .config import TrackerConfig
 from .depth_term import depth_rows
 from .extra_depth_term import MAX_CANDIDATES, extra_rows, observed_candidates
-from .gauss_newton import (
-    apply_step,
-    cat_rows,
-    limit_step,
-    normal_equations,
-    predicted_decrease,
-    solve_step,
-)
+from .gauss_newton import cat_rows, gauss_newton_step, normal_equations
 from .joint_support import observed_joints
 from .label_term import label_rows
 from .observation import Observation, automatic_factor, observe, person_window
-from .prior_term import predict_pose, prior_system
+from .prior_term import predict_pose
 from .regions import classify
 from .shoulder_branch import align_branch, move_to_roomier_branch
 from .signals import FitSignals, FrameSignals, frame_signals
@@ -210,19 +203,18 @@ def fit_frames(
             contact, columns = collision_rows(render.kin, geom)
             h, g = normal_equations(render.kin, contact, B, columns)
             hess, grad = hess + h, grad + g
-        if cfg.use_prior:
-            diag, rhs, _ = prior_system(q_cast, q_pred, cfg.sigma_prior_rad, cfg.sigma_prior_m)
-            hess = hess + torch.diag_embed(diag.double())
-            grad = grad + rhs.double()
-        dq = limit_step(solve_step(hess, grad, q_cast, cfg.damping), cfg.max_step_rad)
-        q = torch.where(converged[:, None], q, apply_step(q_cast, dq))
+        q_step, dq, decrease = gauss_newton_step(
+            hess, grad, q_cast, q_pred if cfg.use_prior else None, cfg.damping,
+            cfg.max_step_rad, cfg.sigma_prior_rad, cfg.sigma_prior_m,
+        )  # fmt: skip
+        q = torch.where(converged[:, None], q, q_step)
         iterations += 1
         steps += (~converged).long()
         small = _small(dq)
         if iterations > 1:
             # Not after the first step: the failure signals come from this iteration's
             # rendering, which then would still show the previous frame's pose.
-            small = small | (predicted_decrease(hess, dq) < STOP_DECREASE)
+            small = small | (decrease < STOP_DECREASE)
         q_cast = torch.where((converged | small)[:, None], q_cast, q)
         converged = converged | small
         last = (render, regions, extra)

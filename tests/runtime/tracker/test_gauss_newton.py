@@ -46,10 +46,16 @@ class TestRowsJacobian:
 
 
 class TestNormalEquations:
+    @pytest.mark.parametrize("compiled", [True, False])
     @pytest.mark.parametrize("batch", [1, 3])
-    def test_match_the_explicit_jacobian(self, batch):
+    def test_match_the_explicit_jacobian(self, batch, compiled, monkeypatch):
         """The per-segment moment sums give J^T W^2 J and J^T W^2 r of the explicit rows,
-        each pose from its own rows only; with per-row column masks too."""
+        each pose from its own rows only; with per-row column masks too; both the compiled
+        assembly (the CPU path) and torch's."""
+        if compiled:
+            pytest.importorskip("numba")
+        else:
+            monkeypatch.setattr(gauss_newton, "_assembly_kernel", lambda: None)
         body = BodyShape.default(torch.float64)
         g = torch.Generator().manual_seed(2)
         q = torch.zeros(batch, 34, dtype=torch.float64)
@@ -81,7 +87,9 @@ class TestNormalEquations:
 
     def test_compiled_moments_equal_torch(self, monkeypatch):
         """The numba moments (the CPU path) sum the same products in the same order as
-        torch's ``index_add_``: the normal equations agree bit for bit, batched or not."""
+        torch's ``index_add_``, bit for bit; the compiled assembly of the normal equations
+        from them agrees with torch's batched products to float64 rounding, batched or not,
+        and so does the column-masked form, whose rows of zero weight add nothing."""
         pytest.importorskip("numba")
         from depthmocap.runtime.tracker.moments_kernel import moments_cpu
 
@@ -104,10 +112,17 @@ class TestNormalEquations:
             torch.randn(400, generator=g, dtype=torch.float64),
             torch.rand(400, generator=g, dtype=torch.float64),
         )
+        rows.weight[::7] = 0.0
+        columns = (torch.rand(400, 34, generator=g) > 0.3).double()
         compiled = gauss_newton.normal_equations(kin, rows, 3)
+        compiled_c = gauss_newton.normal_equations(kin, rows, 3, columns)
         monkeypatch.setattr(gauss_newton, "_compiled_kernel", lambda: None)
-        for got, want in zip(compiled, gauss_newton.normal_equations(kin, rows, 3), strict=True):
-            assert torch.equal(got, want)
+        monkeypatch.setattr(gauss_newton, "_assembly_kernel", lambda: None)
+        reference = gauss_newton.normal_equations(kin, rows, 3)
+        reference_c = gauss_newton.normal_equations(kin, rows, 3, columns)
+        for got, want in zip(compiled + compiled_c, reference + reference_c, strict=True):
+            assert got.dtype == torch.float64
+            torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-9)
 
 
 class TestSolveStep:
@@ -150,3 +165,34 @@ class TestPredictedDecrease:
         step = torch.linalg.solve(hess[1:], g[..., None])[..., 0]
         drop = 2 * (g * step).sum() - gauss_newton.predicted_decrease(hess[1:], step)
         assert torch.allclose(gauss_newton.predicted_decrease(hess[1:], step), drop)
+
+
+class TestGaussNewtonStep:
+    @pytest.mark.parametrize("use_prior", [True, False])
+    def test_compiled_update_equals_torch(self, make_pose, monkeypatch, use_prior):
+        """The compiled update (the CPU path: prior, damped Cholesky solve, the limits'
+        active set, the step limit, the SO(3) root update) agrees with torch's LU path to
+        float32 rounding, with joints pushed past their limits and a root turned by the
+        prior."""
+        pytest.importorskip("numba")
+        g = torch.Generator().manual_seed(5)
+        B = 4
+        q = make_pose().expand(B, -1).clone()
+        q[:, 3:6] += 0.2 * torch.randn(B, 3, generator=g, dtype=q.dtype)
+        q_pred = q + 0.05 * torch.randn(B, 34, generator=g, dtype=q.dtype)
+        a = torch.randn(B, 60, 34, generator=g, dtype=torch.float64)
+        hess = a.transpose(1, 2) @ a
+        grad = 40.0 * torch.randn(B, 34, generator=g, dtype=torch.float64)
+        grad[:, D["l_radius_flex"]] = -500.0  # past the elbow's limit: held there
+        args = (hess, grad, q, q_pred if use_prior else None, 0.1, 0.3, 0.2, 0.05)
+        compiled = gauss_newton.gauss_newton_step(*args)
+        monkeypatch.setattr(gauss_newton, "_step_kernel", lambda: None)
+        reference = gauss_newton.gauss_newton_step(*args)
+        q_new, dq, decrease = compiled
+        assert q_new.dtype == q.dtype and dq.dtype == q.dtype and decrease.dtype == torch.float64
+        torch.testing.assert_close(q_new, reference[0], rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(dq, reference[1], rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(decrease, reference[2], rtol=1e-4, atol=1e-6)
+        assert dq[:, 3:].abs().max() <= 0.3 + 1e-6  # the step limit bites
+        lower, upper = (torch.as_tensor(sk.DOF_LIMITS, dtype=q.dtype)[:, i] for i in (0, 1))
+        assert bool(((q_new[:, 6:] >= lower[6:]) & (q_new[:, 6:] <= upper[6:])).all())
