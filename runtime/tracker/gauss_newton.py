@@ -24,7 +24,7 @@ from depthmocap.shared.compiled import compiled_module
 from depthmocap.shared.kinematics import Kinematics, clamp_to_limits, pose_update
 from depthmocap.shared.least_squares import damped, solve, solve_with_fixed
 
-from .prior_term import prior_system
+from .prior_term import prior_system, prior_weights
 from .regions import batch_slots
 
 __all__ = [
@@ -102,15 +102,9 @@ def _chain_masks(device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
     return affects, affects.T[:, :, None] * affects[None]
 
 
-def _compiled_kernel():
-    """:mod:`runtime.tracker.moments_kernel` (numba's compiled moments), or None without
-    numba."""
-    return compiled_module("depthmocap.runtime.tracker.moments_kernel")
-
-
 def _assembly_kernel():
-    """:mod:`runtime.tracker.normal_kernel` (numba's compiled assembly), or None without
-    numba."""
+    """:mod:`runtime.tracker.normal_kernel` (numba's compiled normal equations), or None
+    without numba."""
     return compiled_module("depthmocap.runtime.tracker.normal_kernel")
 
 
@@ -143,19 +137,21 @@ def normal_equations(
     if columns is not None:
         return _normal_equations_with_columns(kin, rows, batch_size, columns)
     K, B = sk.NUM_SEGMENTS, batch_size
+    grads = rows.points.requires_grad or rows.direction.requires_grad
+    grads = grads or rows.residual.requires_grad or rows.weight.requires_grad
+    table = lever_table(kin).double()  # (B, 6, 34)
+    cpu = table.device.type == "cpu" and not (grads or table.requires_grad)
+    assembly = _assembly_kernel() if cpu else None
+    if assembly is not None:
+        return assembly.normal_equations_cpu(
+            rows.points, rows.direction, rows.residual, rows.weight, rows.batch, rows.segment,
+            table,
+        )  # fmt: skip
     w = rows.weight.double()
     lever = _levers(rows).double() * w[:, None]  # (N, 6)
     ext = torch.cat([lever, (rows.residual.double() * w)[:, None]], 1)  # (N, 7)
     group = rows.batch * K + rows.segment
-    kernel = _compiled_kernel() if lever.device.type == "cpu" and not lever.requires_grad else None
-    if kernel is not None:
-        stats = kernel.moments_cpu(lever, ext, group, B * K)
-    else:
-        stats = lever.new_zeros(B * K, 6, 7).index_add_(0, group, lever[:, :, None] * ext[:, None])
-    table = lever_table(kin).double()  # (B, 6, 34)
-    assembly = _assembly_kernel() if kernel is not None and not table.requires_grad else None
-    if assembly is not None:
-        return assembly.assemble_cpu(stats, table)
+    stats = lever.new_zeros(B * K, 6, 7).index_add_(0, group, lever[:, :, None] * ext[:, None])
     D = table.shape[-1]
     # T^T M_k T for every segment k in two batched products, then each masked to the DoFs
     # that move segment k (a_k a_k^T) and summed over k.
@@ -277,7 +273,8 @@ def gauss_newton_step(
     """
     kernel = _step_kernel() if q.device.type == "cpu" and not q.requires_grad else None
     if kernel is not None and not (hess.requires_grad or grad.requires_grad):
-        w2 = prior_system(q[:1], q[:1], sigma_rad, sigma_m)[0][0]
+        w = prior_weights(q[:1], sigma_rad, sigma_m)[0]
+        w2 = w * w  # as prior_system squares them, in q's dtype
         return kernel.gauss_newton_step_cpu(hess, grad, q, q_pred, w2, damping, max_angle)
     if q_pred is not None:
         diag, rhs, _ = prior_system(q, q_pred, sigma_rad, sigma_m)

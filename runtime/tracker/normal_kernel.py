@@ -5,12 +5,15 @@ Importing this module imports numba (an optional dependency, the ``runtime`` ext
 :mod:`runtime.tracker.gauss_newton` imports it lazily and keeps its torch code for GPUs,
 autograd and where numba is missing.
 
-Why: torch forms ``H = sum_k T_k^T M_k T_k`` from the per-(pose, segment) moments with four
-batched products over all 34 DoFs and a (B, 34, 15, 34) masked sum, and the collision term's
-rows as dense (N, 34) Jacobians grouped by pose: ~40 small ops and 1.5 ms a Gauss-Newton
-iteration for a batch of starts, most of it dispatch. Here each segment touches only the DoFs
-of its own chain (at most 18 of 34). The sums run in float64 in another order than torch's,
-so the results agree to float64 rounding, not to the bit.
+Why: torch forms every row's lever and its (6, 7) outer product as (N, 6, 7) float64
+temporaries (8 MB for the ~20,000 rows of a batched refit) before summing them by (pose,
+segment), then ``H = sum_k T_k^T M_k T_k`` with four batched products over all 34 DoFs and a
+(B, 34, 15, 34) masked sum, and the collision term's rows as dense (N, 34) Jacobians grouped
+by pose: ~50 small ops and ~2 ms a Gauss-Newton iteration for a batch of starts, most of it
+dispatch. Here each row adds its products in place and each segment touches only the DoFs of
+its own chain (at most 18 of 34). The levers are formed in float64 from the rows' float32
+points (torch: in float32) and the sums run in another order than torch's, so the results
+agree with torch's to float32 rounding, not to the bit.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import numpy as np
 import torch
 from depthmocap.shared import skeleton as sk
 
-__all__ = ["assemble_cpu", "column_rows_cpu"]
+__all__ = ["normal_equations_cpu", "column_rows_cpu"]
 
 
 @functools.cache
@@ -44,6 +47,33 @@ def _chains() -> tuple[np.ndarray, np.ndarray]:
 def _affects() -> np.ndarray:
     """(K, D) float64 :data:`shared.skeleton.DOF_AFFECTS_SEGMENT`."""
     return np.asarray(sk.DOF_AFFECTS_SEGMENT, np.float64)
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def _moments(points, direction, residual, weight, batch, segment, K, stats):  # pragma: no cover
+    """Each row's ``w^2 l l^T`` and ``w^2 r l`` (lever ``l = (p x g, g)``) summed into its
+    (pose, segment)'s (6, 7) ``stats``."""
+    lever = np.empty(7, np.float64)
+    for i in range(points.shape[0]):
+        w = np.float64(weight[i])
+        if w == 0.0:
+            continue
+        px, py, pz = np.float64(points[i, 0]), np.float64(points[i, 1]), np.float64(points[i, 2])
+        gx = np.float64(direction[i, 0])
+        gy = np.float64(direction[i, 1])
+        gz = np.float64(direction[i, 2])
+        lever[0] = (py * gz - pz * gy) * w
+        lever[1] = (pz * gx - px * gz) * w
+        lever[2] = (px * gy - py * gx) * w
+        lever[3] = gx * w
+        lever[4] = gy * w
+        lever[5] = gz * w
+        lever[6] = np.float64(residual[i]) * w
+        m = stats[batch[i] * K + segment[i]]
+        for a in range(6):
+            la = lever[a]
+            for c in range(7):
+                m[a, c] += la * lever[c]
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
@@ -102,17 +132,29 @@ def _column_rows(lever, residual, weight, batch, segment, columns, table, affect
                     hess[b, i, j] += jac[i] * jac[j]
 
 
-def assemble_cpu(stats: torch.Tensor, table: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``H`` (B, 34, 34) and ``g`` (B, 34), float64, from the moments ``stats`` (B * K, 6, 7)
-    and the lever tables ``table`` (B, 6, 34), both CPU float64."""
+def normal_equations_cpu(
+    points: torch.Tensor,
+    direction: torch.Tensor,
+    residual: torch.Tensor,
+    weight: torch.Tensor,
+    batch: torch.Tensor,
+    segment: torch.Tensor,
+    table: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``H`` (B, 34, 34) and ``g`` (B, 34), float64, of the rows (``points``, ``direction``
+    (N, 3), ``residual``, ``weight`` (N,), ``batch``, ``segment`` (N,) int64, CPU) under the
+    lever tables ``table`` (B, 6, 34) float64; rows of zero weight add nothing."""
     B, D = table.shape[0], table.shape[2]
+    K = sk.NUM_SEGMENTS
+    stats = np.zeros((B * K, 6, 7), np.float64)
+    _moments(
+        np.ascontiguousarray(points.numpy()), np.ascontiguousarray(direction.numpy()),
+        residual.numpy(), weight.numpy(), batch.numpy(), segment.numpy(), K, stats,
+    )  # fmt: skip
     chains, counts = _chains()
     hess = np.zeros((B, D, D), np.float64)
     grad = np.zeros((B, D), np.float64)
-    _assemble(
-        np.ascontiguousarray(stats.numpy()), np.ascontiguousarray(table.numpy()), chains, counts,
-        hess, grad,
-    )  # fmt: skip
+    _assemble(stats, np.ascontiguousarray(table.numpy()), chains, counts, hess, grad)
     return torch.from_numpy(hess), torch.from_numpy(grad)
 
 

@@ -16,7 +16,7 @@ from depthmocap.shared.so3 import (
     rotvec_to_quaternion,
 )
 
-__all__ = ["predict_pose", "prior_residual", "prior_system"]
+__all__ = ["predict_pose", "prior_residual", "prior_weights", "prior_system"]
 
 
 def predict_pose(
@@ -56,6 +56,14 @@ def prior_residual(q: torch.Tensor, q_pred: torch.Tensor) -> torch.Tensor:
     return res
 
 
+def prior_weights(like: torch.Tensor, sigma_rad: float, sigma_m: float) -> torch.Tensor:
+    """Per-DoF prior weights ``1 / sigma`` (B, 34) in ``like``'s dtype: ``sigma_m`` for the
+    root position, ``sigma_rad`` for the rest."""
+    w = torch.full_like(like, 1.0 / sigma_rad)
+    w[:, 0:3] = 1.0 / sigma_m
+    return w
+
+
 def prior_system(
     q: torch.Tensor, q_pred: torch.Tensor, sigma_rad: float, sigma_m: float
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -64,8 +72,7 @@ def prior_system(
     Returns:
         diagonal (B, 34) of w^2, right-hand side (B, 34) w^2 r, energy (B,) sum (w r)^2.
     """
-    w = torch.full_like(q, 1.0 / sigma_rad)
-    w[:, 0:3] = 1.0 / sigma_m
+    w = prior_weights(q, sigma_rad, sigma_m)
     res = prior_residual(q, q_pred)
     w2 = w * w
     return w2, w2 * res, (w2 * res * res).sum(-1)

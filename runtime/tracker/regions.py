@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import torch
 from depthmocap.runtime.raycast import BodyRender
 from depthmocap.shared.camera import Intrinsics
-from depthmocap.shared.compiled import compiled_module
+from depthmocap.shared.compiled import compiled_float32, compiled_module
 
 from .observation import Observation
 
@@ -53,6 +53,15 @@ class Regions:
 def classify(render: BodyRender, obs: Observation, gate_m: float, occlusion: bool) -> Regions:
     """Split pixels into G, B1, B2 (front/behind), B3. ``occlusion=False``: no B2 (naive)."""
     rendered, valid = render.mask, obs.valid
+    kernel = compiled_float32(
+        "depthmocap.runtime.tracker.regions_kernel", obs.depth, render.depth
+    )  # fmt: skip
+    if kernel is not None:  # one compiled pass, the same regions
+        return Regions(
+            *kernel.classify_cpu(
+                rendered, valid, obs.silhouette, obs.depth, render.depth, gate_m, occlusion
+            )
+        )
     both = rendered & valid
     diff = obs.depth - render.depth
     if occlusion:

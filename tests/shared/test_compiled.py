@@ -13,9 +13,9 @@ from depthmocap.shared.compiled import compiled_float32, compiled_module
 def test_loads_a_kernel_module_and_remembers_it():
     pytest.importorskip("numba")
     compiled_module.cache_clear()
-    first = compiled_module("depthmocap.runtime.tracker.moments_kernel")
-    assert first is not None and hasattr(first, "moments_cpu")
-    assert compiled_module("depthmocap.runtime.tracker.moments_kernel") is first
+    first = compiled_module("depthmocap.runtime.tracker.normal_kernel")
+    assert first is not None and hasattr(first, "normal_equations_cpu")
+    assert compiled_module("depthmocap.runtime.tracker.normal_kernel") is first
 
 
 def test_none_without_numba(monkeypatch, request):
@@ -28,7 +28,7 @@ def test_none_without_numba(monkeypatch, request):
 
 def test_compiled_float32_only_for_cpu_float32_without_gradients():
     pytest.importorskip("numba")
-    name = "depthmocap.runtime.tracker.moments_kernel"
+    name = "depthmocap.runtime.tracker.normal_kernel"
     x = torch.zeros(3)
     assert compiled_float32(name, x, x) is compiled_module(name)
     assert compiled_float32(name, x, x.double()) is None

@@ -96,3 +96,35 @@ class TestCompiledSampler:
         grad_depth = depth.clone().requires_grad_(True)
         p, _ = rendered_points(SimpleNamespace(depth=grad_depth, segment=segment), idx, intr)
         assert p.requires_grad and torch.equal(p.detach(), want)
+
+
+class TestClassify:
+    @pytest.mark.parametrize("expanded", [True, False])
+    @pytest.mark.parametrize("occlusion", [True, False])
+    def test_compiled_regions_equal_torch(self, monkeypatch, expanded, occlusion):
+        """The compiled pass (the CPU path) gives torch's regions bit for bit, also for an
+        observation that is a stride-0 view of one frame (a batch of starts) and for depth
+        differences at the gate itself (compared in float32, as torch does)."""
+        pytest.importorskip("numba")
+        from types import SimpleNamespace
+
+        from depthmocap.runtime.tracker import regions
+
+        g = torch.Generator().manual_seed(0)
+        B, H, W = 3, 37, 29
+        depth = torch.rand(1 if expanded else B, H, W, generator=g) * 3
+        depth[depth < 0.8] = 0
+        depth = depth.expand(B, H, W) if expanded else depth
+        silhouette = (depth > 0) | (torch.rand(depth.shape, generator=g) > 0.9)
+        obs = SimpleNamespace(depth=depth, valid=depth > 0, silhouette=silhouette)
+        rendered = torch.rand(B, H, W, generator=g) * 3
+        rendered[rendered < 1] = 0
+        rendered[:, 0, :8] = depth[:, 0, :8] + 0.1  # differences at the gate
+        render = SimpleNamespace(depth=rendered, mask=rendered > 0)
+        compiled = regions.classify(render, obs, 0.1, occlusion)
+        monkeypatch.setattr(regions, "compiled_float32", lambda *a, **k: None)
+        reference = regions.classify(render, obs, 0.1, occlusion)
+        for field in ("good", "b1", "b2_front", "b2_behind", "b3", "depth_diff"):
+            got, want = getattr(compiled, field), getattr(reference, field)
+            assert got.dtype == want.dtype and torch.equal(got, want), field
+        assert int(compiled.good.sum()) > 0 and int(compiled.b3.sum()) > 0
