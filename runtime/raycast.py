@@ -95,11 +95,19 @@ class SegmentGeometry:
     segment: torch.Tensor
 
     def frames(self, kin: Kinematics) -> tuple[torch.Tensor, torch.Tensor]:
-        """Rotation (B, P, 3, 3) and camera-frame axis point at span 0 (B, P, 3) per primitive."""
+        """Rotation (B, P, 3, 3) and camera-frame axis point at span 0 (B, P, 3) per primitive.
+
+        The last answer is kept for its ``kin``: a tracker iteration asks for the frames of
+        one pose batch in the ray-caster and again in two of its terms."""
+        last = self.__dict__.get("_frames_of")
+        if last is not None and last[0] is kin:
+            return last[1]
         B = kin.origins.shape[0]
         rot = kin.rotations[:, self.segment]
         origin = kin.origins[:, self.segment]
-        return rot, origin + (rot @ self.centre.expand(B, -1, -1)[..., None])[..., 0]
+        frames = rot, origin + (rot @ self.centre.expand(B, -1, -1)[..., None])[..., 0]
+        self.__dict__["_frames_of"] = (kin, frames)
+        return frames
 
 
 @dataclass
@@ -372,15 +380,20 @@ def part_labels(render: BodyRender, body: BodyShape) -> torch.Tensor:
     return torch.from_numpy(segment_to_part(seg.numpy(), frac.numpy()).astype(np.int64))
 
 
-def segment_distances(points: torch.Tensor, kin: Kinematics, body: BodyShape) -> torch.Tensor:
+def segment_distances(
+    points: torch.Tensor,
+    kin: Kinematics,
+    body: BodyShape,
+    geom: SegmentGeometry | None = None,
+) -> torch.Tensor:
     """Signed distance of camera-frame points to each of the model's P primitives: (B, N, P),
     > 0 outside.
 
     Per primitive the distance is measured along the line from the point to its nearest point
     on the capsule's axis: exact for circular sections and spherical caps, an upper bound for
-    the elliptic torso.
+    the elliptic torso. ``geom``: ``segment_geometry(body, points)`` if already computed.
     """
-    geom = segment_geometry(body, points)
+    geom = segment_geometry(body, points) if geom is None else geom
     B = points.shape[0]
     rot, origin = geom.frames(kin)
     kernel = _compiled_kernel() if points.device.type == "cpu" else None
@@ -398,13 +411,18 @@ def segment_distances(points: torch.Tensor, kin: Kinematics, body: BodyShape) ->
     return signed
 
 
-def surface_distance(points: torch.Tensor, kin: Kinematics, body: BodyShape) -> torch.Tensor:
+def surface_distance(
+    points: torch.Tensor,
+    kin: Kinematics,
+    body: BodyShape,
+    geom: SegmentGeometry | None = None,
+) -> torch.Tensor:
     """Approximate distance of camera-frame points to the model surface: (B, N).
 
     The union's signed distance is the minimum over :func:`segment_distances`; its absolute
     value is returned (points inside the body count by their depth inside).
     """
-    return segment_distances(points, kin, body).min(-1).values.abs()
+    return segment_distances(points, kin, body, geom).min(-1).values.abs()
 
 
 def capsule_signed_distance(

@@ -109,7 +109,7 @@ def surface_error_quantile(
     b, v, u = idx.unbind(1)
     slot, real = batch_slots(b, B)  # each pose's own points only: (B, K)
     pts = obs.points[b, v, u][slot]
-    dist = surface_distance(pts, render.kin, body)  # (B, K)
+    dist = surface_distance(pts, render.kin, body, render.geom)  # (B, K)
     dist = torch.where(real, dist, torch.full_like(dist, float("nan")))
     q = torch.nanquantile(dist.double(), level, dim=1) * 1e3
     return torch.nan_to_num(q, nan=0.0)

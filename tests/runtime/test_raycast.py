@@ -235,3 +235,23 @@ def test_cuda_matches_cpu():
     # float32 at 2-4 m: the GPU contracts multiply-adds the CPU does not, 0.2 mm seen on an
     # H200; a sub-millimetre bound still catches any wrong surface or index.
     assert float((gpu.depth.cpu() - cpu.depth)[both].abs().max()) < 1e-3
+
+
+def test_frames_are_kept_per_pose_batch_and_geometry_can_be_passed():
+    """A geometry answers the same kinematics' frames once (the tracker asks three times an
+    iteration) and new poses afresh; distances with the caller's geometry are the same."""
+    body = BodyShape.default()
+    q = rest_pose(2)
+    q[1, 0] += 0.3
+    geom = segment_geometry(body, q)
+    kin = forward_kinematics(q, body)
+    first = geom.frames(kin)
+    assert geom.frames(kin) is first
+    moved = forward_kinematics(q + 0.1, body)
+    rot, origin = geom.frames(moved)
+    assert not torch.equal(origin, first[1])
+    assert geom.frames(moved)[1] is origin
+    points = torch.randn(2, 50, 3) * 0.3 + torch.tensor([0.0, 0.0, 2.5])
+    assert torch.equal(
+        surface_distance(points, kin, body, geom), surface_distance(points, kin, body)
+    )
