@@ -25,23 +25,20 @@ def _classify(rendered, valid, silhouette, obs_depth, render_depth, gate, occlus
               front, behind, b3, diff):  # fmt: skip  # pragma: no cover - compiled
     nb, h, w = rendered.shape
     g = gate[0]
+    shared = valid.shape[0] == 1  # one observed frame for every pose
     for b in range(nb):
+        o = 0 if shared else b
         for v in range(h):
             for u in range(w):
-                r, ok = rendered[b, v, u], valid[b, v, u]
-                d = obs_depth[b, v, u] - render_depth[b, v, u]
+                r, ok = rendered[b, v, u], valid[o, v, u]
+                d = obs_depth[o, v, u] - render_depth[b, v, u]
                 diff[b, v, u] = d
-                both = r and ok
-                if occlusion:
-                    good[b, v, u] = both and abs(d) <= g
-                    front[b, v, u] = both and d > g
-                    behind[b, v, u] = both and d < -g
-                else:
-                    good[b, v, u] = both
-                    front[b, v, u] = False
-                    behind[b, v, u] = False
-                b1[b, v, u] = r and not silhouette[b, v, u]
-                b3[b, v, u] = ok and not r
+                both = r & ok
+                good[b, v, u] = both & ((abs(d) <= g) | (not occlusion))
+                front[b, v, u] = both & (d > g) & occlusion
+                behind[b, v, u] = both & (d < -g) & occlusion
+                b1[b, v, u] = r & (not silhouette[o, v, u])
+                b3[b, v, u] = ok & (not r)
 
 
 def classify_cpu(
@@ -59,8 +56,13 @@ def classify_cpu(
     shape = rendered.shape
     masks = [np.empty(shape, np.bool_) for _ in range(5)]
     diff = np.empty(shape, np.float32)
+    observed = [valid, silhouette, obs_depth]
+    if all(t.stride(0) == 0 for t in observed):  # a batch of starts on one frame
+        observed = [t[:1] for t in observed]
+    valid, silhouette, obs_depth = (np.ascontiguousarray(t.numpy()) for t in observed)
     _classify(
-        rendered.numpy(), valid.numpy(), silhouette.numpy(), obs_depth.numpy(),
-        render_depth.numpy(), np.array([gate_m], np.float32), bool(occlusion), *masks, diff,
+        np.ascontiguousarray(rendered.numpy()), valid, silhouette, obs_depth,
+        np.ascontiguousarray(render_depth.numpy()), np.array([gate_m], np.float32),
+        bool(occlusion), *masks, diff,
     )  # fmt: skip
     return (*(torch.from_numpy(m) for m in masks), torch.from_numpy(diff))
