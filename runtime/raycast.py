@@ -340,14 +340,14 @@ def render_body(
     rot, origin = geom.frames(kin)
     B, H, W = q.shape[0], intr.height, intr.width
     kernel = _compiled_kernel() if box and q.device.type == "cpu" else None
-    if kernel is not None:
-        depth, prim = kernel.zbuffer_cpu(
-            rot, origin, geom.basis, geom.scale, geom.span, intr, _NEAR
+    if kernel is not None:  # the segments too, in the same loop
+        depth, prim, segment = kernel.zbuffer_cpu(
+            rot, origin, geom.basis, geom.scale, geom.span, intr, _NEAR, geom.segment
         )
     else:
         depth, prim = _zbuffer_torch(rot, origin, geom, intr, box)
-    seg_of = geom.segment.index_select(0, prim.clamp_min(0).reshape(-1)).reshape(prim.shape)
-    segment = torch.where(prim >= 0, seg_of, prim)
+        seg_of = geom.segment.index_select(0, prim.clamp_min(0).reshape(-1)).reshape(prim.shape)
+        segment = torch.where(prim >= 0, seg_of, prim)
     lean = BodyRender(depth, segment >= 0, segment, None, None, kin, prim, geom, rot, origin)
     if not details:
         return lean

@@ -44,7 +44,7 @@ def _capsule_frame(basis, rot, m):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def _zbuffer(
-    rot, origin, basis, scale, span, fx, fy, cx, cy, near, depth, prim
+    rot, origin, basis, scale, span, fx, fy, cx, cy, near, depth, prim, segment_of, segment, out
 ):  # pragma: no cover
     B, P = origin.shape[0], origin.shape[1]
     H, W = depth.shape[1], depth.shape[2]
@@ -120,8 +120,13 @@ def _zbuffer(
                         prim[b, v, u] = p
         for v in range(H):
             for u in range(W):
-                if prim[b, v, u] < 0:
+                p = prim[b, v, u]
+                if p < 0:
                     depth[b, v, u] = 0.0
+                    segment[b, v, u] = -1
+                else:
+                    segment[b, v, u] = segment_of[p]
+                out[b, v, u] = depth[b, v, u]  # rounded to out's dtype, as torch's .to
 
 
 def zbuffer_cpu(
@@ -132,21 +137,29 @@ def zbuffer_cpu(
     span: torch.Tensor,
     intr,
     near: float,
-) -> tuple[torch.Tensor, torch.Tensor]:
+    segment_of: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, ...]:
     """Depth (B, H, W) in rot's dtype (0: background) and primitive (B, H, W) int64 (-1:
     background) of the capsules with frames ``rot`` (B, P, 3, 3), ``origin`` (B, P, 3) and the
     :class:`runtime.raycast.SegmentGeometry` fields ``basis`` (P, 3, 3), ``scale`` (..., P, 3),
-    ``span`` (..., P, 2), on the image of ``intr``; hits nearer than ``near`` are ignored."""
+    ``span`` (..., P, 2), on the image of ``intr``; hits nearer than ``near`` are ignored.
+    With ``segment_of`` (P,) int64, also the segment (B, H, W) int64 each pixel hits (-1:
+    background)."""
     B, P = origin.shape[:2]
-
-    depth = np.empty((B, intr.height, intr.width))
-    prim = np.empty((B, intr.height, intr.width), dtype=np.int64)
+    shape = (B, intr.height, intr.width)
+    depth = np.empty(shape)
+    prim = np.empty(shape, dtype=np.int64)
+    segment = np.empty(shape, dtype=np.int64)
+    out = np.empty(shape, dtype=torch.empty(0, dtype=rot.dtype).numpy().dtype)
+    table = np.zeros(P, np.int64) if segment_of is None else segment_of.numpy()
     _zbuffer(
         _f64(rot, B, P, 3, 3), _f64(origin, B, P, 3), _f64(basis, P, 3, 3), _f64(scale, B, P, 3),
         _f64(span, B, P, 2), float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy),
-        float(near), depth, prim,
+        float(near), depth, prim, table, segment, out,
     )  # fmt: skip
-    return torch.from_numpy(depth).to(rot.dtype), torch.from_numpy(prim)
+    if segment_of is None:
+        return torch.from_numpy(out), torch.from_numpy(prim)
+    return torch.from_numpy(out), torch.from_numpy(prim), torch.from_numpy(segment)
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)

@@ -114,3 +114,24 @@ def test_poses_that_are_not_numbers_render_as_the_torch_caster_does(bad, monkeyp
     assert torch.isfinite(fast.depth).all()
     assert ((fast.segment >= 0) != (slow.segment >= 0)).float().mean() < 1e-3
     torch.testing.assert_close(fast.depth[2], slow.depth[2], atol=1e-3, rtol=0)
+
+
+def test_segments_and_depth_rounding_in_the_same_loop():
+    """With the primitives' segment table the kernel also writes each pixel's segment (-1 on
+    background), the same as looking the primitive up afterwards; the depth is rounded to
+    float32 as torch's ``.to`` rounds the float64 buffer."""
+    q = _random_poses(4, seed=5)
+    body = BodyShape.default()
+    kin = forward_kinematics(q, body)
+    geom = raycast.segment_geometry(body, q)
+    rot, origin = geom.frames(kin)
+    depth, prim, segment = kernel.zbuffer_cpu(
+        rot, origin, geom.basis, geom.scale, geom.span, SMALL, NEAR, geom.segment
+    )
+    want = torch.where(prim >= 0, geom.segment[prim.clamp_min(0)], prim)
+    assert torch.equal(segment, want) and (segment >= 0).sum() > 1000
+    d64, p64 = kernel.zbuffer_cpu(
+        rot.double(), origin.double(), geom.basis.double(), geom.scale.double(),
+        geom.span.double(), SMALL, NEAR,
+    )  # fmt: skip
+    assert torch.equal(prim, p64) and torch.equal(depth, d64.float())
