@@ -24,7 +24,7 @@ import torch
 from . import kinematics_kernel as kk
 from . import skeleton as sk
 
-__all__ = ["fit_pose_cpu"]
+__all__ = ["fit_pose_cpu", "cholesky_solve"]
 
 _SMALL = kk._SMALL  # shared.so3's switch to Taylor series
 _AFFECTS = sk.DOF_AFFECTS_SEGMENT.astype(np.float64)  # (K, 34)
@@ -61,6 +61,34 @@ def _compose(a0, a1, a2, b0, b1, b2):  # pragma: no cover - compiled
         s = math.sqrt(s2)
         f = 2.0 * math.atan2(s, w) / s
     return x * f, y * f, z * f
+
+
+@numba.njit(inline="always")
+def cholesky_solve(matrix, rhs, out):  # pragma: no cover - compiled
+    """``out = matrix^-1 rhs`` for a symmetric positive definite (n, n) ``matrix`` given by
+    its lower triangle, which is overwritten by the Cholesky factor."""
+    n = rhs.shape[0]
+    for j in range(n):
+        s = matrix[j, j]
+        for k in range(j):
+            s -= matrix[j, k] * matrix[j, k]
+        s = math.sqrt(max(s, 1e-300))
+        matrix[j, j] = s
+        for i in range(j + 1, n):
+            t = matrix[i, j]
+            for k in range(j):
+                t -= matrix[i, k] * matrix[j, k]
+            matrix[i, j] = t / s
+    for i in range(n):  # L y = b
+        t = rhs[i]
+        for k in range(i):
+            t -= matrix[i, k] * out[k]
+        out[i] = t / matrix[i, i]
+    for i in range(n - 1, -1, -1):  # L^T x = y
+        t = out[i]
+        for k in range(i + 1, n):
+            t -= matrix[k, i] * out[k]
+        out[i] = t / matrix[i, i]
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
@@ -143,27 +171,7 @@ def _lm_step(b, q, q_ref, points, residual, weights, segment, dof_axes, dof_orig
     # Cholesky of H + lam (diag(H) + 1e-9), in place in the lower triangle.
     for d in range(D):
         hess[d, d] += lam * (hess[d, d] + 1e-9)
-    for j in range(D):
-        s = hess[j, j]
-        for k in range(j):
-            s -= hess[j, k] * hess[j, k]
-        s = math.sqrt(max(s, 1e-300))
-        hess[j, j] = s
-        for i in range(j + 1, D):
-            t = hess[i, j]
-            for k in range(j):
-                t -= hess[i, k] * hess[j, k]
-            hess[i, j] = t / s
-    for i in range(D):  # L y = g
-        t = grad[i]
-        for k in range(i):
-            t -= hess[i, k] * dq[k]
-        dq[i] = t / hess[i, i]
-    for i in range(D - 1, -1, -1):  # L^T x = y
-        t = dq[i]
-        for k in range(i + 1, D):
-            t -= hess[k, i] * dq[k]
-        dq[i] = t / hess[i, i]
+    cholesky_solve(hess, grad, dq)
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)

@@ -15,8 +15,6 @@ its rounding, not to the bit.
 
 from __future__ import annotations
 
-import math
-
 import numba
 import numpy as np
 import torch
@@ -28,34 +26,7 @@ __all__ = ["gauss_newton_step_cpu"]
 _LIMITS = np.ascontiguousarray(sk.DOF_LIMITS, dtype=np.float64)  # (34, 2)
 _quaternion = ik_kernel._quaternion
 _compose = ik_kernel._compose
-
-
-@numba.njit(inline="always")
-def _cholesky_solve(matrix, rhs, out):  # pragma: no cover - compiled
-    """``out = matrix^-1 rhs`` for a symmetric positive definite (n, n) ``matrix`` given by
-    its lower triangle, which is overwritten by the factor."""
-    n = rhs.shape[0]
-    for j in range(n):
-        s = matrix[j, j]
-        for k in range(j):
-            s -= matrix[j, k] * matrix[j, k]
-        s = math.sqrt(max(s, 1e-300))
-        matrix[j, j] = s
-        for i in range(j + 1, n):
-            t = matrix[i, j]
-            for k in range(j):
-                t -= matrix[i, k] * matrix[j, k]
-            matrix[i, j] = t / s
-    for i in range(n):  # L y = b
-        t = rhs[i]
-        for k in range(i):
-            t -= matrix[i, k] * out[k]
-        out[i] = t / matrix[i, i]
-    for i in range(n - 1, -1, -1):  # L^T x = y
-        t = out[i]
-        for k in range(i + 1, n):
-            t -= matrix[k, i] * out[k]
-        out[i] = t / matrix[i, i]
+cholesky_solve = ik_kernel.cholesky_solve
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
@@ -97,7 +68,7 @@ def _step(hess, grad, q, q_pred, prior_w2, use_prior, damping, max_angle, limits
             for j in range(i + 1):
                 m[i, j] = h[i, j]
             m[i, i] += lam
-        _cholesky_solve(m, g, dq)
+        cholesky_solve(m, g, dq)
         # Joint angles that would leave their limits are held there; the rest solve again.
         n_fixed = 0
         for i in range(D):
@@ -124,7 +95,7 @@ def _step(hess, grad, q, q_pred, prior_w2, use_prior, damping, max_angle, limits
                         m[i, j] = 1.0 if i == j else 0.0
                     else:
                         m[i, j] = h[i, j] + (lam if i == j else 0.0)
-            _cholesky_solve(m, rhs, dq)
+            cholesky_solve(m, rhs, dq)
         if max_angle > 0:
             largest = 0.0
             for i in range(3, D):
