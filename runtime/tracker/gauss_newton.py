@@ -168,13 +168,13 @@ def _normal_equations_with_columns(
     kin: Kinematics, rows: Rows, batch_size: int, columns: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`normal_equations` with per-row column masks: the Jacobian rows themselves."""
-    table = lever_table(kin).double()
-    grads = rows.points.requires_grad or rows.direction.requires_grad or table.requires_grad
-    assembly = _assembly_kernel() if table.device.type == "cpu" and not grads else None
+    grads = rows.points.requires_grad or rows.direction.requires_grad
+    grads = grads or kin.dof_axes.requires_grad or kin.dof_origins.requires_grad
+    assembly = _assembly_kernel() if columns.device.type == "cpu" and not grads else None
     if assembly is not None:
         return assembly.column_rows_cpu(
-            _levers(rows), rows.residual, rows.weight, rows.batch, rows.segment, columns, table,
-            batch_size,
+            _levers(rows), rows.residual, rows.weight, rows.batch, rows.segment, columns,
+            lever_table(kin).double(), batch_size,
         )  # fmt: skip
     jac = rows_jacobian(kin, rows) * (rows.weight[:, None] * columns)
     res = rows.residual * rows.weight

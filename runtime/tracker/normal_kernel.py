@@ -18,8 +18,6 @@ agree with torch's to float32 rounding, not to the bit.
 
 from __future__ import annotations
 
-import functools
-
 import numba
 import numpy as np
 import torch
@@ -28,11 +26,9 @@ from depthmocap.shared import skeleton as sk
 __all__ = ["normal_equations_cpu", "column_rows_cpu"]
 
 
-@functools.cache
-def _chains() -> tuple[np.ndarray, np.ndarray]:
+def _chain_table(affects: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(K, D) int64 the DoFs that move segment k first, padded with -1, and (K,) their
-    counts."""
-    affects = np.asarray(sk.DOF_AFFECTS_SEGMENT) > 0
+    counts, from the (K, D) 0/1 table ``affects``."""
     K, D = affects.shape
     chains = np.full((K, D), -1, np.int64)
     counts = np.zeros(K, np.int64)
@@ -43,10 +39,8 @@ def _chains() -> tuple[np.ndarray, np.ndarray]:
     return chains, counts
 
 
-@functools.cache
-def _affects() -> np.ndarray:
-    """(K, D) float64 :data:`shared.skeleton.DOF_AFFECTS_SEGMENT`."""
-    return np.asarray(sk.DOF_AFFECTS_SEGMENT, np.float64)
+_AFFECTS = np.asarray(sk.DOF_AFFECTS_SEGMENT, np.float64)  # (K, D)
+_CHAINS, _COUNTS = _chain_table(_AFFECTS)
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
@@ -151,10 +145,9 @@ def normal_equations_cpu(
         np.ascontiguousarray(points.numpy()), np.ascontiguousarray(direction.numpy()),
         residual.numpy(), weight.numpy(), batch.numpy(), segment.numpy(), K, stats,
     )  # fmt: skip
-    chains, counts = _chains()
     hess = np.zeros((B, D, D), np.float64)
     grad = np.zeros((B, D), np.float64)
-    _assemble(stats, np.ascontiguousarray(table.numpy()), chains, counts, hess, grad)
+    _assemble(stats, np.ascontiguousarray(table.numpy()), _CHAINS, _COUNTS, hess, grad)
     return torch.from_numpy(hess), torch.from_numpy(grad)
 
 
@@ -179,6 +172,6 @@ def column_rows_cpu(
         np.ascontiguousarray(lever.double().numpy()), residual.double().numpy(),
         weight.double().numpy(), batch.numpy(), segment.numpy(),
         np.ascontiguousarray(columns.double().numpy()), np.ascontiguousarray(table.numpy()),
-        _affects(), hess, grad,
+        _AFFECTS, hess, grad,
     )  # fmt: skip
     return torch.from_numpy(hess), torch.from_numpy(grad)
