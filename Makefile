@@ -4,7 +4,7 @@ PY := .venv/bin/python
 SETUP_STAMP := .venv/.setup-stamp
 export PYTHONUNBUFFERED := 1
 
-.PHONY: setup demo test lint format bench bench-broad install-check clean synth pose-prior dev-recordings dev-recordings-all dev-protocol dev-protocol-eval train-forest train-forest-eval \
+.PHONY: setup demo test lint format bench bench-broad install-check clean synth dev-recordings dev-recordings-all dev-protocol dev-protocol-eval train-forest train-forest-eval \
 	synth-calib train-forest-calib
 
 setup: ## create .venv, install system packages (root), torch and the project with all extras
@@ -56,9 +56,6 @@ dev-protocol-eval: $(SETUP_STAMP) ## the fully automatic system (hybrid, default
 
 train-forest: $(SETUP_STAMP) ## the body-part forest from data/synth into models/forest.npz
 	$(PY) -m depthmocap.train.forest.train_cli --data data/synth --out models/forest.npz --config configs/forest.yaml
-
-pose-prior: $(SETUP_STAMP) ## the learned pose prior from the training mocap into models/pose_prior.json (~1 min)
-	$(PY) -m depthmocap.train.mocap.pose_prior_fit --config configs/synth.yaml --out models/pose_prior.json
 
 synth-calib: $(SETUP_STAMP) ## the calibration-pose training set (T-pose only) into data/synth_calib
 	$(PY) -m depthmocap.train.synth.cli --config configs/synth_calib.yaml --out data/synth_calib

@@ -139,17 +139,6 @@ class TrackerConfig:
         0.05, "prior noise scale of joint angles and root rotation (rad per frame^2)"
     )
     sigma_prior_m: float = field_doc(0.02, "prior noise scale of the root position (m per frame^2)")
-    pose_prior: str | None = field_doc(
-        None,
-        "learned pose prior (shared.pose_prior; relative names under the shipped models/ "
-        "folder): a weak per-angle Gaussian from the training mocap that settles the joint "
-        "angles the data leave free (a limb out of the image or hidden); None: Wei's prior only",
-    )
-    pose_prior_scale: float = field_doc(
-        1.0,
-        "the pose prior's noise scale per angle, in multiples of that angle's standard "
-        "deviation over the training mocap (larger: weaker)",
-    )
     # ---------------- reporting ----------------
     observed_joint_area_cm2: float = field_doc(
         5.0,
@@ -171,7 +160,6 @@ class TrackerConfig:
             for f in dataclasses.fields(self)
             if f.name.startswith("sigma_")
         }
-        scales["pose_prior_scale"] = self.pose_prior_scale
         bad = {k: v for k, v in scales.items() if not (v > 0 and math.isfinite(v))}
         area = self.observed_joint_area_cm2
         if not (area >= 0 and math.isfinite(area)):

@@ -24,7 +24,7 @@ from depthmocap.shared.compiled import compiled_module
 from depthmocap.shared.kinematics import Kinematics, clamp_to_limits, pose_update
 from depthmocap.shared.least_squares import damped, solve, solve_with_fixed
 
-from .prior_term import prior_system, prior_weights, with_pose_prior
+from .prior_term import prior_system, prior_weights
 from .regions import batch_slots
 
 __all__ = [
@@ -259,7 +259,6 @@ def gauss_newton_step(
     max_angle: float,
     sigma_rad: float,
     sigma_m: float,
-    pose_prior: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """One tracker update from the data terms' normal equations: add the constant-acceleration
     prior towards ``q_pred`` (None: no prior), :func:`solve_step`, :func:`limit_step` to
@@ -268,8 +267,6 @@ def gauss_newton_step(
     Args:
         hess, grad: (B, 34, 34), (B, 34) float64, the data terms' normal equations at q.
         q: (B, 34) the poses they were linearized at.
-        pose_prior: a learned pose prior's mean (34,) and weights squared (34,), folded into
-            the prior (:func:`runtime.tracker.prior_term.with_pose_prior`); only with q_pred.
     Returns:
         the new poses (B, 34), the steps taken (B, 34), both in q's dtype, and each step's
         :func:`predicted_decrease` (B,) under the prior-augmented normal matrix.
@@ -278,11 +275,9 @@ def gauss_newton_step(
     if kernel is not None and not (hess.requires_grad or grad.requires_grad):
         w = prior_weights(q[:1], sigma_rad, sigma_m)[0]
         w2 = w * w  # as prior_system squares them, in q's dtype
-        if q_pred is not None and pose_prior is not None:
-            q_pred, w2 = with_pose_prior(q_pred, w2, pose_prior)
         return kernel.gauss_newton_step_cpu(hess, grad, q, q_pred, w2, damping, max_angle)
     if q_pred is not None:
-        diag, rhs, _ = prior_system(q, q_pred, sigma_rad, sigma_m, pose_prior)
+        diag, rhs, _ = prior_system(q, q_pred, sigma_rad, sigma_m)
         hess = hess + torch.diag_embed(diag.double())
         grad = grad + rhs.double()
     dq = limit_step(solve_step(hess, grad, q, damping), max_angle)

@@ -16,7 +16,7 @@ from depthmocap.shared.so3 import (
     rotvec_to_quaternion,
 )
 
-__all__ = ["predict_pose", "prior_residual", "prior_weights", "prior_system", "with_pose_prior"]
+__all__ = ["predict_pose", "prior_residual", "prior_weights", "prior_system"]
 
 
 def predict_pose(
@@ -64,43 +64,15 @@ def prior_weights(like: torch.Tensor, sigma_rad: float, sigma_m: float) -> torch
     return w
 
 
-def with_pose_prior(
-    q_pred: torch.Tensor, w2: torch.Tensor, pose_prior: tuple[torch.Tensor, torch.Tensor]
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Wei's prior and a learned pose prior (``shared.pose_prior``) as one diagonal Gaussian.
-
-    ``w2 (q_pred - q)^2 + s2 (mean - q)^2`` equals ``(w2 + s2) (c - q)^2`` plus a constant,
-    with ``c = (w2 q_pred + s2 mean) / (w2 + s2)``, so the learned prior costs nothing in the
-    solve. DoFs with ``s2 = 0`` (the root) keep ``q_pred`` exactly.
-
-    Args:
-        q_pred: (B, 34) the constant-acceleration prediction; w2: (..., 34) its weights squared.
-        pose_prior: mean (34,) and weights squared ``s2`` (34,) of the learned prior.
-    Returns:
-        the combined target (B, 34) and weights squared (..., 34).
-    """
-    mean, s2 = (t.to(q_pred) for t in pose_prior)
-    total = w2 + s2
-    target = torch.where(s2 > 0, (w2 * q_pred + s2 * mean) / total, q_pred)
-    return target, total
-
-
 def prior_system(
-    q: torch.Tensor,
-    q_pred: torch.Tensor,
-    sigma_rad: float,
-    sigma_m: float,
-    pose_prior: tuple[torch.Tensor, torch.Tensor] | None = None,
+    q: torch.Tensor, q_pred: torch.Tensor, sigma_rad: float, sigma_m: float
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Prior contribution to the normal equations and its energy (with a learned pose prior
-    folded in by :func:`with_pose_prior` when given; its energy then leaves out a constant).
+    """Prior contribution to the normal equations and its energy.
 
     Returns:
         diagonal (B, 34) of w^2, right-hand side (B, 34) w^2 r, energy (B,) sum (w r)^2.
     """
     w = prior_weights(q, sigma_rad, sigma_m)
-    w2 = w * w
-    if pose_prior is not None:
-        q_pred, w2 = with_pose_prior(q_pred, w2, pose_prior)
     res = prior_residual(q, q_pred)
+    w2 = w * w
     return w2, w2 * res, (w2 * res * res).sum(-1)

@@ -37,7 +37,6 @@ from .gauss_newton import cat_rows, gauss_newton_step, normal_equations
 from .joint_support import observed_joints
 from .label_term import label_rows
 from .observation import Observation, automatic_factor, observe, person_window
-from .pose_prior_term import PosePriorError, pose_prior_weights
 from .prior_term import predict_pose
 from .regions import classify
 from .shoulder_branch import align_branch, move_to_roomier_branch
@@ -175,7 +174,6 @@ def fit_frames(
         q_prev2 = None if q_prev2 is None else align_branch(q_prev2, q_prev)
     q_pred = predict_pose(q_prev, q_prev2, PRIOR_VELOCITY_GAIN)
     q = q_prev.clone()  # Wei starts each frame from the previous pose
-    pose_prior = pose_prior_weights(cfg, q) if cfg.use_prior else None
     observed = observed_candidates(obs, MAX_CANDIDATES) if cfg.use_extra_depth else None
     converged = torch.zeros(B, dtype=torch.bool, device=q.device)
     steps = torch.zeros(B, dtype=torch.long, device=q.device)
@@ -207,7 +205,7 @@ def fit_frames(
             hess, grad = hess + h, grad + g
         q_step, dq, decrease = gauss_newton_step(
             hess, grad, q_cast, q_pred if cfg.use_prior else None, cfg.damping,
-            cfg.max_step_rad, cfg.sigma_prior_rad, cfg.sigma_prior_m, pose_prior,
+            cfg.max_step_rad, cfg.sigma_prior_rad, cfg.sigma_prior_m,
         )  # fmt: skip
         q = torch.where(converged[:, None], q, q_step)
         iterations += 1
@@ -272,10 +270,6 @@ class Tracker:
         self.device = torch.device("cpu") if device is None else torch.device(device)
         self.dtype = dtype
         self.body = body.to(dtype=dtype, device=self.device)
-        try:  # a missing or broken pose-prior file fails here, not in the first frame
-            pose_prior_weights(self.cfg, torch.zeros((), dtype=dtype))
-        except PosePriorError as err:
-            raise TrackerError(f"pose_prior: {err}") from None
 
     def observe(
         self, depth_m: torch.Tensor, mask: torch.Tensor, labels: torch.Tensor | None = None

@@ -6,12 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 from depthmocap.runtime.tracker.gauss_newton import solve_step
-from depthmocap.runtime.tracker.prior_term import (
-    predict_pose,
-    prior_residual,
-    prior_system,
-    with_pose_prior,
-)
+from depthmocap.runtime.tracker.prior_term import predict_pose, prior_residual, prior_system
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.kinematics import pose_update
 from depthmocap.shared.so3 import rotvec_to_matrix
@@ -71,49 +66,3 @@ class TestPriorSystem:
         )
         assert torch.allclose(prior_residual(q1, q2)[:, 3:6], vee, atol=1e-12)
         assert float(vee.norm()) > 0.02  # a real turn, not the identity
-
-
-class TestPosePrior:
-    def test_folded_prior_has_the_sum_of_both_gradients(self, make_pose):
-        """Wei's prior and the learned one folded into one Gaussian give the same normal
-        equations as the two added (the energies differ by a constant), the root untouched."""
-        g = torch.Generator().manual_seed(3)
-        q = make_pose().expand(3, -1).clone()
-        q_pred = q + 0.1 * torch.randn(3, 34, generator=g, dtype=q.dtype)
-        mean = 0.3 * torch.randn(34, generator=g, dtype=q.dtype)
-        s2 = torch.rand(34, generator=g, dtype=q.dtype) * 30.0
-        s2[:6] = 0.0
-        w2_wei, rhs_wei, _ = prior_system(q, q_pred, 0.05, 0.02)
-        w2, rhs, _ = prior_system(q, q_pred, 0.05, 0.02, (mean, s2))
-        torch.testing.assert_close(w2, w2_wei + s2)
-        torch.testing.assert_close(rhs[:, 6:], rhs_wei[:, 6:] + s2[6:] * (mean[6:] - q[:, 6:]))
-        assert torch.equal(rhs[:, :6], rhs_wei[:, :6])
-        target, _ = with_pose_prior(q_pred, w2_wei, (mean, s2))
-        assert torch.equal(target[:, :6], q_pred[:, :6])
-
-    @pytest.mark.parametrize("compiled", [True, False])
-    def test_a_free_angle_moves_towards_the_mean(self, make_pose, monkeypatch, compiled):
-        """With no data on it, an angle steps the golden fraction s2 / (w2 + s2) of the way
-        from the prediction to the prior's mean; every other DoF stays (compiled and torch
-        updates alike)."""
-        from depthmocap.runtime.tracker import gauss_newton
-
-        if compiled:
-            pytest.importorskip("numba")
-        else:
-            monkeypatch.setattr(gauss_newton, "_step_kernel", lambda: None)
-        q = make_pose()
-        k = D["l_femur_abd"]
-        mean = torch.zeros(34, dtype=q.dtype)
-        s2 = torch.zeros(34, dtype=q.dtype)
-        mean[k], s2[k] = q[0, k] - 0.2, 100.0  # the mean 0.2 rad away, sigma 0.1 rad
-        hess = torch.zeros(1, 34, 34, dtype=torch.float64)
-        grad = torch.zeros(1, 34, dtype=torch.float64)
-        q_new = gauss_newton.gauss_newton_step(
-            hess, grad, q, q.clone(), 0.0, 1.0, 0.05, 0.02, (mean, s2)
-        )[0]
-        expected = -0.2 * 100.0 / (1.0 / 0.05**2 + 100.0)
-        assert float(q_new[0, k] - q[0, k]) == pytest.approx(expected, rel=1e-4)
-        others = torch.ones(34, dtype=torch.bool)
-        others[k] = False
-        assert float((q_new[0, others] - q[0, others]).abs().max()) < 1e-6

@@ -180,29 +180,6 @@ class TestTrackerStep:
         assert res.limb_visibility.shape == (4,)
         assert ((res.limb_visibility > 0.8) & (res.limb_visibility < 1.3)).all()
 
-    def test_pose_prior_settles_what_the_data_leave_free(self):
-        """With nothing observed, the learned pose prior draws a leg held out sideways back
-        towards people's usual poses over a few frames; Wei's prior alone keeps it there."""
-        from depthmocap.shared import skeleton as sk
-
-        k = sk.DOF_NAMES.index("l_femur_abd")
-        q = rest_pose(1, root_position=(0.0, 0.1, 2.5))[0]
-        q[k] = 1.2
-        empty = torch.zeros(240, 320)
-        moved = {}
-        for name in (None, "pose_prior.json"):
-            tracker = Tracker(BodyShape.default(), INTR, TrackerConfig(pose_prior=name))
-            prev = q
-            for _ in range(5):
-                prev = tracker.step(empty, empty > 0, prev, prev).q
-            moved[name] = float(q[k] - prev[k])
-        assert abs(moved[None]) < 1e-6
-        assert moved["pose_prior.json"] > 0.05
-
-    def test_missing_pose_prior_is_a_clear_error(self, tmp_path):
-        with pytest.raises(TrackerError, match="pose_prior: .*no such file"):
-            Tracker(BodyShape.default(), INTR, TrackerConfig(pose_prior=str(tmp_path / "x.json")))
-
     def test_errors(self):
         """Bad input is rejected clearly: intrinsics that do not fit the frame, a batched
         ``q_prev``."""
