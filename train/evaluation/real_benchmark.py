@@ -3,10 +3,12 @@ recordings that carry a reference skeleton (``train-import --utd-mhad``), scored
 
     python -m depthmocap.train.evaluation.real_benchmark --data DIR --out OUT
         [--select 'a05_*'] [--limit N] [--threads 1] [--sheet PNG] [--typical-sheet PNG]
+        [--config AB.yaml]
 
 For every recording under ``--data`` with a ``reference.npz``, runs ``runtime-track`` in a
 subprocess (``train`` never imports ``runtime``) fully automatic: the default mode (hybrid),
-the shipped forest and settings, the average body; no ``--body``, ``--config`` or ``--preset``.
+the shipped forest and settings, the average body; no ``--body`` or ``--preset``, and no
+``--config`` unless one is given to compare settings (the reported run has none).
 Nothing of the reference reaches the run (``runtime-track`` reads only ``groundtruth.npz``, for
 a start pose, and these recordings have none). Each result is scored with
 :func:`train.evaluation.evaluate` against the reference, then pooled by action (the name's
@@ -184,9 +186,13 @@ def typical_frames(scored: list[Scored]) -> list[dict]:
     return out
 
 
-def _track(rec: Path, result: Path, threads: int, device: str | None) -> None:
+def _track(
+    rec: Path, result: Path, threads: int, device: str | None, config: Path | None = None
+) -> None:
     cmd = [sys.executable, "-m", "depthmocap.runtime.track_cli", "--input", str(rec),
            "--output", str(result), "--threads", str(threads), "--save-overlays", "-q"]  # fmt: skip
+    if config is not None:
+        cmd += ["--config", str(config)]
     if device:
         cmd += ["--device", device]
     run_command(cmd)  # RuntimeError with the end of stderr if it fails
@@ -341,6 +347,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--limit", type=int, help="only the first N recordings (by name)")
     p.add_argument("--threads", type=int, default=1, help="runtime-track --threads")
     p.add_argument("--device", choices=("cpu", "cuda"), help="runtime-track --device")
+    p.add_argument(
+        "--config", type=Path, help="runtime-track --config (settings over the shipped preset)"
+    )
     p.add_argument("--retrack", action="store_true", help="track again even if a result is there")
     p.add_argument(
         "--sheet", type=Path, help="worst-frames contact sheet PNG (default OUT/worst_frames.png)"
@@ -367,7 +376,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             frames = len(Recording(rec))
             if args.retrack or not _complete(results / rec.name, frames):
-                _track(rec, results / rec.name, args.threads, args.device)
+                _track(rec, results / rec.name, args.threads, args.device, args.config)
             s = score(rec, results / rec.name)
         except (RecordingError, ResultFileError, EvaluationError, RuntimeError) as err:
             print(f"error: {rec.name}: {str(err).splitlines()[-1]}", file=sys.stderr)

@@ -148,3 +148,16 @@ def test_benchmark_end_to_end_without_tracking(tmp_path, monkeypatch, capsys):
 def test_no_recordings_is_an_error(tmp_path, capsys):
     assert rb.main(["--data", str(tmp_path), "--out", str(tmp_path / "out")]) == 2
     assert capsys.readouterr().err.startswith("error: ")
+
+
+def test_track_passes_settings_to_runtime_track(tmp_path, monkeypatch):
+    """``--config`` reaches runtime-track (an A/B of settings on real data); without it the
+    shipped preset runs untouched."""
+    seen = []
+    monkeypatch.setattr(rb, "run_command", seen.append)
+    rb._track(tmp_path / "rec", tmp_path / "res", 1, None)
+    rb._track(tmp_path / "rec", tmp_path / "res", 1, "cpu", tmp_path / "ab.yaml")
+    assert "--config" not in seen[0]
+    cmd = seen[1]
+    assert cmd[cmd.index("--config") + 1] == str(tmp_path / "ab.yaml")
+    assert cmd[cmd.index("--device") + 1] == "cpu"
