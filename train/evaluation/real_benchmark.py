@@ -8,7 +8,8 @@ recordings that carry a reference skeleton (``train-import --utd-mhad``), scored
 For every recording under ``--data`` with a ``reference.npz``, runs ``runtime-track`` in a
 subprocess (``train`` never imports ``runtime``) fully automatic: the default mode (hybrid),
 the shipped forest and settings, the average body; no ``--body`` or ``--preset``, and no
-``--config`` unless one is given to compare settings (the reported run has none).
+``--config`` unless one is given to compare settings (the reported run has none; the settings
+are recorded in ``OUT/settings.yaml`` and results made with others are never reused).
 Nothing of the reference reaches the run (``runtime-track`` reads only ``groundtruth.npz``, for
 a start pose, and these recordings have none). Each result is scored with
 :func:`train.evaluation.evaluate` against the reference, then pooled by action (the name's
@@ -359,8 +360,32 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _settings_check(out: Path, config: Path | None, retrack: bool) -> str | None:
+    """Record the settings the results in ``out`` are tracked with (``OUT/settings.yaml``: the
+    ``--config`` text, empty for the shipped preset) and refuse to reuse results made with
+    others; returns an error message or None."""
+    if config is not None and not config.is_file():
+        return f"--config: no such file {config}"
+    text = "" if config is None else config.read_text()
+    saved = out / "settings.yaml"
+    # Older outputs have no record: they were made with the shipped preset.
+    before = saved.read_text() if saved.is_file() else ""
+    if before != text and not retrack and (out / "results").is_dir():
+        return (
+            f"{out}: its results were tracked with other settings than --config gives; "
+            "use another --out or --retrack"
+        )
+    out.mkdir(parents=True, exist_ok=True)
+    saved.write_text(text)
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    problem = _settings_check(args.out, args.config, args.retrack)
+    if problem is not None:
+        print(f"error: {problem}", file=sys.stderr)
+        return 2
     recs = sorted(
         d for d in args.data.glob("*")
         if (d / "reference.npz").is_file() and fnmatch.fnmatch(d.name, args.select)

@@ -161,3 +161,24 @@ def test_track_passes_settings_to_runtime_track(tmp_path, monkeypatch):
     cmd = seen[1]
     assert cmd[cmd.index("--config") + 1] == str(tmp_path / "ab.yaml")
     assert cmd[cmd.index("--device") + 1] == "cpu"
+
+
+def test_settings_are_recorded_and_never_mixed(tmp_path, capsys):
+    """A missing --config is a clear error before anything runs; results tracked with other
+    settings in the same --out are not reused silently (an A/B would mix them)."""
+    out, data = tmp_path / "out", tmp_path / "data"
+    args = ["--data", str(data), "--out", str(out)]
+    assert rb.main([*args, "--config", str(tmp_path / "none.yaml")]) == 2
+    assert "no such file" in capsys.readouterr().err
+    (out / "results").mkdir(parents=True)  # results of the shipped preset
+    ab = tmp_path / "ab.yaml"
+    ab.write_text("tracker:\n  iterations: 3\n")
+    assert rb.main([*args, "--config", str(ab)]) == 2
+    assert "other settings" in capsys.readouterr().err
+    assert not (out / "settings.yaml").exists()
+    # --retrack tracks afresh with the new settings and records them (no recordings here)
+    assert rb.main([*args, "--config", str(ab), "--retrack"]) == 2
+    assert "no recording" in capsys.readouterr().err
+    assert (out / "settings.yaml").read_text() == ab.read_text()
+    assert rb.main(args) == 2  # back to the shipped preset: refused again
+    assert "other settings" in capsys.readouterr().err
