@@ -78,10 +78,22 @@ def move_to_roomier_branch(
     Returns:
         (B, 34).
     """
+    room = _room(q)
+    # Most frames have both arms clear of every limit, and the other form's room cannot
+    # exceed the capped most (three caps): nothing can move, so its rotations are skipped.
+    if bool((room + min_gain >= 3 * _ROOM_CAP).all()):
+        return q.clone()
+    return _move_where_roomier(q, room, max_turn, min_gain)
+
+
+def _move_where_roomier(
+    q: torch.Tensor, room: torch.Tensor, max_turn: float, min_gain: float
+) -> torch.Tensor:
+    """:func:`move_to_roomier_branch` without its shortcut; ``room``: ``_room(q)`` (B, 2)."""
     other = clamp_to_limits(other_branch(q))
     rel = shoulder_rotations(other) @ shoulder_rotations(q).transpose(-1, -2)
     cos = ((rel.diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0) / 2.0).clamp(-1.0, 1.0)
-    move = (torch.acos(cos) < max_turn) & (_room(other) > _room(q) + min_gain)  # (B, 2)
+    move = (torch.acos(cos) < max_turn) & (_room(other) > room + min_gain)  # (B, 2)
     idx = SHOULDER_DOFS.to(q.device)
     out = q.clone()
     out[:, idx] = torch.where(move[..., None], other[:, idx], q[:, idx])

@@ -102,15 +102,20 @@ def surface_error_quantile(
     obs: Observation, render: BodyRender, body: BodyShape, max_points: int, level: float = 0.97
 ) -> torch.Tensor:
     """``level`` quantile (mm) of observed points' distances to the model surface: (B,)."""
-    idx, _, _ = sample_pixels(obs.valid, max_points)
     B = obs.depth.shape[0]
+    shared = B == 1 or obs.valid.stride(0) == 0  # one frame, or one frame's batch of views
+    idx, _, _ = sample_pixels(obs.valid[:1] if shared else obs.valid, max_points)
     if idx.shape[0] == 0:
         return obs.depth.new_zeros(B, dtype=torch.float64)
     b, v, u = idx.unbind(1)
-    slot, real = batch_slots(b, B)  # each pose's own points only: (B, K)
-    pts = obs.points[b, v, u][slot]
-    dist = surface_distance(pts, render.kin, body, render.geom)  # (B, K)
-    dist = torch.where(real, dist, torch.full_like(dist, float("nan")))
+    if shared:  # every pose samples the same points (the cap is per mask): no padding
+        pts = obs.points[0, v, u].expand(B, -1, -1)
+        dist = surface_distance(pts, render.kin, body, render.geom)  # (B, K)
+    else:
+        slot, real = batch_slots(b, B)  # each pose's own points only: (B, K)
+        pts = obs.points[b, v, u][slot]
+        dist = surface_distance(pts, render.kin, body, render.geom)
+        dist = torch.where(real, dist, torch.full_like(dist, float("nan")))
     q = torch.nanquantile(dist.double(), level, dim=1) * 1e3
     return torch.nan_to_num(q, nan=0.0)
 

@@ -23,7 +23,7 @@ import dataclasses
 from dataclasses import dataclass
 
 import torch
-from depthmocap.runtime.raycast import render_body, segment_geometry
+from depthmocap.runtime.raycast import SegmentGeometry, render_body, segment_geometry
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.camera import Intrinsics
@@ -152,6 +152,7 @@ def fit_frames(
     q_prev2: torch.Tensor | None,
     body: BodyShape,
     cfg: TrackerConfig,
+    geom: SegmentGeometry | None = None,
 ) -> FrameFit:
     """Gauss-Newton fit of B poses to B observed frames.
 
@@ -167,6 +168,8 @@ def fit_frames(
         obs: working-resolution observation (batch B).
         q_prev, q_prev2: (B, 34) poses of the two previous frames (q_prev2 may be None: the
             prior then predicts no motion).
+        geom: ``segment_geometry(body, q_prev)``, when the caller keeps it (it depends only
+            on the body; a tracker computes it once); None: computed here.
     """
     B = q_prev.shape[0]
     if SHOULDER_BRANCH_TURN_RAD > 0:
@@ -177,7 +180,8 @@ def fit_frames(
     observed = observed_candidates(obs, MAX_CANDIDATES) if cfg.use_extra_depth else None
     converged = torch.zeros(B, dtype=torch.bool, device=q.device)
     steps = torch.zeros(B, dtype=torch.long, device=q.device)
-    geom = segment_geometry(body, q)
+    if geom is None:
+        geom = segment_geometry(body, q)
     iterations = 0
     last = None
     q_cast = q  # the poses rendered: q, but a converged pose's last step's start
@@ -270,6 +274,8 @@ class Tracker:
         self.device = torch.device("cpu") if device is None else torch.device(device)
         self.dtype = dtype
         self.body = body.to(dtype=dtype, device=self.device)
+        # The capsules' shape depends on the body alone: made once, not per fit.
+        self.geometry = segment_geometry(self.body, self.body.lengths)
 
     def observe(
         self, depth_m: torch.Tensor, mask: torch.Tensor, labels: torch.Tensor | None = None
@@ -349,7 +355,7 @@ class Tracker:
         )
         qp = q_prev.to(device=self.device, dtype=self.dtype)[None]
         qp2 = None if q_prev2 is None else q_prev2.to(device=self.device, dtype=self.dtype)[None]
-        return self._result(fit_frames(obs, qp, qp2, self.body, cfg), 0)
+        return self._result(fit_frames(obs, qp, qp2, self.body, cfg, self.geometry), 0)
 
     def fit_starts(
         self, obs: Observation, starts: torch.Tensor, iterations: int | None = None
@@ -368,7 +374,7 @@ class Tracker:
             self.cfg if iterations is None else dataclasses.replace(self.cfg, iterations=iterations)
         )
         q0 = starts.to(device=self.device, dtype=self.dtype)
-        fit = fit_frames(expand_observation(obs, K), q0, None, self.body, cfg)
+        fit = fit_frames(expand_observation(obs, K), q0, None, self.body, cfg, self.geometry)
         return [self._result(fit, k) for k in range(K)]
 
     def _result(self, fit: FrameFit, k: int) -> TrackResult:

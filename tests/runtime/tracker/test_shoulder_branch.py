@@ -12,6 +12,8 @@ from depthmocap.runtime.tracker import Tracker, track_sequence
 from depthmocap.runtime.tracker import tracker as tracker_module
 from depthmocap.runtime.tracker.shoulder_branch import (
     SHOULDER_DOFS,
+    _move_where_roomier,
+    _room,
     align_branch,
     move_to_roomier_branch,
     other_branch,
@@ -70,6 +72,23 @@ def test_a_pinned_shoulder_moves_to_the_roomier_form():
     relaxed = _arms(0.5, 0.3, 0.1)
     assert torch.equal(move_to_roomier_branch(relaxed), relaxed)
     assert torch.equal(clamp_to_limits(moved), moved)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_the_shortcut_for_arms_clear_of_the_limits_changes_nothing(dtype):
+    # Random shoulders, from well inside the limits to pinned at them, alone and in batches
+    # where one pose could move: the shortcut must give exactly the full computation.
+    gen = torch.Generator().manual_seed(3)
+    lim = torch.as_tensor(sk.DOF_LIMITS, dtype=dtype)
+    q = rest_pose(64, dtype=dtype)
+    u = torch.rand(64, sk.NUM_DOFS, generator=gen, dtype=dtype)
+    q[:, 6:] = lim[6:, 0] + u[:, 6:] * (lim[6:, 1] - lim[6:, 0])
+    q[::3, SHOULDER_DOFS.flatten()] = q[::3, SHOULDER_DOFS.flatten()].clamp(-0.5, 0.5)
+    clear = (_room(q) + 0.2 >= 1.5).all(-1)
+    assert 0 < int(clear.sum()) < 64  # both cases occur
+    for batch in (q[clear], q[~clear], q, q[:1], q[clear][:1]):
+        full = _move_where_roomier(batch, _room(batch), 0.7, 0.2)
+        assert torch.equal(move_to_roomier_branch(batch, 0.7), full)
 
 
 def test_align_branch_writes_the_frame_before_like_the_frame_after():
