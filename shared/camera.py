@@ -11,7 +11,14 @@ from dataclasses import asdict, dataclass
 
 import torch
 
-__all__ = ["Intrinsics", "depth_to_points", "points_to_pixels", "pixel_grid", "depth_mm_to_m"]
+__all__ = [
+    "Intrinsics",
+    "depth_to_points",
+    "masked_points",
+    "points_to_pixels",
+    "pixel_grid",
+    "depth_mm_to_m",
+]
 
 KINECT_V1_640 = (640, 480, 575.8, 575.8, 319.5, 239.5)
 
@@ -110,6 +117,26 @@ def depth_to_points(depth: torch.Tensor, intr: Intrinsics) -> torch.Tensor:
     x = (u - intr.cx) / intr.fx * depth
     y = (v - intr.cy) / intr.fy * depth
     return torch.stack([x, y, depth], -1)
+
+
+def masked_points(depth: torch.Tensor, mask: torch.Tensor, intr: Intrinsics) -> torch.Tensor:
+    """The camera-frame points of the ``mask`` pixels of one depth image: (N, 3), in the
+    mask's row-major order; ``depth_to_points(depth[None], intr)[0][mask]`` to the bit, for
+    the pixels a person covers instead of the whole image.
+
+    Args:
+        depth: (H, W) metric z in metres; mask: (H, W) bool.
+    """
+    if depth.shape != (intr.height, intr.width) or mask.shape != depth.shape:
+        raise ValueError(
+            f"depth {tuple(depth.shape)} and mask {tuple(mask.shape)} must both be "
+            f"{intr.height}x{intr.width}"
+        )
+    v, u = mask.nonzero(as_tuple=True)
+    z = depth[v, u]
+    x = (u.to(depth.dtype) - intr.cx) / intr.fx * z
+    y = (v.to(depth.dtype) - intr.cy) / intr.fy * z
+    return torch.stack([x, y, z], -1)
 
 
 def points_to_pixels(points: torch.Tensor, intr: Intrinsics) -> torch.Tensor:

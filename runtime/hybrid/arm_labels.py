@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 
 import torch
-from depthmocap.runtime.raycast import segment_distances
+from depthmocap.runtime.raycast import SegmentGeometry, segment_distances
 from depthmocap.runtime.tracker.signals import LIMB_SEGMENTS
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.body import BodyShape
@@ -27,6 +27,7 @@ from depthmocap.shared.labels import PART_NAMES
 
 __all__ = [
     "AGREEMENT_MARGIN_M",
+    "agreement_from_distances",
     "CONFLICT_MARGIN_M",
     "ARM_FLEXION_DEG",
     "ELBOW_FLEXION_DEG",
@@ -37,6 +38,7 @@ __all__ = [
     "arm_pixels",
     "label_conflict_from_distances",
     "near_other_arm",
+    "near_other_arm_from_distances",
 ]
 
 # Starting arm poses: shoulder flexion (negative: the arm behind the body) x elbow flexion,
@@ -86,7 +88,12 @@ def arm_pixels(labels: torch.Tensor, mask: torch.Tensor, side: str) -> torch.Ten
 
 
 def arm_label_agreement(
-    points: torch.Tensor, kin: Kinematics, body: BodyShape, side: str, margin_m: float
+    points: torch.Tensor,
+    kin: Kinematics,
+    body: BodyShape,
+    side: str,
+    margin_m: float,
+    geom: SegmentGeometry | None = None,
 ) -> torch.Tensor:
     """Share of ``points`` (N, 3), the forest's pixels of the ``side`` arm, within
     ``margin_m`` of that arm's surface in the pose ``kin`` (batch B): (B,), NaN for N = 0.
@@ -94,13 +101,20 @@ def arm_label_agreement(
     The fit's signals hardly tell a hidden arm's places apart (a refit 40 cm off can fit
     as well as the truth), but the forest's labels of that arm do: a refit that leaves
     them farther from the arm than the track does has moved the arm somewhere else.
+    ``geom``: the body's ``segment_geometry``, when the caller keeps it.
     """
-    segs = list(LIMB_SEGMENTS[0 if side == "l" else 1])
     ref = kin.origins
     flat = points.to(ref).expand(ref.shape[0], -1, -1)
-    signed = segment_distances(flat, kin, body.to(dtype=ref.dtype, device=ref.device))
+    signed = segment_distances(flat, kin, body.to(dtype=ref.dtype, device=ref.device), geom)
+    return agreement_from_distances(signed, side, margin_m)
+
+
+def agreement_from_distances(signed: torch.Tensor, side: str, margin_m: float) -> torch.Tensor:
+    """:func:`arm_label_agreement` from the arm pixels' signed distances to every model part,
+    ``signed`` (B, N, P) from :func:`runtime.raycast.segment_distances`."""
+    segs = list(LIMB_SEGMENTS[0 if side == "l" else 1])
     near = signed[..., segs].min(-1).values < margin_m
-    return near.to(ref.dtype).mean(-1)
+    return near.to(signed.dtype).mean(-1)
 
 
 def arm_label_conflict(
@@ -111,6 +125,7 @@ def arm_label_conflict(
     side: str,
     margin_m: float,
     other_arm_counts: bool = True,
+    geom: SegmentGeometry | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """How much of what the ``side`` arm explains the forest calls something else.
 
@@ -126,11 +141,11 @@ def arm_label_conflict(
     kicking thigh, 40-60 cm from the real one): the depth data fit, the failure signals
     pass, and only the forest, which labels those pixels leg or torso, says the arm is not
     there (dev takes: the forest labels 80-95% of a well placed visible arm's points as
-    that arm).
+    that arm). ``geom``: the body's ``segment_geometry``, when the caller keeps it.
     """
     ref = kin.origins
     flat = points.to(ref).expand(ref.shape[0], -1, -1)
-    signed = segment_distances(flat, kin, body.to(dtype=ref.dtype, device=ref.device))
+    signed = segment_distances(flat, kin, body.to(dtype=ref.dtype, device=ref.device), geom)
     return label_conflict_from_distances(signed, labels, side, margin_m, other_arm_counts)
 
 
@@ -140,13 +155,16 @@ def label_conflict_from_distances(
     side: str,
     margin_m: float,
     other_arm_counts: bool = True,
+    nearest: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`arm_label_conflict` from the points' signed distances to every model part,
     ``signed`` (B, N, P) from :func:`runtime.raycast.segment_distances`: one evaluation
-    serves both arms."""
+    serves both arms. ``nearest``: ``signed.min(-1)`` (values, indices), when the caller
+    keeps it for both arms."""
     segs = torch.as_tensor(list(LIMB_SEGMENTS[0 if side == "l" else 1]), device=signed.device)
-    best = signed.min(-1)
-    own = torch.isin(best.indices, segs) & (best.values < margin_m)  # (B, N)
+    best = signed.min(-1) if nearest is None else nearest
+    values, indices = best
+    own = torch.isin(indices, segs) & (values < margin_m)  # (B, N)
     mine = _ARM_CLASSES[side] if other_arm_counts else (*_ARM_CLASSES["l"], *_ARM_CLASSES["r"])
     other = ~torch.isin(labels, torch.as_tensor(mine, device=labels.device)).to(signed.device)
     count = own.sum(-1)
@@ -167,7 +185,12 @@ def arm_pixel_fraction(
 
 
 def near_other_arm(
-    points: torch.Tensor, kin: Kinematics, body: BodyShape, side: str, margin_m: float
+    points: torch.Tensor,
+    kin: Kinematics,
+    body: BodyShape,
+    side: str,
+    margin_m: float,
+    geom: SegmentGeometry | None = None,
 ) -> torch.Tensor:
     """Which ``points`` (..., 3) lie within ``margin_m`` of the model's other arm (the one
     that is not ``side``), ``kin`` being one pose (batch 1): (...) bool.
@@ -175,10 +198,16 @@ def near_other_arm(
     Forest labels swap left and right; in profile the far arm's labels land on the near
     arm's pixels (grabHigh), and moving the hidden arm onto them puts both arms on one.
     Labelled pixels the other arm already explains are no evidence that ``side`` is seen.
+    ``geom``: the body's ``segment_geometry``, when the caller keeps it.
     """
-    other = LIMB_SEGMENTS[1 if side == "l" else 0]  # the right arm's segments, or the left's
     flat = points.reshape(1, -1, 3)
     ref = kin.origins
-    signed = segment_distances(flat.to(ref), kin, body.to(dtype=ref.dtype, device=ref.device))
-    near = signed[0][:, list(other)].min(-1).values < margin_m
-    return near.reshape(points.shape[:-1])
+    signed = segment_distances(flat.to(ref), kin, body.to(dtype=ref.dtype, device=ref.device), geom)
+    return near_other_arm_from_distances(signed[0], side, margin_m).reshape(points.shape[:-1])
+
+
+def near_other_arm_from_distances(signed: torch.Tensor, side: str, margin_m: float) -> torch.Tensor:
+    """:func:`near_other_arm` from the points' signed distances to every model part in the
+    one pose, ``signed`` (N, P): (N,) bool."""
+    other = LIMB_SEGMENTS[1 if side == "l" else 0]  # the right arm's segments, or the left's
+    return signed[:, list(other)].min(-1).values < margin_m

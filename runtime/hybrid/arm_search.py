@@ -21,23 +21,24 @@ from dataclasses import dataclass
 
 import torch
 from depthmocap.runtime.frame import Frame
-from depthmocap.runtime.raycast import segment_distances
+from depthmocap.runtime.raycast import segment_distances, segment_geometry
 from depthmocap.runtime.tracker.signals import FitSignals
 from depthmocap.runtime.tracker.tracker import TrackResult
 from depthmocap.shared.body import BodyShape
-from depthmocap.shared.camera import depth_to_points
+from depthmocap.shared.camera import masked_points
 from depthmocap.shared.kinematics import Kinematics, forward_kinematics
 
 from .arm_labels import (
     AGREEMENT_MARGIN_M,
     CONFLICT_MARGIN_M,
+    agreement_from_distances,
     arm_candidates,
     arm_label_agreement,
     arm_label_conflict,
     arm_pixel_fraction,
     arm_pixels,
     label_conflict_from_distances,
-    near_other_arm,
+    near_other_arm_from_distances,
 )
 from .config import ArmSearchConfig
 
@@ -101,6 +102,7 @@ class ArmSearch:
 
     def __init__(self, cfg: ArmSearchConfig, body: BodyShape) -> None:
         self.cfg, self.body = cfg, body
+        self.geometry = segment_geometry(body, body.lengths)  # the capsules, made once
         self.misplaced_failed_at: dict[str, int] = {}
         self.failed_at: dict[str, int] = {}
 
@@ -151,7 +153,7 @@ class ArmSearch:
             return
         mask = frame.mask
         misplaced = cfg.misplaced
-        points = kin = signed = None
+        points = kin = signed = nearest = None
         for limb, side in ((0, "l"), (1, "r")):
             last = self.failed_at.get(side)
             if last is not None and frame.index - last <= cfg.cooldown_frames:
@@ -161,18 +163,22 @@ class ArmSearch:
             if not (hidden or misplaced is not None):
                 continue
             if points is None:
-                points = depth_to_points(frame.depth_m[None], frame.intrinsics)[0][mask]
+                points = masked_points(frame.depth_m, mask, frame.intrinsics)
                 kin = self._kinematics(track.q)
                 point_labels = labels[mask]
-                if misplaced is not None:  # both arms' conflicts from one distance evaluation
-                    signed = segment_distances(points[None].to(kin.origins), kin, self.body)
+                # Every test below reads the points' distances to the model's parts: one
+                # evaluation serves both arms.
+                signed = segment_distances(
+                    points[None].to(kin.origins), kin, self.body, self.geometry
+                )
+                nearest = signed.min(-1)
             conflicts = None
             last = self.misplaced_failed_at.get(side)
             if misplaced is not None and (
                 last is None or frame.index - last > misplaced.cooldown_frames
             ):
                 share, count = label_conflict_from_distances(
-                    signed, point_labels, side, CONFLICT_MARGIN_M, OTHER_ARM_COUNTS
+                    signed, point_labels, side, CONFLICT_MARGIN_M, OTHER_ARM_COUNTS, nearest
                 )
                 share, count = float(share[0]), int(count[0])
                 if count >= MISPLACED_MIN_POINTS and share > misplaced.conflict:
@@ -181,16 +187,15 @@ class ArmSearch:
                 continue
             explained = torch.zeros_like(mask)
             if cfg.other_arm_margin_m > 0:
-                explained[mask] = near_other_arm(
-                    points, kin, self.body, side, cfg.other_arm_margin_m
+                explained[mask] = near_other_arm_from_distances(
+                    signed[0], side, cfg.other_arm_margin_m
                 )
             seen = arm_pixel_fraction(labels, mask, side, explained) >= SEEN_FRACTION
             if not seen and conflicts is None:
                 continue
-            arm_points = points[(arm_pixels(labels, mask, side) & ~explained)[mask]]
-            mine = float(
-                arm_label_agreement(arm_points, kin, self.body, side, AGREEMENT_MARGIN_M)[0]
-            )
+            chosen = (arm_pixels(labels, mask, side) & ~explained)[mask]
+            arm_points = points[chosen]
+            mine = float(agreement_from_distances(signed[:, chosen], side, AGREEMENT_MARGIN_M)[0])
             partly = shown >= HIDDEN_VISIBILITY
             if conflicts is None and partly and not mine < PARTIAL_AGREEMENT:
                 continue  # shown partly, where the forest sees it: no search
@@ -206,7 +211,7 @@ class ArmSearch:
         side = suspect.side
         if suspect.agreement_floor is not None:
             agree = arm_label_agreement(
-                suspect.arm_points, pose, self.body, side, AGREEMENT_MARGIN_M
+                suspect.arm_points, pose, self.body, side, AGREEMENT_MARGIN_M, self.geometry
             )
             if not float(agree[0]) >= suspect.agreement_floor:
                 return False
@@ -214,7 +219,7 @@ class ArmSearch:
             return True
         share, count = arm_label_conflict(
             suspect.points, suspect.point_labels, pose, self.body, side, CONFLICT_MARGIN_M,
-            OTHER_ARM_COUNTS,
+            OTHER_ARM_COUNTS, self.geometry,
         )  # fmt: skip
         theirs = float(share[0]) * int(count[0]) if int(count[0]) else 0.0
         return theirs <= self.cfg.misplaced.relief * suspect.conflicts

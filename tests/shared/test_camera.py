@@ -1,6 +1,12 @@
 import pytest
 import torch
-from depthmocap.shared.camera import Intrinsics, depth_to_points, pixel_grid, points_to_pixels
+from depthmocap.shared.camera import (
+    Intrinsics,
+    depth_to_points,
+    masked_points,
+    pixel_grid,
+    points_to_pixels,
+)
 
 
 def test_kinect_defaults():
@@ -50,3 +56,21 @@ def test_validate():
         Intrinsics(10, 10, -1.0, 1.0, 5.0, 5.0).validate()
     with pytest.raises(ValueError, match="size"):
         Intrinsics(0, 10, 1.0, 1.0, 5.0, 5.0).validate()
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_masked_points_are_the_image_points_of_the_mask(device, dtype):
+    """The person's points alone are the whole image's points at the mask, to the bit."""
+    intr = Intrinsics.kinect_v1(160)
+    gen = torch.Generator().manual_seed(0)
+    depth = (0.5 + 4 * torch.rand(intr.height, intr.width, generator=gen)).to(device, dtype)
+    depth[::7] = 0.0  # rows without readings
+    mask = (torch.rand(intr.height, intr.width, generator=gen) > 0.7).to(device)
+    got = masked_points(depth, mask, intr)
+    assert got.shape == (int(mask.sum()), 3) and got.dtype == dtype
+    assert torch.equal(got, depth_to_points(depth[None], intr)[0][mask])
+    assert masked_points(depth, torch.zeros_like(mask), intr).shape == (0, 3)
+    with pytest.raises(ValueError, match="must both be"):
+        masked_points(depth[:-1], mask[:-1], intr)
+    with pytest.raises(ValueError, match="must both be"):
+        masked_points(depth, mask[:, :-1], intr)

@@ -9,13 +9,17 @@ import torch
 from depthmocap.runtime.hybrid.arm_labels import (
     ARM_FLEXION_DEG,
     ELBOW_FLEXION_DEG,
+    agreement_from_distances,
     arm_candidates,
     arm_label_agreement,
     arm_label_conflict,
     arm_pixel_fraction,
     arm_pixels,
+    label_conflict_from_distances,
     near_other_arm,
+    near_other_arm_from_distances,
 )
+from depthmocap.runtime.raycast import segment_distances, segment_geometry
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.kinematics import (
@@ -175,3 +179,35 @@ def test_arm_label_conflict_is_the_share_of_the_arm_s_points_labelled_otherwise(
     )
     forgiven = arm_label_conflict(points, swapped, kin, body, "l", 0.03, other_arm_counts=False)
     assert float(forgiven[0][0]) == 0.0 and forgiven[1].tolist() == [3]
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_one_distance_evaluation_serves_every_arm_test(dtype):
+    """The arm search evaluates the person's points' distances to the parts once and reads
+    every test from them: the same results as each test evaluating its own, to the bit."""
+    body, q, kin, joints = _rest(dtype)
+    body = body.to(dtype=dtype)
+    gen = torch.Generator().manual_seed(1)
+    # Points scattered 5 cm around every joint: on the arms, the torso, and between them.
+    near = joints[torch.arange(400) % joints.shape[0]]
+    points = near + 0.05 * torch.randn(400, 3, generator=gen, dtype=torch.float64).to(dtype)
+    labels = torch.randint(0, len(PART_NAMES), (400,), generator=gen)
+    geom = segment_geometry(body, body.lengths)
+    signed = segment_distances(points[None], kin, body, geom)
+    assert torch.equal(signed, segment_distances(points[None], kin, body))
+    nearest = signed.min(-1)
+    chosen = torch.rand(400, generator=gen) > 0.5
+    for side in "lr":
+        assert torch.equal(
+            near_other_arm_from_distances(signed[0], side, 0.05),
+            near_other_arm(points, kin, body, side, 0.05, geom),
+        )
+        assert torch.equal(
+            agreement_from_distances(signed[:, chosen], side, 0.05),
+            arm_label_agreement(points[chosen], kin, body, side, 0.05, geom),
+        )
+        for counts in (True, False):
+            want = arm_label_conflict(points, labels, kin, body, side, 0.03, counts, geom)
+            got = label_conflict_from_distances(signed, labels, side, 0.03, counts, nearest)
+            assert int(got[1][0]) > 10 and torch.equal(got[1], want[1])
+            torch.testing.assert_close(got[0], want[0], rtol=0, atol=0)
