@@ -13,16 +13,21 @@ from dataclasses import dataclass
 
 import torch
 from depthmocap.shared.camera import Intrinsics, depth_to_points
+from depthmocap.shared.compiled import compiled_module
 
 __all__ = [
     "Observation",
     "working_intrinsics",
     "pool_depth",
     "distance_to_mask",
+    "distance_to_mask_torch",
     "automatic_factor",
     "person_window",
     "observe",
 ]
+
+
+_KERNEL = "depthmocap.runtime.tracker.distance_kernel"
 
 
 @dataclass
@@ -100,8 +105,17 @@ def distance_to_mask(mask: torch.Tensor, max_px: float) -> torch.Tensor:
     """Euclidean distance (pixels) of every pixel to the nearest True pixel, capped at max_px.
 
     Exact up to the cap (separable: row distances, then the column pass); the loops run over
-    the (2T + 1) shifts, not over pixels. (B, H, W) bool -> (B, H, W).
+    the (2T + 1) shifts, not over pixels. (B, H, W) bool -> (B, H, W) float32. On the CPU
+    with numba, one compiled loop (:mod:`runtime.tracker.distance_kernel`, the same values).
     """
+    kernel = compiled_module(_KERNEL) if mask.device.type == "cpu" else None
+    if kernel is not None:
+        return kernel.distance_to_mask_cpu(mask, max_px)
+    return distance_to_mask_torch(mask, max_px)
+
+
+def distance_to_mask_torch(mask: torch.Tensor, max_px: float) -> torch.Tensor:
+    """:func:`distance_to_mask` in torch ops (GPUs, and CPUs without numba)."""
     T = int(max_px) + 1
     B, H, W = mask.shape
     far = float(T)

@@ -8,6 +8,7 @@ import torch
 from depthmocap.runtime.tracker.observation import (
     automatic_factor,
     distance_to_mask,
+    distance_to_mask_torch,
     observe,
     person_window,
     pool_depth,
@@ -30,6 +31,28 @@ class TestDistanceToMask:
             d = ((v[..., None] - pts[:, 0]) ** 2 + (u[..., None] - pts[:, 1]) ** 2).sqrt().amin(-1)
             assert torch.allclose(got[b], d.clamp_max(6.0), atol=1e-5)
         assert float(distance_to_mask(torch.zeros(1, 5, 5, dtype=torch.bool), 4.0).min()) == 4.0
+
+    def test_compiled_loop_is_torch_to_the_bit(self):
+        """numba's loop against torch's shifts: sparse, dense, empty, full, single-row and
+        single-column masks, caps below one pixel to beyond the image, as the tracker uses
+        them (float32). The square roots are torch's own (sqrt(37) is not correctly rounded
+        in every build), so they match wherever torch runs."""
+        pytest.importorskip("depthmocap.runtime.tracker.distance_kernel")
+        g = torch.Generator().manual_seed(2)
+        masks = [
+            torch.rand(2, 40, 37, generator=g) > 0.97,
+            torch.rand(1, 60, 60, generator=g) > 0.5,
+            torch.rand(1, 50, 50, generator=g) > 0.995,
+            torch.zeros(1, 9, 5, dtype=torch.bool),
+            torch.ones(1, 3, 4, dtype=torch.bool),
+            torch.rand(3, 1, 30, generator=g) > 0.9,
+            torch.rand(1, 30, 1, generator=g) > 0.9,
+        ]
+        for mask in masks:
+            for cap in (0.0, 0.5, 3.5, 10.0, 12.0, 25.0):
+                got = distance_to_mask(mask, cap)
+                assert got.dtype == torch.float32
+                assert torch.equal(got, distance_to_mask_torch(mask, cap)), (mask.shape, cap)
 
 
 class TestPoolDepth:
