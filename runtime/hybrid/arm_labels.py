@@ -185,12 +185,7 @@ def arm_pixel_fraction(
 
 
 def near_other_arm(
-    points: torch.Tensor,
-    kin: Kinematics,
-    body: BodyShape,
-    side: str,
-    margin_m: float,
-    geom: SegmentGeometry | None = None,
+    points: torch.Tensor, kin: Kinematics, body: BodyShape, side: str, margin_m: float
 ) -> torch.Tensor:
     """Which ``points`` (..., 3) lie within ``margin_m`` of the model's other arm (the one
     that is not ``side``), ``kin`` being one pose (batch 1): (...) bool.
@@ -198,11 +193,10 @@ def near_other_arm(
     Forest labels swap left and right; in profile the far arm's labels land on the near
     arm's pixels (grabHigh), and moving the hidden arm onto them puts both arms on one.
     Labelled pixels the other arm already explains are no evidence that ``side`` is seen.
-    ``geom``: the body's ``segment_geometry``, when the caller keeps it.
     """
     flat = points.reshape(1, -1, 3)
     ref = kin.origins
-    signed = segment_distances(flat.to(ref), kin, body.to(dtype=ref.dtype, device=ref.device), geom)
+    signed = segment_distances(flat.to(ref), kin, body.to(dtype=ref.dtype, device=ref.device))
     return near_other_arm_from_distances(signed[0], side, margin_m).reshape(points.shape[:-1])
 
 

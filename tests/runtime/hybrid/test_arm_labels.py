@@ -200,7 +200,7 @@ def test_one_distance_evaluation_serves_every_arm_test(dtype):
     for side in "lr":
         assert torch.equal(
             near_other_arm_from_distances(signed[0], side, 0.05),
-            near_other_arm(points, kin, body, side, 0.05, geom),
+            near_other_arm(points, kin, body, side, 0.05),
         )
         assert torch.equal(
             agreement_from_distances(signed[:, chosen], side, 0.05),
