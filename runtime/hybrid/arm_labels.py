@@ -162,8 +162,7 @@ def label_conflict_from_distances(
     serves both arms. ``nearest``: ``signed.min(-1)`` (values, indices), when the caller
     keeps it for both arms."""
     segs = torch.as_tensor(list(LIMB_SEGMENTS[0 if side == "l" else 1]), device=signed.device)
-    best = signed.min(-1) if nearest is None else nearest
-    values, indices = best
+    values, indices = signed.min(-1) if nearest is None else nearest
     own = torch.isin(indices, segs) & (values < margin_m)  # (B, N)
     mine = _ARM_CLASSES[side] if other_arm_counts else (*_ARM_CLASSES["l"], *_ARM_CLASSES["r"])
     other = ~torch.isin(labels, torch.as_tensor(mine, device=labels.device)).to(signed.device)

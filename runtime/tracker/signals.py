@@ -108,13 +108,14 @@ def surface_error_quantile(
     if idx.shape[0] == 0:
         return obs.depth.new_zeros(B, dtype=torch.float64)
     b, v, u = idx.unbind(1)
-    if shared:  # every pose samples the same points (the cap is per mask): no padding
+    real = None  # every pose samples the same points (the cap is per mask): no padding
+    if shared:
         pts = obs.points[0, v, u].expand(B, -1, -1)
-        dist = surface_distance(pts, render.kin, body, render.geom)  # (B, K)
     else:
         slot, real = batch_slots(b, B)  # each pose's own points only: (B, K)
         pts = obs.points[b, v, u][slot]
-        dist = surface_distance(pts, render.kin, body, render.geom)
+    dist = surface_distance(pts, render.kin, body, render.geom)  # (B, K)
+    if real is not None:
         dist = torch.where(real, dist, torch.full_like(dist, float("nan")))
     q = torch.nanquantile(dist.double(), level, dim=1) * 1e3
     return torch.nan_to_num(q, nan=0.0)
