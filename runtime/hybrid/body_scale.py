@@ -11,6 +11,13 @@ factor, and the factor whose fits cover the person's silhouette best wins (the m
 ``|R and O| / |R or O|``, peak refined by a parabola through the best grid point and its
 neighbours). The silhouette decides because it measures size directly; the depth residual
 favours small bodies, which hide inside the observed surface.
+
+Only an unfolded body is measured (``max_fold_deg``), for the reason Wei's calibration asks
+for a T-pose: a seated person facing the camera shows the front of a lap, both thighs
+pointing at the camera, with the hands on it and bits of the chair around it, and its
+silhouette is one the model's capsules cannot cover at the right size. The search then found
+the largest size it tries (real Kinect depth, UTD-MHAD sit to stand, started seated: 0.08-0.11
+above the same person's median size over the other actions; standing up, the right size).
 """
 
 from __future__ import annotations
@@ -23,8 +30,9 @@ import numpy as np
 import torch
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.config import ConfigError, field_doc
+from depthmocap.shared.skeleton import JOINT_NAMES
 
-__all__ = ["BodyScaleConfig", "BodyScaleSearch", "peak_of"]
+__all__ = ["BodyScaleConfig", "BodyScaleSearch", "fold_angle_deg", "peak_of"]
 
 
 @dataclass
@@ -38,6 +46,12 @@ class BodyScaleConfig:
     max_scale: float = field_doc(1.16, "largest factor tried on the body tracked")
     step: float = field_doc(0.04, "spacing of the factors tried")
     iterations: int = field_doc(5, "Gauss-Newton iterations of each refit")
+    max_fold_deg: float | None = field_doc(
+        60.0,
+        "frames whose body is folded more than this are not sampled: both thighs at least "
+        "this far from the torso's line (:func:`fold_angle_deg`; standing 0-20 degrees, "
+        "walking and jogging under 45, seated or squatting 80-100). None: every frame",
+    )
     correction: float = field_doc(
         1.0,
         "factor applied to the size found, kept within min_scale..max_scale (1: none). "
@@ -55,12 +69,13 @@ class BodyScaleConfig:
             and 0 < self.min_scale < self.max_scale
             and 0 < self.step <= self.max_scale - self.min_scale
             and 0.5 < self.correction < 2.0
+            and (self.max_fold_deg is None or 0.0 < self.max_fold_deg <= 180.0)
         )
         if not ok:
             raise ConfigError(
                 "body_scale: need samples, every, iterations >= 1 and "
                 f"0 < min_scale < max_scale, 0 < step <= their difference, "
-                f"0.5 < correction < 2, got {self}"
+                f"0.5 < correction < 2, 0 < max_fold_deg <= 180 or None, got {self}"
             )
 
     def scales(self) -> np.ndarray:
@@ -81,11 +96,38 @@ def peak_of(scales: np.ndarray, score: np.ndarray) -> float:
     return float(scales[k] + shift * (scales[k + 1] - scales[k]))
 
 
+def fold_angle_deg(joints: np.ndarray) -> np.ndarray:
+    """How far a body is folded at the hips: the smaller of the two thighs' angles (hip to
+    knee) from the torso's line (neck to pelvis), in degrees; 0 standing straight, about 90
+    seated or in a deep squat, and small when only one leg is raised (a kick, a step).
+
+    Args:
+        joints: (..., J, 3) named joints (``shared.skeleton.JOINT_NAMES`` order).
+
+    Returns:
+        (...,) angles; NaN where a bone has zero length.
+    """
+    j = np.asarray(joints, dtype=np.float64)
+    down = j[..., _PELVIS, :] - j[..., _NECK, :]
+    thighs = j[..., _KNEES, :] - j[..., _HIPS, :]  # (..., 2, 3)
+    cos = (thighs * down[..., None, :]).sum(-1) / (
+        np.linalg.norm(thighs, axis=-1) * np.linalg.norm(down, axis=-1)[..., None]
+    )
+    with np.errstate(invalid="ignore"):
+        return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).min(axis=-1)
+
+
+_NECK, _PELVIS = JOINT_NAMES.index("neck"), JOINT_NAMES.index("pelvis")
+_HIPS = [JOINT_NAMES.index("l_hip"), JOINT_NAMES.index("r_hip")]
+_KNEES = [JOINT_NAMES.index("l_knee"), JOINT_NAMES.index("r_knee")]
+
+
 class BodyScaleSearch:
     """Refits tracked frames of a stream at every candidate size, then picks the factor on
     the default body.
 
-    ``offer(frame, q, fit)`` after each tracked frame: every ``cfg.every``-th is refitted at
+    ``offer(frame, q, fit, joints)`` after each tracked frame: of the frames whose body is
+    not folded (``joints``, ``cfg.max_fold_deg``), every ``cfg.every``-th is refitted at
     once at all S candidate sizes, ``fit(bodies, frame, q) -> (S,) overlaps`` with
     ``bodies`` the default body scaled by each factor (a batch of S: one batched fit), so
     the cost is spread over the first tracked frames instead of stalling one. The call that
@@ -106,12 +148,19 @@ class BodyScaleSearch:
         self.curves: list[np.ndarray] = []
 
     def offer(
-        self, frame, q: torch.Tensor, fit: Callable[[BodyShape, object, torch.Tensor], object]
+        self,
+        frame,
+        q: torch.Tensor,
+        fit: Callable[[BodyShape, object, torch.Tensor], object],
+        joints: np.ndarray | None = None,
     ) -> float | None:
-        """A tracked frame and its pose (34,); returns the factor on the call that finds it,
-        None otherwise."""
+        """A tracked frame, its pose (34,) and its named joints (J, 3) (None: not checked
+        for a fold); returns the factor on the call that finds it, None otherwise."""
         if self.scale is not None:
             return None
+        limit = self.cfg.max_fold_deg
+        if limit is not None and joints is not None and not fold_angle_deg(joints) <= limit:
+            return None  # folded (or degenerate): not counted towards ``every`` either
         take = self._seen % self.cfg.every == 0
         self._seen += 1
         if not take:

@@ -166,7 +166,7 @@ class HybridEstimator:
             q.cpu().double().numpy(), self._joints(q), "tracked", errors, observed=observed_of(res)
         )
         if self.scale_search is not None:
-            scale = self.scale_search.offer(frame, q, self._size_overlaps)
+            scale = self.scale_search.offer(frame, q, self._size_overlaps, estimate.joints)
             if scale is not None:
                 self._use_body(self.body.scaled(scale))
         return estimate

@@ -9,12 +9,18 @@ import torch
 from depthmocap.bench.scenes import camera_motion
 from depthmocap.runtime.frame import Frame
 from depthmocap.runtime.hybrid import HybridConfig, hybrid_config
-from depthmocap.runtime.hybrid.body_scale import BodyScaleConfig, BodyScaleSearch, peak_of
+from depthmocap.runtime.hybrid.body_scale import (
+    BodyScaleConfig,
+    BodyScaleSearch,
+    fold_angle_deg,
+    peak_of,
+)
 from depthmocap.runtime.raycast import render_body
 from depthmocap.runtime.tracker import Tracker
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.camera import Intrinsics
 from depthmocap.shared.config import ConfigError
+from depthmocap.shared.skeleton import JOINT_NAMES
 
 INTR = Intrinsics.kinect_v1(320)
 
@@ -55,6 +61,53 @@ def test_refits_every_kth_frame_at_all_sizes_then_stops():
     assert search.bodies.lengths.shape == (len(search.factors), 15)
     with pytest.raises(ValueError, match="overlaps"):
         BodyScaleSearch(BodyScaleConfig(), body).offer("f", torch.zeros(34), lambda *a: [1.0])
+
+
+def _stick_figure(l_thigh, r_thigh) -> np.ndarray:
+    """(J, 3) joints of an upright torso (camera y down) with the thighs along the given
+    directions; the other joints are not read."""
+    j = np.zeros((len(JOINT_NAMES), 3))
+    at = {n: k for k, n in enumerate(JOINT_NAMES)}
+    j[at["neck"]] = (0.0, -0.5, 3.0)
+    j[at["pelvis"]] = (0.0, 0.0, 3.0)
+    for side, thigh in (("l", l_thigh), ("r", r_thigh)):
+        hip = np.array((0.1 if side == "l" else -0.1, 0.0, 3.0))
+        j[at[f"{side}_hip"]] = hip
+        j[at[f"{side}_knee"]] = hip + 0.4 * np.asarray(thigh, dtype=float)
+    return j
+
+
+def test_fold_angle_of_standing_seated_and_one_raised_leg():
+    down, forward = (0, 1, 0), (0, 0, -1)  # towards the camera
+    diagonal = (0, np.sqrt(0.5), -np.sqrt(0.5))
+    assert fold_angle_deg(_stick_figure(down, down)) == pytest.approx(0.0, abs=1e-6)
+    assert fold_angle_deg(_stick_figure(forward, forward)) == pytest.approx(90.0)
+    assert fold_angle_deg(_stick_figure(forward, down)) == pytest.approx(0.0, abs=1e-6)  # kick
+    assert fold_angle_deg(_stick_figure(forward, diagonal)) == pytest.approx(45.0)
+    batch = np.stack([_stick_figure(down, down), _stick_figure(forward, forward)])[None]
+    np.testing.assert_allclose(fold_angle_deg(batch), [[0.0, 90.0]], atol=1e-6)  # (1, 2)
+    assert np.isnan(fold_angle_deg(_stick_figure((0, 0, 0), (0, 0, 0))))
+
+
+def test_a_folded_body_is_not_sampled_nor_counted():
+    body = BodyShape.default()
+    search = BodyScaleSearch(BodyScaleConfig(samples=2, every=2, correction=1.0), body)
+    seen = []
+
+    def fit(bodies, frame, q):
+        seen.append(frame)
+        return -((bodies.stature().numpy() / float(body.stature()) - 1.0) ** 2)
+
+    seated = _stick_figure((0, 0, -1), (0, 0, -1))
+    standing = _stick_figure((0, 1, 0), (0, 1, 0))
+    poses = [seated] * 3 + [standing] * 3 + [seated, standing]
+    found = [search.offer(i, torch.zeros(34), fit, j) for i, j in enumerate(poses)]
+    assert seen == [3, 5]  # every 2nd unfolded frame
+    assert found[5] == pytest.approx(1.0, abs=1e-6) and found[:5] == [None] * 5
+    free = BodyScaleSearch(BodyScaleConfig(samples=1, max_fold_deg=None), body)
+    assert free.offer(0, torch.zeros(34), fit, seated) is not None  # the check switched off
+    with pytest.raises(ConfigError):
+        BodyScaleConfig(max_fold_deg=0.0)
 
 
 def test_on_in_the_shipped_system_and_off_by_config():
