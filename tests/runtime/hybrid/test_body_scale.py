@@ -91,7 +91,8 @@ def test_fold_angle_of_standing_seated_and_one_raised_leg():
 
 def test_a_folded_body_is_not_sampled_nor_counted():
     body = BodyShape.default()
-    search = BodyScaleSearch(BodyScaleConfig(samples=2, every=2, correction=1.0), body)
+    cfg = BodyScaleConfig(samples=2, every=2, correction=1.0, max_fold_deg=60.0)
+    search = BodyScaleSearch(cfg, body)
     seen = []
 
     def fit(bodies, frame, q):
