@@ -27,10 +27,10 @@ from depthmocap.shared.labels import PART_NAMES
 
 __all__ = [
     "AGREEMENT_MARGIN_M",
-    "agreement_from_distances",
     "CONFLICT_MARGIN_M",
     "ARM_FLEXION_DEG",
     "ELBOW_FLEXION_DEG",
+    "agreement_from_distances",
     "arm_candidates",
     "arm_label_agreement",
     "arm_label_conflict",

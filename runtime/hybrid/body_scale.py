@@ -100,6 +100,11 @@ def peak_of(scales: np.ndarray, score: np.ndarray) -> float:
     return float(scales[k] + shift * (scales[k + 1] - scales[k]))
 
 
+_NECK, _PELVIS = JOINT_NAMES.index("neck"), JOINT_NAMES.index("pelvis")
+_HIPS = [JOINT_NAMES.index("l_hip"), JOINT_NAMES.index("r_hip")]
+_KNEES = [JOINT_NAMES.index("l_knee"), JOINT_NAMES.index("r_knee")]
+
+
 def fold_angle_deg(joints: np.ndarray) -> np.ndarray:
     """How far a body is folded at the hips: the smaller of the two thighs' angles (hip to
     knee) from the torso's line (neck to pelvis), in degrees; 0 standing straight, about 90
@@ -119,11 +124,6 @@ def fold_angle_deg(joints: np.ndarray) -> np.ndarray:
     )
     with np.errstate(invalid="ignore"):
         return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).min(axis=-1)
-
-
-_NECK, _PELVIS = JOINT_NAMES.index("neck"), JOINT_NAMES.index("pelvis")
-_HIPS = [JOINT_NAMES.index("l_hip"), JOINT_NAMES.index("r_hip")]
-_KNEES = [JOINT_NAMES.index("l_knee"), JOINT_NAMES.index("r_knee")]
 
 
 class BodyScaleSearch:
