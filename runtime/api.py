@@ -55,7 +55,8 @@ class Tracker:
         config: settings laid over the preset key by key: a YAML path or a mapping of the
             same shape.
         mode: "hybrid" (tracker with detector fall-back), "detector" or "shotton".
-        device: "auto" (CUDA when present), "cpu" or "cuda".
+        device: "auto" (the device the hybrid is measured fastest on: today the CPU, see
+            ``estimator_setup.AUTO_DEVICE``), "cpu" or "cuda".
         segmentation: how the person is cut from the background (defaults when None).
     Raises:
         TrackError (a ValueError): bad body, model, preset, config or device; the message is

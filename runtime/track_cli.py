@@ -141,7 +141,13 @@ def build_parser() -> argparse.ArgumentParser:
         + "; ".join(f"{p.name}: {p.description}" for p in PRESETS.values())
         + f" (default: {DEFAULT_PRESET})",
     )
-    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto", help="torch device")
+    p.add_argument(
+        "--device",
+        choices=("auto", "cpu", "cuda"),
+        default="auto",
+        help="torch device (auto: the one measured fastest, today the CPU: the GPU path is "
+        "slower, docs/results.md)",
+    )
     p.add_argument(
         "--threads",
         type=int,

@@ -222,3 +222,16 @@ def test_track_stream_reports_stream_errors_after_the_frames_before(one_thread, 
         for frame, pose in Tracker().track_stream(Broken()):
             got.append((frame.index, pose.status))
     assert [i for i, _ in got] == [0, 1]
+
+
+def test_auto_device_is_the_measured_faster_cpu_even_with_a_gpu(monkeypatch):
+    # "auto" must not follow torch.cuda.is_available(): the GPU path is measured slower.
+    from depthmocap.runtime.estimator_setup import AUTO_DEVICE, pick_device
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert pick_device("auto") == AUTO_DEVICE == "cpu"
+    assert pick_device("cuda") == "cuda"
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert pick_device("cpu") == "cpu"
+    with pytest.raises(TrackError, match="no CUDA device"):
+        pick_device("cuda")
