@@ -3,7 +3,7 @@ recordings that carry a reference skeleton (``train-import --utd-mhad``), scored
 
     python -m depthmocap.train.evaluation.real_benchmark --data DIR --out OUT
         [--select 'a05_*'] [--limit N] [--threads 1] [--sheet PNG] [--typical-sheet PNG]
-        [--config AB.yaml]
+        [--refuted-sheet PNG] [--config AB.yaml]
 
 For every recording under ``--data`` with a ``reference.npz``, runs ``runtime-track`` in a
 subprocess (``train`` never imports ``runtime``) fully automatic: the default mode (hybrid),
@@ -28,6 +28,13 @@ contact sheets: the worst frames (each recording's frame with the largest normal
 distance, the largest first, one per recording) and, with ``--typical-sheet``, one frame per
 action at its median. A result already complete in ``OUT/results`` is reused unless
 ``--retrack``.
+
+Where the two trackers disagree, the depth image can say which one is wrong: a joint off the
+person's pixels, or in the space in front of the surface the camera sees, cannot be right
+(:mod:`.depth_refutation`). The report counts, at each failed frame's worst joint, whose
+joint is refuted, the shares of all joints refuted on each side, and, as a diagnostic beside
+the table (never in its place), the agreement with the reference's refuted joints left out;
+``--refuted-sheet`` draws the largest such disagreements.
 """
 
 from __future__ import annotations
@@ -37,21 +44,30 @@ import fnmatch
 import json
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from depthmocap.shared.recording import Recording, RecordingError, mapped_reference
 from depthmocap.train.importers.utd_mhad import ACTION_NAMES
 
+from . import depth_refutation as dr
 from . import metrics as m
 from . import overlay_sheet as sheet
-from . import silhouette_check as sil
 from .dev_benchmark import _run as run_command
 from .evaluate import EvalConfig, EvaluationError, evaluate
 from .result_io import ResultFileError, load_result
 
-__all__ = ["Scored", "pooled", "per_joint", "worst_frames", "typical_frames", "main"]
+__all__ = [
+    "Scored",
+    "pooled",
+    "per_joint",
+    "worst_frames",
+    "typical_frames",
+    "refuted_frames",
+    "refuted_joints",
+    "main",
+]
 
 TILE = (150, 200)  # (width, height) cut around the person: a standing person is ~170 px tall
 TILE_SCALE = 2
@@ -67,9 +83,8 @@ class Scored:
         norm_errors_m: (F, J) offset-normalized joint distances, metres, NaN without a pose.
         frame_errors_mm: (F,) raw mean joint distance per frame, NaN without a pose.
         joint_names: the J joints.
-        sides: of the frames with a joint beyond the threshold after normalization, how many
-            fall in each :data:`silhouette_check.SIDES` class (which tracker the depth image
-            refutes at the worst joint).
+        reference_refuted, ours_refuted: (F, J) bool, the joints the depth image refutes
+            (:func:`depth_refutation.refuted`; ours False without a pose); None: none.
     """
 
     name: str
@@ -78,7 +93,25 @@ class Scored:
     norm_errors_m: np.ndarray
     frame_errors_mm: np.ndarray
     joint_names: tuple[str, ...]
-    sides: dict[str, int] = field(default_factory=lambda: dict.fromkeys(sil.SIDES, 0))
+    reference_refuted: np.ndarray | None = None
+    ours_refuted: np.ndarray | None = None
+
+    def refuted(self, which: str) -> np.ndarray:
+        """``reference`` or ``ours``: (F, J) bool, all False when not measured."""
+        flags = getattr(self, f"{which}_refuted")
+        return np.zeros(self.norm_errors_m.shape, bool) if flags is None else flags
+
+    def sides(self, beyond_m: float) -> dict[str, int]:
+        """Of the frames with a pose and a joint beyond ``beyond_m`` after normalization, how
+        many fall in each :data:`depth_refutation.SIDES` class at their worst joint."""
+        counts = dict.fromkeys(dr.SIDES, 0)
+        worst, joint = _frame_worst(self)
+        frames = np.flatnonzero(np.nan_to_num(worst) > beyond_m)
+        ref = self.refuted("reference")[frames, joint[frames]]
+        ours = self.refuted("ours")[frames, joint[frames]]
+        for r, o in zip(ref, ours):
+            counts[dr.classify(r, o)] += 1
+        return counts
 
 
 def _stack(scored: list[Scored], attr: str) -> np.ndarray:
@@ -109,7 +142,13 @@ def pooled(scored: list[Scored], cfg: EvalConfig | None = None) -> dict:
         return float(v) if np.isfinite(v) else None
 
     raw = _stack(scored, "frame_errors_mm")
-    sides = {k: sum(s.sides[k] for s in scored) for k in sil.SIDES}
+    beyond = cfg.failure_threshold_m
+    per = [s.sides(beyond) for s in scored]
+    sides = {k: sum(c[k] for c in per) for k in dr.SIDES}
+    ref_bad = np.concatenate([s.refuted("reference") for s in scored], 0)
+    ours_bad = np.concatenate([s.refuted("ours") for s in scored], 0)
+    posed = np.isfinite(norm)
+    kept = np.where(ref_bad, np.nan, norm)  # the reference's refuted joints left out
     return {
         "recordings": len(scored),
         "frames": int(len(norm)),
@@ -123,6 +162,16 @@ def pooled(scored: list[Scored], cfg: EvalConfig | None = None) -> dict:
         "lost_pct": share(counts["lost"]),
         "fps": written / seconds if seconds > 0 else None,
         "beyond_20cm_frames_by_side": sides,
+        "reference_refuted_joints_pct": finite(100.0 * ref_bad[posed].mean())
+        if posed.any()
+        else None,
+        "ours_refuted_joints_pct": finite(100.0 * ours_bad[posed].mean()) if posed.any() else None,
+        "normalized_mean_mm_reference_not_refuted": finite(m.mean_error_mm(kept))
+        if np.isfinite(kept).any()
+        else None,
+        "frames_beyond_20cm_pct_reference_not_refuted": finite(
+            m.percent(m.system_failures(norm, beyond, counted=~ref_bad))
+        ),
     }
 
 
@@ -172,6 +221,21 @@ def worst_frames(scored: list[Scored], count: int) -> list[dict]:
     return sorted(picks, key=lambda p: -p["distance_mm"])[:count]
 
 
+def refuted_frames(scored: list[Scored], count: int, beyond_m: float) -> list[dict]:
+    """Each recording's largest disagreement beyond ``beyond_m`` whose worst joint the depth
+    image refutes on the reference's side only (:mod:`.depth_refutation`), largest first, at
+    most ``count``: where the reference, not our result, is wrong."""
+    picks = []
+    for s in scored:
+        worst, joint = _frame_worst(s)
+        rows = np.arange(len(worst))
+        theirs = s.refuted("reference")[rows, joint] & ~s.refuted("ours")[rows, joint]
+        candidates = np.where(theirs & (np.nan_to_num(worst) > beyond_m), worst, np.nan)
+        if np.isfinite(candidates).any():
+            picks.append(_pick(s, int(np.nanargmax(candidates)), worst, joint))
+    return sorted(picks, key=lambda p: -p["distance_mm"])[:count]
+
+
 def typical_frames(scored: list[Scored]) -> list[dict]:
     """For each action, the frame whose largest normalized joint distance is the action's
     median of those: what agreement usually looks like."""
@@ -207,26 +271,29 @@ def _complete(result: Path, frames: int) -> bool:
     return bool(summary.get("complete")) and summary.get("frames") == frames
 
 
-def disagreement_sides(rec_dir: Path, result_dir: Path, failures: list[dict]) -> dict[str, int]:
-    """For each failed frame (``system_failure_offset_normalized_frames``) with a pose, which
-    tracker's worst joint projects off the person (:mod:`.silhouette_check`): counts by side."""
-    counts = dict.fromkeys(sil.SIDES, 0)
-    failures = [f for f in failures if f["worst_joint"] is not None]
-    if not failures:
-        return counts
+def refuted_joints(
+    rec_dir: Path, result_dir: Path, joint_names: tuple[str, ...]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every frame's reference joints and our joints that the depth image refutes
+    (:mod:`.depth_refutation`): two (F, J) bool in ``joint_names`` order; ours False on frames
+    without a pose."""
     rec = Recording(rec_dir)
     reference, names = mapped_reference(rec.reference())
     result = load_result(result_dir)
-    for f in failures:
-        i, joint = f["frame"], f["worst_joint"]
-        body = rec.read_depth_mm(i) > 0
-        ours = result.joints[np.flatnonzero(result.frame == i)[0], result.joint_names.index(joint)]
-        side = sil.classify(
-            sil.on_body(body, reference[i, names.index(joint)], rec.intrinsics),
-            sil.on_body(body, ours, rec.intrinsics),
-        )
-        counts[side] += 1
-    return counts
+    ref_j = reference[:, [names.index(n) for n in joint_names]]
+    ours_j = np.full_like(ref_j, np.nan)
+    rows = result.frame < len(ref_j)
+    ours_j[result.frame[rows]] = result.joints[rows][:, [result.joint_names.index(n)
+                                                        for n in joint_names]]  # fmt: skip
+    posed = np.isfinite(ours_j).all((1, 2))
+    ref_bad = np.zeros(ref_j.shape[:2], bool)
+    ours_bad = np.zeros_like(ref_bad)
+    for i in range(len(ref_j)):
+        depth = rec.read_depth(i)
+        ref_bad[i] = dr.refuted(depth, ref_j[i], rec.intrinsics)
+        if posed[i]:
+            ours_bad[i] = dr.refuted(depth, ours_j[i], rec.intrinsics)
+    return ref_bad, ours_bad
 
 
 def score(rec: Path, result: Path) -> Scored:
@@ -235,9 +302,9 @@ def score(rec: Path, result: Path) -> Scored:
     if ev.report["truth"] != "reference":
         raise EvaluationError(f"{rec}: has ground truth; this benchmark is for references")
     group = rec.name.split("_")[0]
-    sides = disagreement_sides(rec, result, ev.report["system_failure_offset_normalized_frames"])
+    ref_bad, ours_bad = refuted_joints(rec, result, ev.joint_names)
     return Scored(rec.name, group, ev.report, ev.norm_errors_m, ev.frame_errors_mm,
-                  ev.joint_names, sides)  # fmt: skip
+                  ev.joint_names, ref_bad, ours_bad)  # fmt: skip
 
 
 def _tile(data: Path, results: Path, pick: dict) -> np.ndarray | None:
@@ -302,14 +369,17 @@ def format_row(label: str, p: dict) -> str:
 
 
 SIDES_HEADER = (
-    "| action | frames with a joint > 20 cm | reference's joint off the body | "
-    "ours off the body | both off | both on the body |\n|---|---|---|---|---|---|"
+    "| action | frames with a joint > 20 cm | reference's joint refuted | ours refuted | "
+    "both | neither | reference joints refuted | our joints refuted | normalized mm without "
+    "the reference's refuted joints | frames with a joint > 20 cm, the same |\n"
+    "|---|---|---|---|---|---|---|---|---|---|"
 )
 
 
 def format_sides_row(label: str, p: dict) -> str:
     """One row of :data:`SIDES_HEADER`: the failed frames with a pose, split by which
-    tracker's worst joint the depth image refutes, in % of them."""
+    tracker's worst joint the depth image refutes (% of them); the shares of all joints each
+    tracker has refuted; and the agreement with the reference's refuted joints left out."""
     sides = p["beyond_20cm_frames_by_side"]
     n = sum(sides.values())
 
@@ -317,8 +387,12 @@ def format_sides_row(label: str, p: dict) -> str:
         return f"{100 * sides[key] / n:.1f}%" if n else "n/a"
 
     return (
-        f"| {label} | {n} | {pct('reference_off_body')} | {pct('ours_off_body')} | "
-        f"{pct('both_off_body')} | {pct('both_on_body')} |"
+        f"| {label} | {n} | {pct('reference_refuted')} | {pct('ours_refuted')} | "
+        f"{pct('both_refuted')} | {pct('neither_refuted')} | "
+        f"{_fmt(p['reference_refuted_joints_pct'], 1, '%')} | "
+        f"{_fmt(p['ours_refuted_joints_pct'], 1, '%')} | "
+        f"{_fmt(p['normalized_mean_mm_reference_not_refuted'])} | "
+        f"{_fmt(p['frames_beyond_20cm_pct_reference_not_refuted'], 1, '%')} |"
     )
 
 
@@ -357,6 +431,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--worst", type=int, default=12, help="tiles on the worst-frames sheet")
     p.add_argument("--typical-sheet", type=Path, help="also a sheet of each action's median frame")
+    p.add_argument(
+        "--refuted-sheet",
+        type=Path,
+        help="also a sheet of the largest disagreements where the depth image refutes the "
+        "reference's joint (one per recording, --worst tiles)",
+    )
     return p
 
 
@@ -425,8 +505,12 @@ def main(argv: list[str] | None = None) -> int:
     for g, p in by_group.items():
         print(format_row(_label(g), p))
     print(format_row("**all**", everything))
-    print("\nWhich side the depth image refutes at the worst joint of those frames (a joint "
-          "projecting more than 3 px off the person is wrong)\n")  # fmt: skip
+    print(
+        "\nWhich side the depth image refutes at the worst joint of those frames (a joint "
+        f"more than {dr.SLACK_PX} px off the person, or more than {dr.FREE_SPACE_M * 100:.0f} "
+        "cm in front of the surface the camera sees there, is wrong), and the agreement "
+        "without the reference's refuted joints (a diagnostic, not the table above)\n"
+    )
     print(SIDES_HEADER)
     for g, p in by_group.items():
         print(format_sides_row(_label(g), p))
@@ -442,6 +526,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.typical_sheet:
         drawn = write_sheet(args.typical_sheet, args.data, results, typical, columns=6)
         print(f"typical frames: {args.typical_sheet} ({drawn} tiles)")
+    refuted = refuted_frames(scored, args.worst, EvalConfig().failure_threshold_m)
+    if args.refuted_sheet:
+        drawn = write_sheet(args.refuted_sheet, args.data, results, refuted, columns=6)
+        print(f"the reference refuted by the depth: {args.refuted_sheet} ({drawn} tiles)")
     report = {
         "data": str(args.data),
         "select": args.select,
@@ -455,6 +543,7 @@ def main(argv: list[str] | None = None) -> int:
         "per_joint": joints,
         "worst_frames": worst,
         "typical_frames": typical,
+        "reference_refuted_frames": refuted,
         "per_recording": {s.name: s.report for s in scored},
         "seconds": time.perf_counter() - t0,
     }

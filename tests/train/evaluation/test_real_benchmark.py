@@ -15,10 +15,10 @@ from depthmocap.shared.body import BodyShape
 from depthmocap.shared.camera import Intrinsics
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
 from depthmocap.shared.recording import RecordingWriter
+from depthmocap.train.evaluation import depth_refutation as dr
 from depthmocap.train.evaluation import metrics as m
 from depthmocap.train.evaluation import overlay_sheet as sheet
 from depthmocap.train.evaluation import real_benchmark as rb
-from depthmocap.train.evaluation import silhouette_check as sil
 
 NAMES = ("head", "l_wrist")
 
@@ -82,16 +82,33 @@ def test_sheet_pieces():
     assert sheet.tile_sheet([tile] * 3, 2).shape == (2 * 432 + 2, 2 * 300 + 2, 3)
 
 
-def test_silhouette_check():
+def test_depth_refutation():
+    """Off the person (beyond the slack) or in the empty space in front of the surface the
+    camera sees: refuted. Inside or just behind the surface, within the slack of a small
+    near part, outside the image: not."""
     intr = Intrinsics(320, 240, 285.63, 285.63, 159.0, 120.0)
-    body = np.zeros((240, 320), bool)
-    body[100:140, 150:170] = True  # columns 150-169
-    at = lambda u, v: np.array([(u - 159.0) * 2.0 / 285.63, (v - 120.0) * 2.0 / 285.63, 2.0])  # noqa: E731
-    assert sil.on_body(body, at(160, 120), intr)
-    assert sil.on_body(body, at(172, 120), intr)  # 3 px slack
-    assert not sil.on_body(body, at(173, 120), intr)
-    assert not sil.on_body(body, at(400, 120), intr) and not sil.on_body(body, -at(160, 120), intr)
-    assert [sil.classify(r, o) for r, o in ((1, 1), (0, 1), (1, 0), (0, 0))] == list(sil.SIDES)
+    depth = np.zeros((240, 320), np.float32)
+    depth[100:140, 150:170] = 2.0  # columns 150-169 at 2 m
+    depth[120, 150] = 1.7  # one pixel of a hand in front
+
+    def at(u, v, z=2.05):
+        return [(u - 159.0) * z / 285.63, (v - 120.0) * z / 285.63, z]
+
+    joints = np.array([
+        at(160, 110),  # inside the body
+        at(172, 110),  # 3 px off the edge: within the slack
+        at(173, 110),  # 4 px off
+        at(160, 110, 1.85),  # 15 cm in front of the surface: empty space
+        at(160, 110, 1.95),  # 5 cm in front: within the margin
+        at(152, 121, 1.75),  # in front of the torso but at the hand (2 px away)
+        at(171, 130, 1.5),  # in front, but at a pixel without depth: a hole proves nothing
+        at(400, 110),  # outside the image: cannot be checked
+        [0.0, 0.0, -1.0],  # behind the camera
+        [np.nan, 0.0, 2.0],
+    ])  # fmt: skip
+    got = dr.refuted(depth, joints, intr)
+    assert got.tolist() == [False, False, True, True, False, False, False, False, True, True]
+    assert [dr.classify(r, o) for r, o in ((0, 0), (1, 0), (0, 1), (1, 1))] == list(dr.SIDES)
 
 
 FRAMES = 6
@@ -122,7 +139,7 @@ def _write_take(root, name: str, wrist_off: float):
 
 
 def test_benchmark_end_to_end_without_tracking(tmp_path, monkeypatch, capsys):
-    _write_take(tmp_path, "a05_s1_t1", 0.6)
+    _write_take(tmp_path, "a05_s1_t1", -0.6)  # the reference's wrist in the empty space
     _write_take(tmp_path, "a22_s1_t1", 0.0)
     monkeypatch.setattr(rb, "_track", lambda *a: pytest.fail("complete results are reused"))
     args = ["--data", str(tmp_path / "data"), "--out", str(tmp_path / "out"),
@@ -133,9 +150,15 @@ def test_benchmark_end_to_end_without_tracking(tmp_path, monkeypatch, capsys):
     assert "| a22 jog in place | 1 | 6 |" in printed and "| **all** | 2 | 12 |" in printed
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert report["all"]["frames_beyond_20cm_pct"] == pytest.approx(100 / 12)
-    # The whole image is "body" here: both wrists project onto it.
-    assert report["all"]["beyond_20cm_frames_by_side"]["both_on_body"] == 1
-    assert "| **all** | 1 | 0.0% | 0.0% | 0.0% | 100.0% |" in printed
+    # The whole image is "body" at 2.8 m: the reference's wrist 60 cm in front of it is in
+    # the space the camera sees to be empty; left out, no frame fails.
+    everything = report["all"]
+    assert everything["beyond_20cm_frames_by_side"]["reference_refuted"] == 1
+    assert everything["reference_refuted_joints_pct"] == pytest.approx(100 / (12 * 16))
+    assert everything["ours_refuted_joints_pct"] == 0.0
+    assert everything["frames_beyond_20cm_pct_reference_not_refuted"] == 0.0
+    assert everything["normalized_mean_mm_reference_not_refuted"] < everything["normalized_mean_mm"]
+    assert "| **all** | 1 | 100.0% | 0.0% | 0.0% | 0.0% | 0.5% | 0.0% |" in printed
     worst = report["worst_frames"][0]
     assert (worst["recording"], worst["frame"], worst["joint"]) == ("a05_s1_t1", 3, "l_wrist")
     assert worst["distance_mm"] == pytest.approx(500.0)
@@ -182,3 +205,27 @@ def test_settings_are_recorded_and_never_mixed(tmp_path, capsys):
     assert (out / "settings.yaml").read_text() == ab.read_text()
     assert rb.main(args) == 2  # back to the shipped preset: refused again
     assert "other settings" in capsys.readouterr().err
+
+
+def test_sides_and_refuted_frames_read_the_worst_joint():
+    a = _scored("a05_s1_t1", [[2, 4], [2, 30], [1, 25], [np.nan, np.nan]])
+    a.reference_refuted = np.array([[0, 1], [0, 1], [1, 0], [0, 0]], bool)
+    b = _scored("a05_s2_t1", [[40, 1], [3, 3]])
+    b.reference_refuted = np.array([[1, 0], [0, 0]], bool)
+    b.ours_refuted = np.array([[1, 0], [0, 0]], bool)
+    # a: frame 1's worst joint (the wrist) is the reference's refuted one; frame 2's is not
+    # (its head is); the frame without a pose has no worst joint. b: both refuted.
+    assert a.sides(0.2) == {"neither_refuted": 1, "reference_refuted": 1, "ours_refuted": 0,
+                            "both_refuted": 0}  # fmt: skip
+    assert b.sides(0.2)["both_refuted"] == 1
+    assert rb.refuted_frames([a, b], 5, 0.2) == [
+        {"recording": "a05_s1_t1", "frame": 1, "joint": "l_wrist", "distance_mm": 300.0}
+    ]
+    p = rb.pooled([a, b])
+    assert p["reference_refuted_joints_pct"] == pytest.approx(100 * 4 / 10)
+    assert p["ours_refuted_joints_pct"] == pytest.approx(100 * 1 / 10)
+    # Left out: a's frames 0-2 lose one joint each (frame 2 its head, so its 25 cm wrist
+    # still fails), b's frame 0 its head; a's frame without a pose still fails: 2 of 6.
+    assert p["frames_beyond_20cm_pct_reference_not_refuted"] == pytest.approx(100 * 2 / 6)
+    kept_cm = (2 + 2 + 25 + 1 + 3 + 3) / 6
+    assert p["normalized_mean_mm_reference_not_refuted"] == pytest.approx(10 * kept_cm)
