@@ -57,12 +57,30 @@ class Kinematics:
     lengths: torch.Tensor
 
 
+# The skeleton's constant arrays as tensors, built once per content, dtype and device: made
+# afresh on every call they were a host-to-device copy and a wait for the GPU each (about
+# 150 a frame on CUDA, the most of any source: docs/results.md). Callers only read them.
+_CONSTANTS: dict[tuple, torch.Tensor] = {}
+_MAX_CONSTANTS = 512
+
+
+def _cached(array, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    a = np.asarray(array)
+    key = (a.tobytes(), a.shape, a.dtype.str, dtype, device)
+    t = _CONSTANTS.get(key)
+    if t is None:
+        if len(_CONSTANTS) >= _MAX_CONSTANTS:  # only ever a few dozen; never grow unbounded
+            _CONSTANTS.clear()
+        t = _CONSTANTS[key] = torch.as_tensor(a, dtype=dtype, device=device)
+    return t
+
+
 def _const(array, like: torch.Tensor) -> torch.Tensor:
-    return torch.as_tensor(array, dtype=like.dtype, device=like.device)
+    return _cached(array, like.dtype, like.device)
 
 
 def _index(array, like: torch.Tensor) -> torch.Tensor:
-    return torch.as_tensor(array, dtype=torch.long, device=like.device)
+    return _cached(array, torch.long, like.device)
 
 
 # Internally, 3x3 matrices are stored batch-last as (3, 3, n, B): a product is then 15
@@ -217,8 +235,8 @@ def forward_kinematics(q: torch.Tensor, body: BodyShape) -> Kinematics:
     t = q[:, 0:3].T[:, None]  # (3, 1, B)
     rots, orgs = [r], [t]
     for level, slot in zip(sk.SEGMENT_LEVELS[1:], _LEVEL_PARENT_SLOT):
-        idx = _index(level, q)
-        r_par, t_par = r[:, :, slot], t[:, slot]
+        idx, parents = _index(level, q), _index(slot, q)
+        r_par, t_par = r[:, :, parents], t[:, parents]
         r = _mm(r_par, local[:, :, idx])
         t = t_par + _mv(r_par, offsets[:, idx])
         rots.append(r)

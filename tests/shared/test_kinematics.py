@@ -263,3 +263,19 @@ def test_transform_pose_moves_every_joint_rigidly():
     moved = joints(transform_pose(q, rot, t))
     expected = joints(q) @ rot.T + t
     assert torch.allclose(moved, expected, atol=1e-10)
+
+
+def test_skeleton_constants_are_built_once_per_content_dtype_and_device():
+    """On CUDA each fresh constant was a host-to-device copy and a sync; the cache hands
+    out one tensor per content, dtype and device, equal to a fresh one."""
+    from depthmocap.shared import kinematics as kin_module
+
+    like = torch.zeros(1, dtype=torch.float32)
+    a = kin_module._const([1.0, -1.0, 2.0], like)
+    assert kin_module._const((1.0, -1.0, 2.0), like) is a  # same content, same tensor
+    assert torch.equal(a, torch.tensor([1.0, -1.0, 2.0]))
+    b = kin_module._const([1.0, -1.0, 2.0], like.double())
+    assert b is not a and b.dtype == torch.float64
+    i = kin_module._index([3, 1], like)
+    assert i.dtype == torch.long and kin_module._index(np.array([3, 1]), like) is i
+    assert kin_module._index([3, 2], like) is not i
