@@ -4,7 +4,9 @@
 # same machine (the same recordings, 2 threads). Logs go to $OUT (default out/gpu_check).
 # Expects python3 with torch (CUDA), numpy, pyyaml, opencv and numba already installed, as
 # on the lent machines; installs this checkout
-# without dependencies or network.
+# without dependencies or network. The recordings folder (default data/dev, the ten smoke
+# recordings) must fit the device's transfer limit; docs/results.md (sixteenth session) gives
+# the recipe of data/gpu5, five broad recordings.
 set -u
 OUT=${OUT:-out/gpu_check}
 mkdir -p "$OUT"
@@ -27,3 +29,6 @@ timeout "${TEST_S:-150}" python3 -m pytest -q -p no:cacheprovider -k cuda tests 
   | tee "$OUT/tests_cuda.log" | tail -25
 timeout 60 python3 -m pytest -q -p no:cacheprovider -m gpu tests 2>&1 \
   | tee "$OUT/tests_gpu.log" | tail -8
+echo "== host syncs per frame, by source line =="
+timeout "${SYNC_S:-90}" python3 -m depthmocap.bench.cuda_syncs --frames 10 --rows 25 2>&1 \
+  | tee "$OUT/syncs.log"
