@@ -59,17 +59,15 @@ def sync_sites(source: str, frames: int, warmup: int = 3) -> collections.Counter
         for frame in itertools.islice(it, warmup):
             tracker.track(frame)
         torch.cuda.synchronize()
-        warnings.showwarning = record
         torch.cuda.set_sync_debug_mode("warn")
         try:
-            with warnings.catch_warnings():
+            with warnings.catch_warnings():  # restores the filters and showwarning on exit
                 warnings.simplefilter("always")
                 warnings.showwarning = record
                 for frame in itertools.islice(it, frames):
                     tracker.track(frame)
         finally:
             torch.cuda.set_sync_debug_mode("default")
-            warnings.showwarning = original
     return counts
 
 

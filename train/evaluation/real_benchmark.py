@@ -286,14 +286,13 @@ def refuted_joints(
     ours_j[result.frame[rows]] = result.joints[rows][:, [result.joint_names.index(n)
                                                         for n in joint_names]]  # fmt: skip
     posed = np.isfinite(ours_j).all((1, 2))
-    ref_bad = np.zeros(ref_j.shape[:2], bool)
-    ours_bad = np.zeros_like(ref_bad)
+    J = len(joint_names)
+    # Both skeletons in one call per frame: the depth image is read and padded once.
+    flags = np.zeros((len(ref_j), 2 * J), bool)
     for i in range(len(ref_j)):
-        depth = rec.read_depth(i)
-        ref_bad[i] = dr.refuted(depth, ref_j[i], rec.intrinsics)
-        if posed[i]:
-            ours_bad[i] = dr.refuted(depth, ours_j[i], rec.intrinsics)
-    return ref_bad, ours_bad
+        both = np.concatenate([ref_j[i], ours_j[i]])
+        flags[i] = dr.refuted(rec.read_depth(i), both, rec.intrinsics)
+    return flags[:, :J], flags[:, J:] & posed[:, None]
 
 
 def score(rec: Path, result: Path) -> Scored:
