@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass
 
 import numpy as np
@@ -132,12 +133,19 @@ class BodyScaleSearch:
 
     ``offer(frame, q, fit, joints)`` after each tracked frame: of the frames whose body is
     not folded (``joints``, ``cfg.max_fold_deg``), every ``cfg.every``-th is refitted at
-    once at all S candidate sizes, ``fit(bodies, frame, q) -> (S,) overlaps`` with
-    ``bodies`` the default body scaled by each factor (a batch of S: one batched fit), so
-    the cost is spread over the first tracked frames instead of stalling one. The call that
-    completes ``cfg.samples`` frames returns the factor (also :attr:`scale`): the overlaps'
-    peak (:attr:`peak`) times ``cfg.correction``. A search runs once per estimator;
-    :attr:`curves` keeps each sample's (S,) overlaps for diagnostics.
+    all S candidate sizes, ``fit(bodies, frame, q) -> (S,) overlaps`` with ``bodies`` the
+    default body scaled by each factor (a batch of S: one batched fit), so the cost is
+    spread over the first tracked frames instead of stalling one.
+
+    A sample's overlaps are read at the next sampled frame, not at once: ``fit`` may return
+    a :class:`concurrent.futures.Future` of them, and the refits then run beside the track
+    (the hybrid runs them on a worker thread, off the frame's critical path) with a whole
+    sampling period to finish. The call that reads the ``cfg.samples``-th sample returns the
+    factor (also :attr:`scale`): the overlaps' peak (:attr:`peak`) times
+    ``cfg.correction``. Where the overlaps are computed does not change when they are read,
+    so a worker thread and an inline ``fit`` give the same sizes on the same frames. A
+    search runs once per estimator; :attr:`curves` keeps each sample's (S,) overlaps for
+    diagnostics.
     """
 
     def __init__(self, cfg: BodyScaleConfig, body: BodyShape) -> None:
@@ -145,7 +153,8 @@ class BodyScaleSearch:
         self.factors = cfg.scales()
         self.bodies = body.scaled(torch.as_tensor(self.factors, dtype=body.lengths.dtype))
         self._score = np.zeros(len(self.factors))
-        self.samples = 0  # frames refitted so far
+        self.samples = 0  # frames refitted so far (their refits started)
+        self._pending = None  # the last sample's (S,) overlaps, or a Future of them
         self._seen = 0
         self.scale: float | None = None  # the result, once found
         self.peak: float | None = None  # the overlaps' peak, before the correction
@@ -169,15 +178,24 @@ class BodyScaleSearch:
         self._seen += 1
         if not take:
             return None
-        overlaps = np.asarray(fit(self.bodies, frame, q.detach()), dtype=np.float64)
+        if self._pending is not None:
+            self._read(self._pending)
+            self._pending = None
+            if len(self.curves) == self.cfg.samples:
+                self.peak = peak_of(self.factors, self._score / len(self.curves))
+                lo, hi = self.factors[0], self.factors[-1]
+                self.scale = float(np.clip(self.peak * self.cfg.correction, lo, hi))
+                return self.scale
+        self._pending = fit(self.bodies, frame, q.detach())
+        self.samples += 1
+        return None
+
+    def _read(self, pending) -> None:
+        """Add one sample's overlaps (an array, or a Future of one: waited for) to the
+        score."""
+        result = pending.result() if isinstance(pending, Future) else pending
+        overlaps = np.asarray(result, dtype=np.float64)
         if overlaps.shape != self._score.shape:
             raise ValueError(f"fit returned {overlaps.shape} overlaps for {self._score.shape}")
         self._score += overlaps
         self.curves.append(overlaps)
-        self.samples += 1
-        if self.samples < self.cfg.samples:
-            return None
-        self.peak = peak_of(self.factors, self._score / self.samples)
-        lo, hi = self.factors[0], self.factors[-1]
-        self.scale = float(np.clip(self.peak * self.cfg.correction, lo, hi))
-        return self.scale
