@@ -15,6 +15,7 @@ Exit codes: 0 written; 2 bad input or the pose was never held (one ``error: ...`
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 from pathlib import Path
 
@@ -140,7 +141,7 @@ def _refine(body: BodyShape, intr, depth, mask, iterations: int):
         return None
     tracker = Tracker(body, intr)
     obs = tracker.observe(depth, mask)
-    return lambda starts: tracker.fit_starts(obs, starts, iterations)
+    return functools.partial(tracker.fit_starts, obs)
 
 
 def run(args: argparse.Namespace) -> BodyShape:

@@ -110,7 +110,9 @@ class HybridEstimator:
         self.label_source, self.detector, self.tracker, self.cfg = labels, detector, tracker, cfg
         self.offsets = offsets
         self.arm_search = (
-            None if cfg.arm_search is None else ArmSearch(cfg.arm_search, tracker.body)
+            None
+            if cfg.arm_search is None
+            else ArmSearch(cfg.arm_search, tracker.body, tracker.cfg.iterations)
         )
         self.state = TrackState()
         self.scale_search = (
@@ -182,7 +184,7 @@ class HybridEstimator:
         labels = frame.labels(self.label_source)
         hint = self.state.q_prev  # one more IK start, used only if it fits the centroids best
         k = self.detector.cfg.refine_iterations
-        refine = None if k <= 0 else (lambda starts: self._fit_starts(frame, starts, k))
+        refine = None if k <= 0 else functools.partial(self._fit_starts, frame)
         return self.detector.detect(frame.depth_m, labels, frame.mask, q_hint=hint, refine=refine)
 
     # ---- estimates, each updating the track ----
@@ -231,7 +233,7 @@ class HybridEstimator:
         detector.generator.set_state(d.generator.get_state())
         self.detector = detector
         if self.arm_search is not None:
-            self.arm_search = ArmSearch(self.cfg.arm_search, body)
+            self.arm_search = ArmSearch(self.cfg.arm_search, body, self.tracker.cfg.iterations)
 
     def _unsupported(self, overlap: float) -> bool:
         """The fit explains too little of the silhouette to be the person's pose."""
@@ -287,7 +289,7 @@ class HybridEstimator:
                 frame.labels(self.label_source),
                 res,
                 badness,
-                lambda starts: self._fit_starts(frame, starts),
+                lambda starts, iterations: self._fit_starts(frame, starts, iterations),
                 cfg.failure.badness,
             )
             if found.best is not None:
