@@ -15,7 +15,6 @@ Exit codes: 0 written; 2 bad input or the pose was never held (one ``error: ...`
 from __future__ import annotations
 
 import argparse
-import functools
 import sys
 from pathlib import Path
 
@@ -141,7 +140,7 @@ def _refine(body: BodyShape, intr, depth, mask, iterations: int):
         return None
     tracker = Tracker(body, intr)
     obs = tracker.observe(depth, mask)
-    return functools.partial(tracker.fit_starts, obs)
+    return lambda starts: tracker.fit_starts(obs, starts, iterations)
 
 
 def run(args: argparse.Namespace) -> BodyShape:

@@ -121,8 +121,8 @@ class DetectorEstimator:
         if self.tracker is not None and k > 0:
             obs = frame.observation(self.tracker, labels)
 
-            def refine(starts, iterations):
-                return self.tracker.fit_starts(obs, starts, iterations)
+            def refine(starts):
+                return self.tracker.fit_starts(obs, starts, k)
 
         det = self.detector.detect(frame.depth_m, labels, frame.mask, refine=refine)
         if not det.found:

@@ -34,13 +34,6 @@ class DetectorConfig:
     refine_iterations: int = field_doc(
         3, help="tracker Gauss-Newton iterations refining the IK pose (Wei: three); 0 = none"
     )
-    refine_screen: int | None = field_doc(
-        None,
-        help="refine every limb swap for this many of the refine_iterations first, then only "
-        "the refine_keep best (depth error, then overlap) for the rest "
-        "(runtime.tracker.screen; None: every swap for all of them)",
-    )
-    refine_keep: int = field_doc(1, help="limb swaps kept after the screen")
     seed: int = field_doc(0, help="seed of the RANSAC sampling (results are deterministic)")
 
     def __post_init__(self) -> None:
@@ -53,11 +46,6 @@ class DetectorConfig:
         if self.refine_iterations < 0:
             raise ConfigError(
                 f"detector: refine_iterations must be >= 0, got {self.refine_iterations}"
-            )
-        if (self.refine_screen is not None and self.refine_screen < 1) or self.refine_keep < 1:
-            raise ConfigError(
-                f"detector: refine_screen must be >= 1 or None and refine_keep >= 1, got "
-                f"{self.refine_screen}, {self.refine_keep}"
             )
 
 

@@ -67,9 +67,9 @@ ORIENTATION_STARTS = 4
 # third, unused), every start with its own prior reference.
 ARM_STARTS = 2
 
-# Start poses (K, 34) and a number of Gauss-Newton iterations -> the tracker's refinement
-# of the frame from each, in order (one batched fit: ``Tracker.fit_starts``).
-Refine = Callable[[torch.Tensor, int], "list[TrackResult]"]
+# Start poses (K, 34) -> the tracker's few-iteration refinement of the frame from each, in
+# order (one batched fit: ``Tracker.fit_starts``).
+Refine = Callable[[torch.Tensor], "list[TrackResult]"]
 
 __all__ = ["DetectionResult", "DetectorError", "Refine", "detect_pose", "labels_from", "Detector"]
 
@@ -203,10 +203,9 @@ def detect_pose(
         cfg: settings (defaults when None).
         q_hint: (34,) an extra IK start (e.g. the last good pose), optional.
         mask: (H, W) bool person mask; labels outside it are ignored.
-        refine: the tracker's refinement of this frame from K poses for a number of
-            iterations (``cfg.refine_iterations`` in all; Wei: three), applied to the IK pose
-            and its limb swaps at once when given (screened by ``cfg.refine_screen``); the
-            caller binds it to the frame (its observation and labels).
+        refine: the tracker's refinement of this frame from K poses (Wei: three
+            iterations), applied to the IK pose and its limb swaps at once when given; the
+            caller binds it to the frame (its observation, labels and iteration count).
         generator: random source of the RANSAC (default: seeded from ``cfg.seed``).
     Returns:
         :class:`DetectionResult`.
@@ -278,17 +277,11 @@ def detect_pose(
         # The forest confuses left and right limbs (about a fifth of forearm and shank pixels),
         # which IK turns into crossed legs or arms; refine the pose with each pair of limbs
         # swapped too and keep the one that explains the depth best.
-        from depthmocap.runtime.tracker.screen import screened_refits  # a tracker is at hand
-
-        def rank(res: TrackResult) -> tuple[float, float]:
-            return res.depth_error_cm, -res.overlap
-
-        fits, _ = screened_refits(
-            torch.stack(limb_swaps(q_ik)), refine, cfg.refine_iterations, cfg.refine_screen,
-            cfg.refine_keep, rank,
-        )  # fmt: skip
-        for res in fits:
-            if refined is None or rank(res) < rank(refined):
+        for res in refine(torch.stack(limb_swaps(q_ik))):
+            if refined is None or (res.depth_error_cm, -res.overlap) < (
+                refined.depth_error_cm,
+                -refined.overlap,
+            ):
                 refined = res
         q = refined.q.to(q_ik)
     joints = named_joint_positions(forward_kinematics(q[None], body))[0]

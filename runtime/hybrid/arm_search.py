@@ -22,7 +22,6 @@ from dataclasses import dataclass
 import torch
 from depthmocap.runtime.frame import Frame
 from depthmocap.runtime.raycast import segment_distances, segment_geometry
-from depthmocap.runtime.tracker.screen import Refit, screened_refits
 from depthmocap.runtime.tracker.signals import FitSignals
 from depthmocap.runtime.tracker.tracker import TrackResult
 from depthmocap.shared.body import BodyShape
@@ -71,6 +70,10 @@ MISPLACED_MIN_POINTS = 20
 # in profile, but a lost arm laid on the other one is misplaced all the same).
 OTHER_ARM_COUNTS = True
 
+# Start poses (K, 34) -> the tracker's refit of the frame from each, in order (one batched
+# fit: ``Tracker.fit_starts``).
+Refit = Callable[[torch.Tensor], list[TrackResult]]
+
 
 @dataclass
 class SearchResult:
@@ -97,9 +100,8 @@ class _Suspect:
 class ArmSearch:
     """The search of one stream (module docstring)."""
 
-    def __init__(self, cfg: ArmSearchConfig, body: BodyShape, iterations: int = 5) -> None:
+    def __init__(self, cfg: ArmSearchConfig, body: BodyShape) -> None:
         self.cfg, self.body = cfg, body
-        self.iterations = iterations  # the tracker's Gauss-Newton iterations of a refit
         self.geometry = segment_geometry(body, body.lengths)  # the capsules, made once
         self.misplaced_failed_at: dict[str, int] = {}
         self.failed_at: dict[str, int] = {}
@@ -132,7 +134,7 @@ class ArmSearch:
         for suspect in self._suspects(frame, labels, track):
             searched += 1
             found = None
-            for r in self._refits(arm_candidates(track.q, suspect.side), refit, badness_of):
+            for r in refit(arm_candidates(track.q, suspect.side)):
                 b = badness_of(r.signals)
                 if b < badness and self._accepts(suspect, r.q):
                     found, badness = r, b
@@ -143,20 +145,6 @@ class ArmSearch:
             if suspect.conflicts is not None:
                 self.misplaced_failed_at[suspect.side] = frame.index
         return SearchResult(best, badness, searched)
-
-    def _refits(
-        self, starts: torch.Tensor, refit: Refit, badness_of: Callable[[FitSignals], float]
-    ) -> list[TrackResult]:
-        """The refits of the K ``starts`` (K, 34), screened by their badness when
-        ``cfg.screen_iterations`` is set (:func:`~runtime.tracker.screen.screened_refits`)."""
-        cfg = self.cfg
-        if cfg.screen_iterations is None:
-            return refit(starts, None)  # the tracker's own iterations
-        fits, _ = screened_refits(
-            starts, refit, self.iterations, cfg.screen_iterations, cfg.screen_keep,
-            lambda r: badness_of(r.signals),
-        )  # fmt: skip
-        return fits
 
     def _suspects(self, frame: Frame, labels: torch.Tensor, track: TrackResult):
         """The arms to search, in order (left, right), lazily: most suspect frames have none."""

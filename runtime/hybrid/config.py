@@ -183,19 +183,9 @@ class ArmSearchConfig:
         "after a search of an arm found no refit to take, that arm is not searched again for "
         "this many frames (0: every suspect frame is searched)",
     )
-    screen_iterations: int | None = field_doc(
-        None,
-        "refit every start for this many Gauss-Newton iterations first, then only the "
-        "``screen_keep`` least bad ones for the rest of the tracker's iterations (None: every "
-        "start for all of them)",
-    )
-    screen_keep: int = field_doc(2, "starts kept after the screen")
 
     def __post_init__(self) -> None:
         _check(not math.isnan(self.badness), "arm_search.badness must be a number", self.badness)
-        n = self.screen_iterations
-        _check(n is None or n >= 1, "arm_search.screen_iterations must be >= 1 or None", n)
-        _check(self.screen_keep >= 1, "arm_search.screen_keep must be >= 1", self.screen_keep)
         _check(self.cooldown_frames >= 0, "arm_search.cooldown_frames must be >= 0",
                self.cooldown_frames)  # fmt: skip
         _check(self.other_arm_margin_m >= 0, "arm_search.other_arm_margin_m must be >= 0",

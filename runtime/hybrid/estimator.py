@@ -110,9 +110,7 @@ class HybridEstimator:
         self.label_source, self.detector, self.tracker, self.cfg = labels, detector, tracker, cfg
         self.offsets = offsets
         self.arm_search = (
-            None
-            if cfg.arm_search is None
-            else ArmSearch(cfg.arm_search, tracker.body, tracker.cfg.iterations)
+            None if cfg.arm_search is None else ArmSearch(cfg.arm_search, tracker.body)
         )
         self.state = TrackState()
         self.scale_search = (
@@ -184,7 +182,7 @@ class HybridEstimator:
         labels = frame.labels(self.label_source)
         hint = self.state.q_prev  # one more IK start, used only if it fits the centroids best
         k = self.detector.cfg.refine_iterations
-        refine = None if k <= 0 else functools.partial(self._fit_starts, frame)
+        refine = None if k <= 0 else (lambda starts: self._fit_starts(frame, starts, k))
         return self.detector.detect(frame.depth_m, labels, frame.mask, q_hint=hint, refine=refine)
 
     # ---- estimates, each updating the track ----
@@ -233,7 +231,7 @@ class HybridEstimator:
         detector.generator.set_state(d.generator.get_state())
         self.detector = detector
         if self.arm_search is not None:
-            self.arm_search = ArmSearch(self.cfg.arm_search, body, self.tracker.cfg.iterations)
+            self.arm_search = ArmSearch(self.cfg.arm_search, body)
 
     def _unsupported(self, overlap: float) -> bool:
         """The fit explains too little of the silhouette to be the person's pose."""
@@ -289,7 +287,7 @@ class HybridEstimator:
                 frame.labels(self.label_source),
                 res,
                 badness,
-                lambda starts, iterations: self._fit_starts(frame, starts, iterations),
+                lambda starts: self._fit_starts(frame, starts),
                 cfg.failure.badness,
             )
             if found.best is not None:

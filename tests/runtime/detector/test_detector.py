@@ -71,7 +71,7 @@ def refiner() -> Tracker:
 def refine_with(tracker: Tracker, depth, mask, labels=None):
     """The refinement the estimators bind: the tracker on this frame's one observation."""
     obs = tracker.observe(depth, mask, labels)
-    return lambda starts, iterations: tracker.fit_starts(obs, starts, iterations)
+    return lambda starts: tracker.fit_starts(obs, starts)
 
 
 def detect_refined(depth, labels, mask, tracker: Tracker):
@@ -293,9 +293,9 @@ def test_refinement_gets_the_labels_for_the_label_term(use_labels):
     assert (obs.labels is not None) == use_labels
     seen = []
 
-    def refine(starts, iterations):
+    def refine(starts):
         seen.extend(starts)
-        return tracker.fit_starts(obs, starts, iterations)
+        return tracker.fit_starts(obs, starts)
 
     res = detect_pose(depth, labels, INTR, BODY, DetectorConfig(), mask=mask, refine=refine)
     assert len(seen) == 4  # the IK pose and its three limb swaps
