@@ -137,15 +137,14 @@ class BodyScaleSearch:
     default body scaled by each factor (a batch of S: one batched fit), so the cost is
     spread over the first tracked frames instead of stalling one.
 
-    A sample's overlaps are read at the next sampled frame, not at once: ``fit`` may return
-    a :class:`concurrent.futures.Future` of them, and the refits then run beside the track
-    (the hybrid runs them on a worker thread, off the frame's critical path) with a whole
-    sampling period to finish. The call that reads the ``cfg.samples``-th sample returns the
-    factor (also :attr:`scale`): the overlaps' peak (:attr:`peak`) times
-    ``cfg.correction``. Where the overlaps are computed does not change when they are read,
-    so a worker thread and an inline ``fit`` give the same sizes on the same frames. A
-    search runs once per estimator; :attr:`curves` keeps each sample's (S,) overlaps for
-    diagnostics.
+    ``fit`` may return a :class:`concurrent.futures.Future` of the overlaps: the refits then
+    run beside the track (the hybrid runs them on a worker thread, off the frame's critical
+    path), and a sample is read at the next sampled frame, a whole sampling period later.
+    The last sample is read at once: the call that takes the ``cfg.samples``-th frame returns
+    the factor (also :attr:`scale`), the overlaps' peak (:attr:`peak`) times
+    ``cfg.correction``. The result does not depend on where the overlaps are computed: the
+    same size on the same frame as with an inline ``fit``. A search runs once per
+    estimator; :attr:`curves` keeps each sample's (S,) overlaps for diagnostics.
     """
 
     def __init__(self, cfg: BodyScaleConfig, body: BodyShape) -> None:
@@ -180,15 +179,16 @@ class BodyScaleSearch:
             return None
         if self._pending is not None:
             self._read(self._pending)
-            self._pending = None
-            if len(self.curves) == self.cfg.samples:
-                self.peak = peak_of(self.factors, self._score / len(self.curves))
-                lo, hi = self.factors[0], self.factors[-1]
-                self.scale = float(np.clip(self.peak * self.cfg.correction, lo, hi))
-                return self.scale
         self._pending = fit(self.bodies, frame, q.detach())
         self.samples += 1
-        return None
+        if self.samples < self.cfg.samples:
+            return None
+        self._read(self._pending)  # the last sample: the size is wanted now
+        self._pending = None
+        self.peak = peak_of(self.factors, self._score / self.samples)
+        lo, hi = self.factors[0], self.factors[-1]
+        self.scale = float(np.clip(self.peak * self.cfg.correction, lo, hi))
+        return self.scale
 
     def _read(self, pending) -> None:
         """Add one sample's overlaps (an array, or a Future of one: waited for) to the

@@ -94,8 +94,8 @@ class HybridEstimator:
         cfg: the settings.
         offsets: where the output joints sit relative to the model's
             (``shared.joint_offsets``), or None: the model's own joints.
-        background: run the size search's refits on a worker thread (the same sizes, found
-            on the same frames, as inline; False: inline).
+        background: run the size search's refits on a worker thread (the same size, found
+            on the same frame, as inline; False: inline).
     """
 
     def __init__(
@@ -208,8 +208,9 @@ class HybridEstimator:
         observation (the observation does not depend on the body).
 
         With ``background`` a Future of them, computed on the worker thread: the search reads
-        a sample a sampling period later, so the refits (~45 ms, 9 sizes of 5 iterations)
-        run in the time the stream's reader leaves idle instead of stalling the frame."""
+        a sample a sampling period later (all but the last), so the refits (~45 ms, 9 sizes
+        of 5 iterations) run in the time the stream's reader leaves idle instead of stalling
+        the frame."""
         t = self.tracker
         if self._sizes is None:
             self._sizes = Tracker(bodies, t.intr, t.cfg, device=t.device, dtype=t.dtype)

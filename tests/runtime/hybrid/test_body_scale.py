@@ -56,19 +56,19 @@ def test_refits_every_kth_frame_at_all_sizes_then_stops():
 
     found = [search.offer(f"frame{i}", torch.full((34,), float(i)), fit) for i in range(10)]
     assert seen == ["frame0", "frame2", "frame4"]  # refitted as they come, no stall at the end
-    # Each sample is read at the next sampled frame: the third at frame 6.
-    assert found[:6] == [None] * 6 and found[7:] == [None] * 3
-    assert found[6] == pytest.approx(1.08, abs=1e-6) and search.scale == found[6]
+    assert found[:4] == [None] * 4 and found[5:] == [None] * 5
+    assert found[4] == pytest.approx(1.08, abs=1e-6) and search.scale == found[4]
     assert search.bodies.lengths.shape == (len(search.factors), 15)
     bad = BodyScaleSearch(BodyScaleConfig(every=1), body)
-    bad.offer("f", torch.zeros(34), lambda *a: [1.0])
+    bad.offer("f", torch.zeros(34), lambda *a: [1.0])  # read at the next sample
     with pytest.raises(ValueError, match="overlaps"):
         bad.offer("g", torch.zeros(34), lambda *a: [1.0])
 
 
-def test_samples_read_a_period_later_whether_computed_inline_or_on_a_thread():
+def test_samples_on_a_thread_give_the_inline_size_on_the_same_frame():
     """A Future of the overlaps gives the same size on the same frame as the overlaps
-    themselves, and its failure reaches the caller when the sample is read."""
+    themselves (each sample read at the next one taken, the last at once), and its failure
+    reaches the caller when the sample is read."""
     from concurrent.futures import ThreadPoolExecutor
 
     body = BodyShape.default()
@@ -86,7 +86,7 @@ def test_samples_read_a_period_later_whether_computed_inline_or_on_a_thread():
             threaded.offer(i, torch.zeros(34), lambda b, f, q: worker.submit(fit, b, f, q))
             for i in range(16)
         ]
-        assert found == found_inline and found[12] is not None  # samples 0, 3, 6, 9 read at 12
+        assert found == found_inline and found[9] is not None  # samples 0, 3, 6, 9: found at 9
         assert threaded.scale == pytest.approx(0.9 + 0.01 * 4.5, abs=0.01)
         np.testing.assert_array_equal(np.stack(threaded.curves), np.stack(inline.curves))
 
@@ -137,14 +137,12 @@ def test_a_folded_body_is_not_sampled_nor_counted():
 
     seated = _stick_figure((0, 0, -1), (0, 0, -1))
     standing = _stick_figure((0, 1, 0), (0, 1, 0))
-    poses = [seated] * 3 + [standing] * 3 + [seated, standing] + [seated, standing, standing]
+    poses = [seated] * 3 + [standing] * 3 + [seated, standing]
     found = [search.offer(i, torch.zeros(34), fit, j) for i, j in enumerate(poses)]
     assert seen == [3, 5]  # every 2nd unfolded frame
-    # The second sample is read at the next unfolded frame taken: frame 9.
-    assert found[9] == pytest.approx(1.0, abs=1e-6) and found[:9] == [None] * 9
-    free = BodyScaleSearch(BodyScaleConfig(samples=1, every=1, max_fold_deg=None), body)
-    assert free.offer(0, torch.zeros(34), fit, seated) is None
-    assert free.offer(1, torch.zeros(34), fit, seated) is not None  # the check switched off
+    assert found[5] == pytest.approx(1.0, abs=1e-6) and found[:5] == [None] * 5
+    free = BodyScaleSearch(BodyScaleConfig(samples=1, max_fold_deg=None), body)
+    assert free.offer(0, torch.zeros(34), fit, seated) is not None  # the check switched off
     with pytest.raises(ConfigError):
         BodyScaleConfig(max_fold_deg=0.0)
 
@@ -164,7 +162,7 @@ def test_the_search_finds_the_size_of_a_rendered_person(one_thread, true_scale):
     person = default.scaled(true_scale)
     truth = camera_motion("walk", 24, seed=0, body=person).float()
     depth = render_body(truth, person, INTR).depth
-    search = BodyScaleSearch(BodyScaleConfig(samples=5, every=4, correction=1.0), default)
+    search = BodyScaleSearch(BodyScaleConfig(samples=6, every=4, correction=1.0), default)
     trackers: dict = {}
 
     def fit(bodies, frame, q):  # as the hybrid does: one batched fit of all sizes
@@ -176,8 +174,7 @@ def test_the_search_finds_the_size_of_a_rendered_person(one_thread, true_scale):
         search.offer(Frame(i, i / 30, depth[i], depth[i] > 0, INTR), truth[i], fit)
         for i in range(len(truth))
     ]
-    # Five samples, frames 0, 4, ..., 16, each read at the next one taken: the fifth at 20.
-    assert found[20] == pytest.approx(true_scale, abs=0.03)
+    assert found[20] == pytest.approx(true_scale, abs=0.03)  # the 6th frame taken, every 4th
     assert [f for f in found if f is not None] == [found[20]]
 
 
@@ -219,9 +216,9 @@ def test_the_correction_multiplies_the_peak_and_the_curves_are_kept():
     def fit(bodies, frame, q):
         return -((bodies.stature().numpy() / stature - 0.96) ** 2)
 
-    found = [search.offer(i, torch.zeros(34), fit) for i in range(3)]
+    found = [search.offer(i, torch.zeros(34), fit) for i in range(2)]
     assert search.peak == pytest.approx(0.96, abs=1e-6)
-    assert found[2] == pytest.approx(0.96 * 1.05, abs=1e-6) and search.scale == found[2]
+    assert found[1] == pytest.approx(0.96 * 1.05, abs=1e-6) and search.scale == found[1]
     assert len(search.curves) == 2 and search.curves[0].shape == search.factors.shape
     with pytest.raises(ConfigError):
         BodyScaleConfig(correction=0.0)
@@ -230,12 +227,7 @@ def test_the_correction_multiplies_the_peak_and_the_curves_are_kept():
 def test_the_corrected_size_stays_within_the_grid():
     body = BodyShape.default()
     search = BodyScaleSearch(BodyScaleConfig(samples=1, every=1, correction=1.1), body)
-
-    def fit(bodies, f, q):
-        return bodies.stature().numpy()
-
-    assert search.offer(0, torch.zeros(34), fit) is None
-    found = search.offer(1, torch.zeros(34), fit)
+    found = search.offer(0, torch.zeros(34), lambda bodies, f, q: bodies.stature().numpy())
     assert search.peak == pytest.approx(1.16) and found == pytest.approx(1.16)
 
 
@@ -270,6 +262,6 @@ def test_the_hybrid_sizes_on_its_worker_thread_as_inline(one_thread):
         runs.append((poses, scales))
     (poses_bg, scales_bg), (poses_in, scales_in) = runs
     assert scales_bg == scales_in and scales_bg[-1] is not None
-    assert scales_bg.index(scales_bg[-1]) == 5  # frame 0 detected; samples 1, 3, read at 5
+    assert scales_bg.index(scales_bg[-1]) == 3  # frame 0 detected; samples at 1 and 3
     for a, b in zip(poses_bg, poses_in, strict=True):
         np.testing.assert_array_equal(a, b)
