@@ -23,7 +23,6 @@ fifteenth session).
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable
 from concurrent.futures import Future
@@ -58,13 +57,6 @@ class BodyScaleConfig:
         "normalized, sit to stand 102.8 -> 86.9) but delays the search where a motion starts "
         "crouched (broad protocol 52.7 -> 54.1 mm, deposit on the floor 59.7 -> 63.9)",
     )
-    resize_unfolded_deg: float | None = field_doc(
-        None,
-        "when some of the samples were folded more than this (:func:`fold_angle_deg`), keep "
-        "sampling after the size is found, now only frames folded at most this much, and "
-        "take the size of those once there are ``samples`` of them (a start seated or "
-        "crouched is sized again once the person stands). None: one search",
-    )
     correction: float = field_doc(
         1.0,
         "factor applied to the size found, kept within min_scale..max_scale (1: none). "
@@ -83,7 +75,6 @@ class BodyScaleConfig:
             and 0 < self.step <= self.max_scale - self.min_scale
             and 0.5 < self.correction < 2.0
             and (self.max_fold_deg is None or 0.0 < self.max_fold_deg <= 180.0)
-            and (self.resize_unfolded_deg is None or 0.0 < self.resize_unfolded_deg <= 180.0)
         )
         if not ok:
             raise ConfigError(
@@ -167,13 +158,6 @@ class BodyScaleSearch:
         self.scale: float | None = None  # the result, once found
         self.peak: float | None = None  # the overlaps' peak, before the correction
         self.curves: list[np.ndarray] = []
-        self._folded = 0  # samples folded more than cfg.resize_unfolded_deg
-        self._again: BodyScaleSearch | None = None  # the search over unfolded frames
-
-    @property
-    def searching(self) -> bool:
-        """Whether later frames may still change :attr:`scale`."""
-        return self.scale is None or self._again is not None
 
     def offer(
         self,
@@ -185,7 +169,7 @@ class BodyScaleSearch:
         """A tracked frame, its pose (34,) and its named joints (J, 3) (None: not checked
         for a fold); returns the factor on the call that finds it, None otherwise."""
         if self.scale is not None:
-            return None if self._again is None else self._offer_again(frame, q, fit, joints)
+            return None
         limit = self.cfg.max_fold_deg
         if limit is not None and joints is not None and not fold_angle_deg(joints) <= limit:
             return None  # folded (or degenerate): not counted towards ``every`` either
@@ -197,9 +181,6 @@ class BodyScaleSearch:
             self._read(self._pending)
         self._pending = fit(self.bodies, frame, q.detach())
         self.samples += 1
-        again = self.cfg.resize_unfolded_deg
-        if again is not None and joints is not None and not fold_angle_deg(joints) <= again:
-            self._folded += 1
         if self.samples < self.cfg.samples:
             return None
         self._read(self._pending)  # the last sample: the size is wanted now
@@ -207,22 +188,7 @@ class BodyScaleSearch:
         self.peak = peak_of(self.factors, self._score / self.samples)
         lo, hi = self.factors[0], self.factors[-1]
         self.scale = float(np.clip(self.peak * self.cfg.correction, lo, hi))
-        if self._folded:
-            cfg = dataclasses.replace(self.cfg, max_fold_deg=again, resize_unfolded_deg=None)
-            self._again = BodyScaleSearch(cfg, self.body)
         return self.scale
-
-    def _offer_again(self, frame, q, fit, joints) -> float | None:
-        """:meth:`offer` to the search over unfolded frames; its size replaces this one's."""
-        again = self._again
-        before = again.samples
-        found = again.offer(frame, q, fit, joints)
-        self.samples += again.samples - before
-        if found is None:
-            return None
-        self.curves += again.curves
-        self.peak, self.scale, self._again = again.peak, found, None
-        return found
 
     def _read(self, pending) -> None:
         """Add one sample's overlaps (an array, or a Future of one: waited for) to the

@@ -196,8 +196,8 @@ class HybridEstimator:
         if self.scale_search is not None:
             scale = self.scale_search.offer(frame, q, self._size_overlaps, estimate.joints)
             if scale is not None:
-                self._use_body(self.scale_search.body.scaled(scale))
-                if self._worker is not None and not self.scale_search.searching:
+                self._use_body(self.body.scaled(scale))
+                if self._worker is not None:
                     self._worker.shutdown(wait=False)  # the search is over
                     self._worker = None
         return estimate

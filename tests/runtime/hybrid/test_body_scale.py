@@ -147,36 +147,6 @@ def test_a_folded_body_is_not_sampled_nor_counted():
         BodyScaleConfig(max_fold_deg=0.0)
 
 
-def test_a_folded_start_is_sized_again_from_unfolded_frames():
-    """With resize_unfolded_deg, a search whose samples included folded frames goes on over
-    unfolded frames only, and their size replaces the first; without a folded sample, one
-    search."""
-    body = BodyShape.default()
-    stature = float(body.stature())
-    seated = _stick_figure((0, 0, -1), (0, 0, -1))
-    standing = _stick_figure((0, 1, 0), (0, 1, 0))
-
-    def fit(bodies, frame, q):  # folded frames look 8% taller than the unfolded ones
-        peak = 1.08 if frame < 4 else 1.0
-        return -((bodies.stature().numpy() / stature - peak) ** 2)
-
-    cfg = BodyScaleConfig(samples=2, every=2, correction=1.0, resize_unfolded_deg=60.0)
-    search = BodyScaleSearch(cfg, body)
-    poses = [seated] * 4 + [seated, standing, standing, standing, standing, standing]
-    found = [search.offer(i, torch.zeros(34), fit, j) for i, j in enumerate(poses)]
-    # Samples at frames 0 and 2 (folded) give 1.08 at frame 2; the unfolded frames 5 and 7
-    # (frame 4 is folded: not counted) give 1.0 at frame 7, and the search ends.
-    assert found[2] == pytest.approx(1.08, abs=1e-6) and found[7] == pytest.approx(1.0, abs=1e-6)
-    assert [f for f in found if f is not None] == [found[2], found[7]]
-    assert search.scale == found[7] and not search.searching and search.samples == 4
-    assert len(search.curves) == 4
-    upright = BodyScaleSearch(cfg, body)
-    found = [upright.offer(i, torch.zeros(34), fit, standing) for i in range(8)]
-    assert [f for f in found if f is not None] == [found[2]] and not upright.searching
-    with pytest.raises(ConfigError):
-        BodyScaleConfig(resize_unfolded_deg=0.0)
-
-
 def test_on_in_the_shipped_system_and_off_by_config():
     assert HybridConfig().body_scale == BodyScaleConfig()
     assert hybrid_config({"body_scale": {}}).body_scale == BodyScaleConfig()
