@@ -235,30 +235,34 @@ def test_the_corrected_size_stays_within_the_grid():
 def test_the_hybrid_sizes_on_its_worker_thread_as_inline(one_thread):
     """The shipped hybrid's size refits on its worker thread give the inline run's size on
     the same frame and the same poses (the demo, a short search)."""
-    from depthmocap.runtime.api import Tracker as Api
+    from depthmocap.runtime.estimator import estimate_frame, make_estimator, prepare_frame
+    from depthmocap.runtime.estimator_setup import load_body
+    from depthmocap.runtime.forest.inference import DEFAULT_MODEL
+    from depthmocap.runtime.hybrid import HybridEstimator
+    from depthmocap.runtime.segmentation import PersonSegmenter, SegmentationConfig
     from depthmocap.runtime.streams import open_stream
 
     config = {"body_scale": {"samples": 2, "every": 2, "min_scale": 0.9, "max_scale": 1.1,
                              "step": 0.1}}  # fmt: skip
     runs = []
     for background in (True, False):
-        api = Api(config=config)
+        segment = PersonSegmenter(SegmentationConfig())
         poses, scales = [], []
         with open_stream("demo") as stream:
+            shipped = make_estimator(
+                "hybrid", DEFAULT_MODEL, load_body(None), stream.intrinsics, "cpu", config
+            )
+            est = HybridEstimator(
+                shipped.label_source, shipped.detector, shipped.tracker, shipped.cfg,
+                shipped.offsets, background=background,
+            )  # fmt: skip
+            assert (est._worker is not None) == background
             for k, frame in enumerate(stream):
                 if k == 8:
                     break
-                if k == 0 and not background:
-                    api.track(frame)  # made the estimator: run its size refits inline
-                    api.reset()
-                    api._estimator._worker.shutdown()
-                    api._estimator._worker = None
-                    api._estimator.scale_search = BodyScaleSearch(
-                        api._estimator.cfg.body_scale, api._estimator.body
-                    )
-                estimate = api.track(frame)
+                estimate = estimate_frame(est, prepare_frame(est, frame, segment))
                 poses.append(estimate.q)
-                scales.append(api._estimator.body_scale)
+                scales.append(est.body_scale)
         runs.append((poses, scales))
     (poses_bg, scales_bg), (poses_in, scales_in) = runs
     assert scales_bg == scales_in and scales_bg[-1] is not None
