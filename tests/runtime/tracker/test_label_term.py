@@ -195,3 +195,41 @@ def test_the_compiled_term_gives_the_torch_rows_bit_for_bit(assert_same_rows, mo
             want = label_rows(kin, geom, obs, cfg)
         assert len(want) > 30 and bool((want.weight == 0).any() and (want.weight > 0).any())
         assert_same_rows(got, want, cap)
+
+
+def test_mirror_segments_pair_the_sides():
+    limbs = torch.arange(sk.FIRST_LIMB_SEGMENT, sk.NUM_SEGMENTS)
+    names = [sk.SEGMENT_NAMES[k] for k in label_term.mirror_segments(limbs).tolist()]
+    swap = {"l": "r", "r": "l"}
+    assert names == [swap[sk.SEGMENT_NAMES[k][0]] + sk.SEGMENT_NAMES[k][1:] for k in limbs]
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_pixels_on_the_other_sides_limb_do_not_pull(dtype, monkeypatch):
+    """A pixel the labels give to one side's limb but that lies on the model's other-side
+    limb (the forest's left/right swaps) pulls nothing; with the margin off it pulls (float32
+    runs the compiled term where numba is installed, float64 the torch code)."""
+    body = BodyShape.default(dtype)
+    q = _pose(dtype)
+    q[0, D["r_humerus_abd"]] = math.radians(50)  # both arms out: their pixels apart
+    geom, kin = segment_geometry(body, q), forward_kinematics(q, body)
+    obs = _labelled_observation(q, body)
+    left = sk.SEGMENT_NAMES.index("l_forearm")
+    right = sk.SEGMENT_NAMES.index("r_forearm")
+    swapped = obs.labels.clone()
+    swapped[obs.labels == left] = right  # the left forearm's pixels called right
+    obs.labels = swapped
+    monkeypatch.setattr(label_term, "MAX_LABEL_PIXELS", 100000)
+    monkeypatch.setattr(label_term, "LABEL_GATE_M", 5.0)  # the gate must not decide here
+    rows = label_rows(kin, geom, obs, TrackerConfig())
+    on_right = rows.segment == right
+    points = rows.points + rows.residual[:, None] * rows.direction
+    on_left_arm = points[:, 0] > kin.origins[0, 0, 0]  # the person's left is camera +x
+    mislabelled, correct = on_right & on_left_arm, on_right & ~on_left_arm
+    assert int(mislabelled.sum()) > 10 and int(correct.sum()) > 10
+    assert bool((rows.weight[mislabelled] == 0).all())
+    assert bool((rows.weight[correct] > 0).all())
+    assert bool((rows.weight[~on_right] > 0).all())
+    monkeypatch.setattr(label_term, "LABEL_MIRROR_MARGIN_M", 0.0)
+    off = label_rows(kin, geom, obs, TrackerConfig())
+    assert bool((off.weight > 0).all())
