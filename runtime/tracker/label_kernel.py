@@ -59,8 +59,7 @@ def capsule_offset(x, rot, origin, basis, span, scale, b, p, consts):  # pragma:
 def _label_rows(
     use, labels, obs_points, rot, origin, basis, span, scale, max_pixels, consts, sigma
 ):  # pragma: no cover - compiled
-    """The rows of ``label_rows``; ``consts``: (gate, mirror margin, -, 1, 1e-9, 1e-12) in
-    float32."""
+    """The rows of ``label_rows``; ``consts``: (gate, -, -, 1, 1e-9, 1e-12) in float32."""
     idx, _, ratio = sampled(use, max_pixels)
     n = idx.shape[0]
     dt = obs_points.dtype
@@ -81,20 +80,11 @@ def _label_rows(
         for r in range(3):
             surface[i, r] = obs_points[b, v, u, r] - signed * direction[i, r]
         signed_out[i] = signed
-        keep = abs(signed) < consts[0]
-        if keep and consts[1] > zero:
-            other = s + 1 if s % 2 == 1 else s - 1
-            mirrored = capsule_offset(
-                obs_points[b, v, u], rot, origin, basis, span, scale, b, other, consts
-            )[0]
-            keep = not (abs(mirrored) < consts[1] and abs(mirrored) < abs(signed))
-        weight[i] = scale_w[i] if keep else zero
+        weight[i] = scale_w[i] if abs(signed) < consts[0] else zero
     return idx[:, 0].copy(), surface, segment, direction, signed_out, weight
 
 
-def label_rows_cpu(
-    kin, geom, obs, use, max_pixels: int, gate: float, sigma: float, mirror_margin: float = 0.0
-):
+def label_rows_cpu(kin, geom, obs, use, max_pixels: int, gate: float, sigma: float):
     """The same rows as ``label_rows`` for CPU float32 tensors without autograd, ``use`` the
     labelled limb pixels: batch, surface points, segment, direction, signed distance,
     weight."""
@@ -106,6 +96,6 @@ def label_rows_cpu(
         origin.contiguous().numpy(), geom.basis.contiguous().numpy(),
         geom.span.expand(B, -1, -1).contiguous().numpy(),
         geom.scale.expand(B, -1, -1).contiguous().numpy(), int(max_pixels),
-        np.array([gate, mirror_margin, 0.0, 1.0, 1e-9, 1e-12], points.dtype), float(sigma),
+        np.array([gate, 0.0, 0.0, 1.0, 1e-9, 1e-12], points.dtype), float(sigma),
     )  # fmt: skip
     return tuple(torch.from_numpy(x) for x in out)

@@ -26,23 +26,11 @@ from .gauss_newton import Rows
 from .observation import Observation
 from .regions import sample_pixels
 
-__all__ = [
-    "LABEL_GATE_M",
-    "LABEL_MIRROR_MARGIN_M",
-    "MAX_LABEL_PIXELS",
-    "capsule_offsets",
-    "label_rows",
-    "mirror_segments",
-]
+__all__ = ["LABEL_GATE_M", "MAX_LABEL_PIXELS", "capsule_offsets", "label_rows"]
 
 # Labelled pixels farther than this from their limb's surface are ignored (m): a left/right
 # swap of the forest must not drag a limb across the body.
 LABEL_GATE_M = 0.15
-# A labelled pixel this near the surface of the other side's same limb segment, and nearer to
-# it than to its own, is ignored (m; 0: off): the model already explains it with that limb.
-# The forest gives about a fifth of forearm and shank pixels the other side's label; in a
-# profile those pixels pulled the hidden far limb onto the near one, where it stayed.
-LABEL_MIRROR_MARGIN_M = 0.03
 # At most this many labelled limb pixels per frame (a fixed-lattice subsample), for speed;
 # each kept pixel is weighed for the ones it stands for, so the cap does not shift the
 # balance between the terms.
@@ -78,12 +66,6 @@ def capsule_offsets(
     return signed, direction
 
 
-def mirror_segments(segment: torch.Tensor) -> torch.Tensor:
-    """The other side's same segment of each limb segment (l_upper_arm <-> r_upper_arm, ...;
-    left segments have odd indices, ``shared.skeleton.SEGMENT_NAMES``)."""
-    return torch.where(segment % 2 == 1, segment + 1, segment - 1)
-
-
 def label_rows(
     kin: Kinematics, geom: SegmentGeometry, obs: Observation, cfg: TrackerConfig
 ) -> Rows:
@@ -95,10 +77,9 @@ def label_rows(
     if obs.labels is not None and kernel is not None:  # one compiled call, the same rows
         return Rows(
             *kernel.label_rows_cpu(
-                kin, geom, obs, use, MAX_LABEL_PIXELS, LABEL_GATE_M, cfg.sigma_label_m,
-                LABEL_MIRROR_MARGIN_M,
+                kin, geom, obs, use, MAX_LABEL_PIXELS, LABEL_GATE_M, cfg.sigma_label_m
             )
-        )  # fmt: skip
+        )
     idx, _, ratio = sample_pixels(use, MAX_LABEL_PIXELS)
     b, v, u = idx.unbind(1)
     points, segment = obs.points[b, v, u], labels[b, v, u]
@@ -109,15 +90,6 @@ def label_rows(
         points, rot[b, segment], origin[b, segment], geom.basis[segment], span, scale
     )
     surface = points - signed[:, None] * direction
-    keep = signed.abs() < LABEL_GATE_M
-    if LABEL_MIRROR_MARGIN_M > 0:
-        other = mirror_segments(segment)
-        span_o = geom.span.expand(kin.origins.shape[0], -1, -1)[b, other]
-        scale_o = geom.scale.expand(kin.origins.shape[0], -1, -1)[b, other]
-        mirrored, _ = capsule_offsets(
-            points, rot[b, other], origin[b, other], geom.basis[other], span_o, scale_o
-        )
-        keep = keep & ~((mirrored.abs() < LABEL_MIRROR_MARGIN_M) & (mirrored.abs() < signed.abs()))
-    keep = keep.to(points.dtype)
+    keep = (signed.abs() < LABEL_GATE_M).to(points.dtype)
     weight = keep * (ratio**0.5 / cfg.sigma_label_m).to(points.dtype)
     return Rows(b, surface, segment, direction, signed, weight)
