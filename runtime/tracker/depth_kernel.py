@@ -18,7 +18,6 @@ from __future__ import annotations
 import numba
 import numpy as np
 import torch
-from depthmocap.shared import skeleton as sk
 
 from .extra_kernel import norm3_float32
 from .sampling_kernel import points_at, sampled
@@ -27,25 +26,11 @@ __all__ = ["depth_rows_cpu"]
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
-def _limb_near(labels, r, b, v, u, first_limb):  # pragma: no cover - compiled
-    """Whether a pixel of the (2 r + 1)^2 square around (v, u) is labelled as a limb."""
-    h, w = labels.shape[1], labels.shape[2]
-    for vv in range(max(v - r, 0), min(v + r + 1, h)):
-        for uu in range(max(u - r, 0), min(u + r + 1, w)):
-            if labels[b, vv, uu] >= first_limb:
-                return True
-    return False
-
-
-@numba.njit(cache=True, nogil=True, boundscheck=False)
 def _depth_rows(
     good, depth, segment, primitive, rot, origin, basis, span, scale, depth_diff, centre,
-    focal, max_pixels, consts, sigma, labels, hides, first_limb, clear,
+    focal, max_pixels, consts, sigma,
 ):  # pragma: no cover - compiled  # fmt: skip
-    """The rows of ``depth_rows``; ``consts``: (min cosine, 1e-9, 1e-12, 0, hidden-by-label
-    push) in float32; ``labels`` (B, H, W) the observed segments ((0, 0, 0) when none), and
-    ``hides`` (S + 1,) bool by label + 1: the labels that push a limb behind, where no limb
-    label lies within ``clear`` pixels."""
+    """The rows of ``depth_rows``; ``consts``: (min cosine, 1e-9, 1e-12, 0) in float32."""
     idx, _, ratio = sampled(good, max_pixels)
     points, seg = points_at(depth, segment, idx, centre, focal)
     n = idx.shape[0]
@@ -90,18 +75,11 @@ def _depth_rows(
         weight[i] = scale_w[i] if abs(cosine) >= consts[0] else consts[3]
         for r in range(3):
             direction[i, r] = -nrm[r] / ray_len
-        diff = depth_diff[b, v, u]
-        if consts[4] > consts[3] and labels.shape[0] > 0 and seg[i] >= first_limb:
-            if hides[labels[b, v, u] + 1] and not _limb_near(labels, clear, b, v, u, first_limb):
-                diff = diff + consts[4]
-        residual[i] = diff * abs(cosine)
+        residual[i] = depth_diff[b, v, u] * abs(cosine)
     return idx[:, 0].copy(), points, seg.astype(np.int64), direction, residual, weight
 
 
-def depth_rows_cpu(
-    render, obs, regions, max_pixels: int, min_cosine: float, sigma: float,
-    hidden_push: float = 0.0, hiding_labels: tuple[int, ...] = (), clear_px: int = 0,
-):  # fmt: skip
+def depth_rows_cpu(render, obs, regions, max_pixels: int, min_cosine: float, sigma: float):
     """The same rows as ``depth_rows`` for CPU float32 tensors without autograd (the
     rendering cast without normals): batch, points, segment, direction, residual, weight."""
     depth = render.depth.numpy()
@@ -109,19 +87,12 @@ def depth_rows_cpu(
     B = render.rot.shape[0]
     geom = render.geom
     intr = obs.intr
-    if obs.labels is None or hidden_push <= 0:
-        labels = np.zeros((0, 0, 0), np.int64)
-    else:
-        labels = np.ascontiguousarray(obs.labels.numpy(), dtype=np.int64)
-    hides = np.zeros(sk.NUM_SEGMENTS + 1, np.bool_)
-    hides[np.asarray(hiding_labels, np.int64) + 1] = True
     out = _depth_rows(
         regions.good.numpy(), depth, render.segment.numpy(), render.primitive.numpy(),
         render.rot.contiguous().numpy(), render.origin.contiguous().numpy(),
         geom.basis.contiguous().numpy(), geom.span.expand(B, -1, -1).contiguous().numpy(),
         geom.scale.expand(B, -1, -1).contiguous().numpy(), regions.depth_diff.numpy(),
         np.array([intr.cx, intr.cy], dt), np.array([intr.fx, intr.fy], dt), int(max_pixels),
-        np.array([min_cosine, 1e-9, 1e-12, 0.0, hidden_push], dt), float(sigma), labels, hides,
-        sk.FIRST_LIMB_SEGMENT, int(clear_px),
+        np.array([min_cosine, 1e-9, 1e-12, 0.0], dt), float(sigma),
     )  # fmt: skip
     return tuple(torch.from_numpy(x) for x in out)
