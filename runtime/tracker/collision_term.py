@@ -96,7 +96,7 @@ def collision_rows(kin: Kinematics, geom: SegmentGeometry) -> tuple[Rows, torch.
                 points, seg, torso, torch.as_tensor(HAND_SAMPLES), rot, origin, geom,
                 (COLLISION_TOLERANCE_M, COLLISION_HAND_TOLERANCE_M, SIGMA_COLLISION_M),
             )  # fmt: skip
-        return _with_limbs(kin, geom, Rows(*rows), columns)
+        return Rows(*rows), columns
     T = torso.shape[0]
     # Every (pose, point, torso capsule) triple, flattened: b and p index pose and capsule.
     b = torch.arange(B, device=points.device)[:, None, None].expand(B, M, T).reshape(-1)
@@ -131,18 +131,4 @@ def collision_rows(kin: Kinematics, geom: SegmentGeometry) -> tuple[Rows, torch.
         excess.reshape(-1),
         weight.reshape(-1),
     )
-    return _with_limbs(kin, geom, rows, columns)
-
-
-# Keep the limbs out of each other too (runtime.tracker.limb_collision_term).
-LIMB_COLLISION = True
-
-
-def _with_limbs(kin, geom, rows: Rows, columns: torch.Tensor) -> tuple[Rows, torch.Tensor]:
-    if not LIMB_COLLISION:
-        return rows, columns
-    from .gauss_newton import cat_rows
-    from .limb_collision_term import limb_collision_rows
-
-    limb_rows, limb_columns = limb_collision_rows(kin, geom)
-    return cat_rows([rows, limb_rows]), torch.cat([columns, limb_columns])
+    return rows, columns
