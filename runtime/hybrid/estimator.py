@@ -35,7 +35,6 @@ from depthmocap.runtime.frame import Frame, LabelSource
 from depthmocap.runtime.tracker.tracker import Tracker, TrackResult
 from depthmocap.shared.joint_offsets import JointOffsets, apply_offsets
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
-from depthmocap.shared.skeleton import DOF_NAMES, JOINT_NAMES
 from depthmocap.shared.so3 import rotvec_to_matrix
 
 from .arm_search import ArmSearch
@@ -68,38 +67,6 @@ class TrackState:
     passed: int = 0
     turned_round: int = 0
     refused_at: int | None = None
-    held: torch.Tensor | None = None  # (34,) bool: DoFs of limbs the last pose inferred
-
-
-# A limb whose joints beyond its root joint the last pose only inferred (elbow and wrist;
-# knee and ankle) keeps its angles: its velocity is not carried on (runtime.tracker's prior
-# predicts them at the last pose). Experiment.
-HOLD_INFERRED_LIMBS = True
-_J = {n: i for i, n in enumerate(JOINT_NAMES)}
-_D = {n: i for i, n in enumerate(DOF_NAMES)}
-# (joints that must all be inferred, DoFs held)
-_HELD = (
-    (("l_elbow", "l_wrist"), ("l_humerus_abd", "l_humerus_flex", "l_humerus_twist", "l_radius_flex")),
-    (("r_elbow", "r_wrist"), ("r_humerus_abd", "r_humerus_flex", "r_humerus_twist", "r_radius_flex")),
-    (("l_wrist",), ("l_radius_flex",)),
-    (("r_wrist",), ("r_radius_flex",)),
-    (("l_knee", "l_ankle"), ("l_femur_flex", "l_femur_abd", "l_femur_twist", "l_tibia_flex")),
-    (("r_knee", "r_ankle"), ("r_femur_flex", "r_femur_abd", "r_femur_twist", "r_tibia_flex")),
-    (("l_ankle",), ("l_tibia_flex",)),
-    (("r_ankle",), ("r_tibia_flex",)),
-)  # fmt: skip
-
-
-def held_dofs(observed: np.ndarray | None) -> torch.Tensor | None:
-    """(34,) bool: the DoFs of the limbs whose joints (_HELD) ``observed`` (16,) flags all
-    say inferred; None without flags."""
-    if observed is None:
-        return None
-    held = torch.zeros(len(DOF_NAMES), dtype=torch.bool)
-    for joints, dofs in _HELD:
-        if not any(bool(observed[_J[j]]) for j in joints):
-            held[[_D[d] for d in dofs]] = True
-    return held
 
 
 def _lower_priority() -> None:
@@ -226,7 +193,6 @@ class HybridEstimator:
         estimate = PoseEstimate(
             q.cpu().double().numpy(), self._joints(q), "tracked", errors, observed=observed_of(res)
         )
-        self.state.held = held_dofs(estimate.observed) if HOLD_INFERRED_LIMBS else None
         if self.scale_search is not None:
             scale = self.scale_search.offer(frame, q, self._size_overlaps, estimate.joints)
             if scale is not None:
@@ -298,7 +264,6 @@ class HybridEstimator:
                 return self._lose({**errors, "unsupported": 1.0})
         q = det.q.detach()
         self.state.q_prev, self.state.q_prev2 = q, None
-        self.state.held = None
         return PoseEstimate(
             q.cpu().double().numpy(),
             self._joints(q),
@@ -313,10 +278,7 @@ class HybridEstimator:
         state, cfg = self.state, self.cfg
         if state.q_prev is None:
             return self._detected(self._run_detector(frame), {})
-        before = state.q_prev2
-        if before is not None and state.held is not None:
-            before = torch.where(state.held.to(before.device), state.q_prev, before)
-        res = self._fit(frame, state.q_prev, before)
+        res = self._fit(frame, state.q_prev, state.q_prev2)
         errors = res.signals.as_errors()
         state.passed += 1
         badness = cfg.failure.badness(res.signals)
