@@ -15,9 +15,9 @@ joint lies relative to what the camera sees says which mechanism could fix it:
 A true joint ``hidden`` whose estimate is ``on_surface`` is a limb the camera does not see laid
 onto parts it does see; a true joint ``outside`` whose estimate is ``on_surface``, a limb out
 of view folded back into it. :func:`gross_error_table` pools recordings by (estimate, truth)
-place. The tests are those of :mod:`~train.evaluation.depth_refutation` (the same slack and
-free-space margin) with the person's pixels taken from the recording's part labels when it
-has them (rendered recordings show the floor and clutter too), else from its depth.
+place. The placing is :func:`~train.evaluation.depth_refutation.joint_places` (the tests that
+refute a tracker's joint, plus the hidden one) on the person's pixels: the recording's part
+labels when it has them (rendered recordings show the floor and clutter too), else its depth.
 
     python -m depthmocap.train.evaluation.error_sources OUT [OUT ...] [--threshold 0.2]
 
@@ -32,64 +32,34 @@ from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
-from depthmocap.shared.camera import Intrinsics
 from depthmocap.shared.recording import Recording
 
-from .depth_refutation import FREE_SPACE_M, SLACK_PX
-from .overlay_sheet import project
+from .depth_refutation import (
+    HIDDEN,
+    HIDDEN_M,
+    IN_FRONT,
+    OFF_BODY,
+    ON_SURFACE,
+    OUTSIDE,
+    PLACES,
+    joint_places,
+)
 from .result_io import load_result
 from .truth import recording_truth
 
 __all__ = [
+    "HIDDEN",
     "HIDDEN_M",
+    "IN_FRONT",
+    "OFF_BODY",
+    "ON_SURFACE",
+    "OUTSIDE",
     "PLACES",
     "gross_error_table",
     "joint_places",
     "person_depth",
     "recording_places",
 ]
-
-PLACES = ("outside", "off_body", "in_front", "on_surface", "hidden")
-OUTSIDE, OFF_BODY, IN_FRONT, ON_SURFACE, HIDDEN = range(len(PLACES))
-# A joint more than this behind the nearest surface seen around its pixel is hidden (m): more
-# than a limb's thickness, so a joint inside a limb the camera sees is not.
-HIDDEN_M = 0.15
-
-
-def joint_places(
-    depth_m: np.ndarray,
-    joints: np.ndarray,
-    intr: Intrinsics,
-    slack_px: int = SLACK_PX,
-    free_space_m: float = FREE_SPACE_M,
-    hidden_m: float = HIDDEN_M,
-) -> np.ndarray:
-    """The :data:`PLACES` index of each of one frame's camera-frame ``joints`` (J, 3): (J,).
-
-    ``depth_m``: (H, W) metres of the person only (0 elsewhere). The nearest surface is the
-    smallest person depth within ``slack_px`` of the joint's pixel; ``in_front`` needs the
-    joint's own pixel to have a reading (a hole proves nothing: it is ``on_surface``).
-    """
-    joints = np.asarray(joints, dtype=np.float64)
-    h, w = depth_m.shape
-    places = np.full(len(joints), OUTSIDE, dtype=np.int64)
-    uv = project(joints, intr)
-    near = np.pad(np.where(depth_m > 0, depth_m, np.inf), slack_px, constant_values=np.inf)
-    for j in np.flatnonzero(np.isfinite(uv).all(1)):
-        u, v = (int(round(c)) for c in uv[j])
-        if not (0 <= u < w and 0 <= v < h):
-            continue
-        nearest = near[v : v + 2 * slack_px + 1, u : u + 2 * slack_px + 1].min()
-        z = joints[j, 2]
-        if not np.isfinite(nearest):
-            places[j] = OFF_BODY
-        elif depth_m[v, u] > 0 and z < nearest - free_space_m:
-            places[j] = IN_FRONT
-        elif z > nearest + hidden_m:
-            places[j] = HIDDEN
-        else:
-            places[j] = ON_SURFACE
-    return places
 
 
 def person_depth(rec: Recording, i: int) -> np.ndarray:
