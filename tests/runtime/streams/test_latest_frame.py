@@ -59,7 +59,7 @@ def test_a_slow_consumer_gets_the_newest_frames_and_the_last():
 
 
 def test_a_fast_consumer_skips_nothing_when_paced():
-    stream = CountingStream(12, fps=200.0)
+    stream = CountingStream(12, fps=50.0)
     reader = LatestFrameReader(stream, pace=True)
     got = [(f.index, f.time, arrival) for f, arrival in reader]
     assert [i for i, _, _ in got] == list(range(12)) and reader.skipped == 0
@@ -102,7 +102,7 @@ def test_frames_are_prepared_on_the_reader_thread():
         time.sleep(0.002)  # the mask and the forest take a while
         return ("prepared", frame.index)
 
-    reader = LatestFrameReader(CountingStream(8, fps=200.0), pace=True, prepare=prepare)
+    reader = LatestFrameReader(CountingStream(8, fps=50.0), pace=True, prepare=prepare)
     got = [(item, arrival) for item, arrival in reader]
     assert [item for item, _ in got] == [("prepared", i) for i in range(8)]
     assert set(prepared_on) == {"depth-reader"} and len(prepared_on) == 8
