@@ -249,6 +249,13 @@ class HybridConfig:
         "a synthetic recording whose ground-truth part labels stand in for the forest's "
         "(a diagnostic of what the forest's errors cost; the forest is then not loaded)",
     )
+    hold_unseen_limbs: bool = field_doc(
+        False,
+        "a limb whose elbow and wrist (knee and ankle) the last tracked pose inferred keeps "
+        "its angles: the prior predicts them at the last pose, not at their last velocity "
+        "(runtime.hybrid.unseen_limbs). Tuning set, trust regions 0.18 / 0.2 / 0.22 rad: see "
+        "docs/experiments.md, eighteenth session; off until measured on the broad protocol",
+    )
     detector: DetectorConfig = field_doc(help="detector settings", default_factory=DetectorConfig)
     tracker: TrackerConfig = field_doc(
         help="tracker settings (shipped: the label and collision terms on)",

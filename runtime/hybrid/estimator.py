@@ -41,6 +41,7 @@ from .arm_search import ArmSearch
 from .body_scale import BodyScaleSearch
 from .config import HybridConfig
 from .policy import Detection, choose, judge_track
+from .unseen_limbs import held_dofs, hold_unseen
 
 __all__ = ["HybridEstimator", "TrackState", "overlaps_of", "root_turn"]
 
@@ -60,6 +61,8 @@ class TrackState:
         passed: frames tracked since the detector last ran.
         turned_round: failed frames in a row whose detection turned the person round.
         refused_at: the frame whose detection was last refused (None: none since the reset).
+        held: (34,) bool angles of the limbs the last tracked pose did not see
+            (``cfg.hold_unseen_limbs``; None: none held).
     """
 
     q_prev: torch.Tensor | None = None
@@ -67,6 +70,7 @@ class TrackState:
     passed: int = 0
     turned_round: int = 0
     refused_at: int | None = None
+    held: torch.Tensor | None = None
 
 
 def _lower_priority() -> None:
@@ -193,6 +197,8 @@ class HybridEstimator:
         estimate = PoseEstimate(
             q.cpu().double().numpy(), self._joints(q), "tracked", errors, observed=observed_of(res)
         )
+        if self.cfg.hold_unseen_limbs:
+            self.state.held = held_dofs(estimate.observed)
         if self.scale_search is not None:
             scale = self.scale_search.offer(frame, q, self._size_overlaps, estimate.joints)
             if scale is not None:
@@ -264,6 +270,7 @@ class HybridEstimator:
                 return self._lose({**errors, "unsupported": 1.0})
         q = det.q.detach()
         self.state.q_prev, self.state.q_prev2 = q, None
+        self.state.held = None
         return PoseEstimate(
             q.cpu().double().numpy(),
             self._joints(q),
@@ -278,7 +285,7 @@ class HybridEstimator:
         state, cfg = self.state, self.cfg
         if state.q_prev is None:
             return self._detected(self._run_detector(frame), {})
-        res = self._fit(frame, state.q_prev, state.q_prev2)
+        res = self._fit(frame, state.q_prev, hold_unseen(state.q_prev, state.q_prev2, state.held))
         errors = res.signals.as_errors()
         state.passed += 1
         badness = cfg.failure.badness(res.signals)

@@ -930,3 +930,46 @@ def test_the_shipped_offsets_load_and_a_body_file_switches_them_off():
     with_body = settings_for_body({"body_scale": {}}, "hybrid", body_given=True)
     assert with_body["joint_offsets"] is None and with_body["body_scale"] is None
     assert settings_for_body({}, "hybrid", body_given=False) == {}
+
+
+class _UnseenLeftArm(FakeTracker):
+    """Bends the left elbow 0.1 rad more each call and calls the left elbow and wrist
+    inferred; records the two poses each of the frame's own fits got."""
+
+    def __init__(self):
+        super().__init__()
+        self.given = []
+
+    def step(self, depth, mask, q_prev, q_prev2=None, labels=None):
+        self.given.append((q_prev.clone(), None if q_prev2 is None else q_prev2.clone()))
+        res = super().step(depth, mask, q_prev, q_prev2, labels)
+        res.q[sk.DOF_NAMES.index("l_radius_flex")] += 0.1
+        res.observed = torch.ones(len(sk.JOINT_NAMES), dtype=torch.bool)
+        res.observed[[sk.JOINT_NAMES.index("l_elbow"), sk.JOINT_NAMES.index("l_wrist")]] = False
+        return res
+
+
+def _given(scene, hold: bool) -> list:
+    q, depth, labels, mask = scene
+    tracker = _UnseenLeftArm()
+    est, _ = make_hybrid(scene, tracker, hold_unseen_limbs=hold)
+    statuses = [estimate_frame(est, frame_of(depth, i, mask)).status for i in range(4)]
+    assert statuses == ["detected", "tracked", "tracked", "tracked"]
+    return tracker.given
+
+
+def test_the_hybrid_holds_an_unseen_arm(scene):
+    """With ``hold_unseen_limbs`` the pose before carries the unseen left arm's angles at the
+    last pose's (no velocity); every other angle, and the option off, as before."""
+    arm = [sk.DOF_NAMES.index(n) for n in
+           ("l_humerus_abd", "l_humerus_flex", "l_humerus_twist", "l_radius_flex")]  # fmt: skip
+    rest = torch.ones(sk.NUM_DOFS, dtype=torch.bool)
+    rest[arm] = False
+    elbow = sk.DOF_NAMES.index("l_radius_flex")
+    held, plain = _given(scene, True), _given(scene, False)
+    assert held[0][1] is None and plain[0][1] is None  # after the detection: no pose before
+    for (prev, before), (prev_p, before_p) in zip(held[1:], plain[1:]):
+        assert torch.equal(prev, prev_p)  # the fake tracker's poses do not depend on it
+        assert torch.equal(before[arm], prev[arm])
+        assert torch.equal(before[rest], before_p[rest])
+        assert float(prev_p[elbow] - before_p[elbow]) > 0.05  # off: the velocity carried on
