@@ -21,19 +21,21 @@ labels when it has them (rendered recordings show the floor and clutter too), el
 
     python -m depthmocap.train.evaluation.error_sources OUT [OUT ...] [--threshold 0.2]
 
-reads ``dev_benchmark`` outputs (``OUT/report.json``) and prints the table.
+reads one configuration (``--config``, the fully automatic hybrid by default) of
+``dev_benchmark`` outputs (``OUT/report.json``, read as :mod:`.compare_runs` reads them) and
+prints the table.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 from depthmocap.shared.recording import Recording
 
+from .compare_runs import DEFAULT_CONFIG, load_runs
 from .depth_refutation import (
     HIDDEN,
     HIDDEN_M,
@@ -148,13 +150,6 @@ def format_table(rows: list[dict[str, float | str]]) -> str:
     return "\n".join(lines)
 
 
-def _runs_of(out: Path) -> Iterable[dict[str, np.ndarray]]:
-    report = json.loads((out / "report.json").read_text())
-    for config in report.values():
-        for entry in config["per_recording"].values():
-            yield recording_places(entry["recording"], entry["result"])
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m depthmocap.train.evaluation.error_sources",
@@ -163,9 +158,15 @@ def main(argv: list[str] | None = None) -> int:
         "hidden), ours against the truth.",
     )
     parser.add_argument("outs", nargs="+", type=Path, help="dev_benchmark --out folders")
+    parser.add_argument("--config", default=DEFAULT_CONFIG, help="configuration to read")
     parser.add_argument("--threshold", type=float, default=0.2, help="gross error (m)")
     args = parser.parse_args(argv)
-    runs = [run for out in args.outs for run in _runs_of(out)]
+    try:
+        entries = load_runs(args.outs, args.config).values()
+        runs = [recording_places(e["recording"], e["result"]) for e in entries]
+    except ValueError as err:  # a missing or malformed report, recording or result
+        print(f"error_sources: {err}")
+        return 2
     print(format_table(gross_error_table(runs, args.threshold)))
     return 0
 

@@ -119,9 +119,11 @@ def test_a_recording_end_to_end(tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
     entry = {"recording": str(rec), "result": str(res)}
-    report = {"hybrid": {"per_recording": {"rec": entry}}}
+    report = {"hybrid, default body": {"per_recording": {"rec": entry}}}
     (out / "report.json").write_text(json.dumps(report))
     assert es.main([str(out)]) == 0
     text = capsys.readouterr().out
     assert "| in_front | on_surface |" in text and "| hidden | on_surface |" in text
     assert "| all gross |  | 12.5% |" in text  # 2 of the 16 joints
+    assert es.main([str(tmp_path)]) == 2  # no report.json there: said, not a traceback
+    assert "no report.json" in capsys.readouterr().out
