@@ -256,23 +256,8 @@ class HybridConfig:
         "(runtime.hybrid.unseen_limbs; not in Wei). Tuning set, mean of trust regions 0.18, "
         "0.2, 0.22 rad: 48.20 -> 47.44 mm, better in each (docs/experiments.md)",
     )
-    unseen_limb_pull: float = field_doc(
-        0.0,
-        "with hold_unseen_limbs, each frame the prior predicts the held angles this fraction "
-        "of the way from the last pose to where the mocap prior (pose_prior) puts them given "
-        "the angles the camera sees (0: held where they are; runtime.hybrid.unseen_limbs)",
-    )
-    pose_prior: str = field_doc(
-        "pose_prior.json",
-        "the joint-angle prior (shared.pose_prior; relative paths under the shipped models/ "
-        "folder), read only when unseen_limb_pull is above 0",
-    )
     detector: DetectorConfig = field_doc(help="detector settings", default_factory=DetectorConfig)
     tracker: TrackerConfig = field_doc(
         help="tracker settings (shipped: the label and collision terms on)",
         default_factory=_shipped_tracker,
     )
-
-    def __post_init__(self) -> None:
-        p = self.unseen_limb_pull
-        _check(0.0 <= p <= 1.0, "unseen_limb_pull must be in [0, 1]", p)

@@ -32,17 +32,16 @@ import torch
 from depthmocap.runtime.detector import DetectionResult, Detector
 from depthmocap.runtime.estimator import PoseEstimate, lost, observed_of
 from depthmocap.runtime.frame import Frame, LabelSource
-from depthmocap.runtime.tracker.tracker import PRIOR_VELOCITY_GAIN, Tracker, TrackResult
+from depthmocap.runtime.tracker.tracker import Tracker, TrackResult
 from depthmocap.shared.joint_offsets import JointOffsets, apply_offsets
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
-from depthmocap.shared.pose_prior import PosePrior, conditional_angles
 from depthmocap.shared.so3 import rotvec_to_matrix
 
 from .arm_search import ArmSearch
 from .body_scale import BodyScaleSearch
 from .config import HybridConfig
 from .policy import Detection, choose, judge_track
-from .unseen_limbs import held_dofs, hold_unseen, load_prior, pull_held
+from .unseen_limbs import held_dofs, hold_unseen
 
 __all__ = ["HybridEstimator", "TrackState", "overlaps_of", "root_turn"]
 
@@ -101,8 +100,6 @@ class HybridEstimator:
             (``shared.joint_offsets``), or None: the model's own joints.
         background: run the size search's refits on a worker thread (the same size, found
             on the same frame, as inline; False: inline).
-        prior: the joint-angle prior that ``cfg.unseen_limb_pull`` pulls unseen limbs to
-            (None: read from ``cfg.pose_prior`` when the pull is on).
     """
 
     def __init__(
@@ -113,12 +110,8 @@ class HybridEstimator:
         cfg: HybridConfig,
         offsets: JointOffsets | None = None,
         background: bool = True,
-        prior: PosePrior | None = None,
     ) -> None:
         self.label_source, self.detector, self.tracker, self.cfg = labels, detector, tracker, cfg
-        if prior is None and cfg.hold_unseen_limbs and cfg.unseen_limb_pull > 0:
-            prior = load_prior(cfg.pose_prior)
-        self.pose_prior = prior
         self.offsets = offsets
         self.arm_search = (
             None if cfg.arm_search is None else ArmSearch(cfg.arm_search, tracker.body)
@@ -287,22 +280,12 @@ class HybridEstimator:
             observed=observed_of(det.refined),
         )
 
-    def _pose_before(self) -> torch.Tensor | None:
-        """The pose before the last one as the tracker's prior should see it: unseen limbs
-        held (``cfg.hold_unseen_limbs``), and pulled towards the pose prior's guess
-        (``cfg.unseen_limb_pull``)."""
-        state, pull = self.state, self.cfg.unseen_limb_pull
-        if self.pose_prior is None or pull <= 0 or state.held is None or not state.held.any():
-            return hold_unseen(state.q_prev, state.q_prev2, state.held)
-        target = conditional_angles(self.pose_prior, state.q_prev, state.held)
-        return pull_held(state.q_prev, state.q_prev2, state.held, target, pull, PRIOR_VELOCITY_GAIN)
-
     def estimate(self, frame: Frame) -> PoseEstimate:
         """Pose of the person in ``frame`` (module docstring)."""
         state, cfg = self.state, self.cfg
         if state.q_prev is None:
             return self._detected(self._run_detector(frame), {})
-        res = self._fit(frame, state.q_prev, self._pose_before())
+        res = self._fit(frame, state.q_prev, hold_unseen(state.q_prev, state.q_prev2, state.held))
         errors = res.signals.as_errors()
         state.passed += 1
         badness = cfg.failure.badness(res.signals)

@@ -10,17 +10,11 @@ that limb's angles at their last value instead: the data still move it where the
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import torch
-from depthmocap.shared.pose_prior import PosePrior, PosePriorError, load_pose_prior
-from depthmocap.shared.resources import MODELS_DIR
 from depthmocap.shared.skeleton import DOF_NAMES, JOINT_NAMES
 
-from .config import HybridError
-
-__all__ = ["HELD_LIMBS", "held_dofs", "hold_unseen", "load_prior", "pull_held"]
+__all__ = ["HELD_LIMBS", "held_dofs", "hold_unseen"]
 
 # (joints that must all be inferred, the angles then held): a whole arm or leg when its middle
 # and end joints are unseen, the forearm or shank when only the end is.
@@ -63,38 +57,3 @@ def hold_unseen(
     if q_prev2 is None or held is None:
         return q_prev2
     return torch.where(held.to(q_prev2.device), q_prev, q_prev2)
-
-
-def pull_held(
-    q_prev: torch.Tensor,
-    q_before: torch.Tensor | None,
-    held: torch.Tensor | None,
-    target: torch.Tensor,
-    pull: float,
-    velocity_gain: float = 1.0,
-) -> torch.Tensor | None:
-    """The pose before ``q_prev`` (34,) as the prior should see it so that it predicts each
-    ``held`` angle ``pull`` of the way from ``q_prev`` to ``target`` (34,) (the mocap prior's
-    guess, :func:`shared.pose_prior.conditional_angles`); every other angle as
-    ``q_before`` (None: as ``q_prev``). The prediction is ``q_prev + g (q_prev - before)``
-    (``runtime.tracker.prior_term.predict_pose``, ``g = velocity_gain > 0``)."""
-    if held is None or not bool(held.any()):
-        return q_before
-    held = held.to(q_prev.device)
-    aim = q_prev + pull * (target.to(q_prev) - q_prev)
-    before = q_prev - (aim - q_prev) / velocity_gain
-    return torch.where(held, before, q_prev if q_before is None else q_before)
-
-
-def load_prior(name: str) -> PosePrior:
-    """The pose-prior file ``name`` (relative: under the shipped models/ folder).
-
-    Raises:
-        HybridError: missing, unreadable, or of another format or version.
-    """
-    path = Path(name)
-    path = path if path.is_absolute() else MODELS_DIR / path
-    try:
-        return load_pose_prior(path)
-    except PosePriorError as err:
-        raise HybridError(f"pose_prior: {err}") from None

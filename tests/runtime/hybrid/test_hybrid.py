@@ -949,10 +949,10 @@ class _UnseenLeftArm(FakeTracker):
         return res
 
 
-def _given(scene, hold: bool, **settings) -> list:
+def _given(scene, hold: bool) -> list:
     q, depth, labels, mask = scene
     tracker = _UnseenLeftArm()
-    est, _ = make_hybrid(scene, tracker, hold_unseen_limbs=hold, **settings)
+    est, _ = make_hybrid(scene, tracker, hold_unseen_limbs=hold)
     statuses = [estimate_frame(est, frame_of(depth, i, mask)).status for i in range(4)]
     assert statuses == ["detected", "tracked", "tracked", "tracked"]
     return tracker.given
@@ -973,30 +973,3 @@ def test_the_hybrid_holds_an_unseen_arm(scene):
         assert torch.equal(before[arm], prev[arm])
         assert torch.equal(before[rest], before_p[rest])
         assert float(prev_p[elbow] - before_p[elbow]) > 0.05  # off: the velocity carried on
-
-
-def test_the_hybrid_pulls_an_unseen_arm_towards_the_pose_prior(scene):
-    """With ``unseen_limb_pull`` the pose before makes the prior predict the unseen arm's
-    angles that fraction of the way to the shipped pose prior's guess given the rest of the
-    last pose; every other angle as with the arm held."""
-    from depthmocap.runtime.hybrid.unseen_limbs import held_dofs, load_prior
-    from depthmocap.runtime.tracker.prior_term import predict_pose
-    from depthmocap.shared.pose_prior import conditional_angles
-
-    arm = [sk.DOF_NAMES.index(n) for n in
-           ("l_humerus_abd", "l_humerus_flex", "l_humerus_twist", "l_radius_flex")]  # fmt: skip
-    rest = torch.ones(sk.NUM_DOFS, dtype=torch.bool)
-    rest[arm] = False
-    pulled, held = _given(scene, True, unseen_limb_pull=0.5), _given(scene, True)
-    prior = load_prior("pose_prior.json")
-    seen = torch.ones(len(sk.JOINT_NAMES), dtype=torch.bool)
-    seen[[sk.JOINT_NAMES.index("l_elbow"), sk.JOINT_NAMES.index("l_wrist")]] = False
-    hold = held_dofs(seen.numpy())
-    for (prev, before), (_, before_h) in zip(pulled[2:], held[2:]):
-        aim = prev + 0.5 * (conditional_angles(prior, prev, hold) - prev)
-        pred = predict_pose(prev[None], before[None])[0]
-        torch.testing.assert_close(pred[arm], aim[arm], atol=1e-5, rtol=0)
-        assert torch.equal(before[rest], before_h[rest])
-        assert float((pred[arm] - prev[arm]).abs().max()) > 0.01  # it does move the arm
-    with pytest.raises(HybridError, match="unseen_limb_pull"):
-        HybridConfig(unseen_limb_pull=1.5)

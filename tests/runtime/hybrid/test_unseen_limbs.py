@@ -5,11 +5,8 @@ test_hybrid.py)."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 import torch
-from depthmocap.runtime.hybrid import HybridError
-from depthmocap.runtime.hybrid.unseen_limbs import held_dofs, hold_unseen, load_prior, pull_held
-from depthmocap.runtime.tracker.prior_term import predict_pose
+from depthmocap.runtime.hybrid.unseen_limbs import held_dofs, hold_unseen
 from depthmocap.shared.skeleton import DOF_NAMES, JOINT_NAMES
 
 
@@ -45,29 +42,3 @@ def test_hold_unseen_zeroes_the_held_velocity():
     assert torch.equal(before[others], q_prev2[others])
     assert hold_unseen(q_prev, None, held) is None
     assert hold_unseen(q_prev, q_prev2, None) is q_prev2
-
-
-@pytest.mark.parametrize("gain", [1.0, 0.5])
-def test_pull_held_predicts_the_pulled_angles(gain):
-    """The prior's prediction from the pose before that pull_held makes: each held angle
-    ``pull`` of the way to the target, every other angle as from the given pose before."""
-    q_prev = 0.01 * torch.arange(34.0, dtype=torch.float64)
-    q_prev2 = -0.02 * torch.arange(34.0, dtype=torch.float64)
-    held = held_dofs(_observed("r_knee", "r_ankle"))
-    target = q_prev + 0.5
-    before = pull_held(q_prev, q_prev2, held, target, 0.2, gain)
-    pred = predict_pose(q_prev[None], before[None], gain)[0]
-    plain = predict_pose(q_prev[None], q_prev2[None], gain)[0]
-    torch.testing.assert_close(pred[held], q_prev[held] + 0.1)
-    torch.testing.assert_close(pred[~held], plain[~held])
-    # Nothing held: the pose before as given; after a detection (no pose before) too.
-    assert pull_held(q_prev, q_prev2, torch.zeros_like(held), target, 0.2) is q_prev2
-    assert pull_held(q_prev, q_prev2, None, target, 0.2) is q_prev2
-    first = pull_held(q_prev, None, held, target, 0.2)
-    torch.testing.assert_close(predict_pose(q_prev[None], first[None])[0][~held], q_prev[~held])
-
-
-def test_load_prior_errors_are_the_hybrids(tmp_path):
-    assert load_prior("pose_prior.json").clips > 0  # the shipped one, under models/
-    with pytest.raises(HybridError, match="pose_prior: .*cannot read"):
-        load_prior(str(tmp_path / "missing.json"))
