@@ -300,3 +300,48 @@ def test_refinement_gets_the_labels_for_the_label_term(use_labels):
     res = detect_pose(depth, labels, INTR, BODY, DetectorConfig(), mask=mask, refine=refine)
     assert len(seen) == 4  # the IK pose and its three limb swaps
     assert float((res.joints - true_joints(q)).norm(dim=-1).mean()) < 0.05
+
+
+def test_unseen_limb_dofs_golden():
+    """No forearm pixels: the elbow's angle; no upper arm either: the whole arm; the legs the
+    same with both thigh (or shank) classes."""
+    from depthmocap.runtime.detector.detect import unseen_limb_dofs
+
+    def names(present_parts):
+        present = torch.zeros(NUM_CLASSES - 1, dtype=torch.bool)
+        for p in present_parts:
+            present[PART_NAMES.index(p) - 1] = True
+        return {sk.DOF_NAMES[k] for k in torch.nonzero(unseen_limb_dofs(present)).flatten()}
+
+    everything = [p for p in PART_NAMES[1:]]
+    assert names(everything) == set()
+    no_l_forearm = [p for p in everything if p != "l_forearm"]
+    assert names(no_l_forearm) == {"l_radius_flex"}
+    no_l_arm = [p for p in no_l_forearm if p != "l_upper_arm"]
+    assert names(no_l_arm) == {"l_humerus_abd", "l_humerus_flex", "l_humerus_twist",
+                               "l_radius_flex"}  # fmt: skip
+    one_shank_part = [p for p in everything if p != "r_shank_lower"]
+    assert names(one_shank_part) == set()  # the upper shank still shows the knee's angle
+    no_r_leg = [p for p in everything if not p.startswith(("r_thigh", "r_shank"))]
+    assert names(no_r_leg) == {"r_femur_flex", "r_femur_abd", "r_femur_twist", "r_tibia_flex"}
+    only_thigh_missing = [p for p in everything if not p.startswith("r_thigh")]
+    assert names(only_thigh_missing) == set()  # the shank shows where the leg is
+
+
+def test_a_limb_without_labels_takes_the_hints_angles():
+    """With ``hint_unseen_limbs`` and a hint, the IK pose's left forearm angle (its labels
+    removed) is the hint's; without the option it is not."""
+    q = make_pose("walk")
+    depth, labels, mask = render_labels(q, BODY)
+    labels = labels.clone()
+    labels[labels == PART_NAMES.index("l_forearm")] = PART_NAMES.index("chest")
+    hint = q.clone()
+    elbow = sk.DOF_NAMES.index("l_radius_flex")
+    hint[elbow] = 1.234
+    on = detect_pose(depth, labels, INTR, BODY, DetectorConfig(hint_unseen_limbs=True),
+                     q_hint=hint, mask=mask)  # fmt: skip
+    off = detect_pose(depth, labels, INTR, BODY, DetectorConfig(), q_hint=hint, mask=mask)
+    assert float(on.q_ik[elbow]) == pytest.approx(1.234)
+    assert float(off.q_ik[elbow]) != pytest.approx(1.234)
+    knee = sk.DOF_NAMES.index("l_tibia_flex")
+    assert float(on.q_ik[knee]) == pytest.approx(float(off.q_ik[knee]))  # the leg is seen
