@@ -34,12 +34,6 @@ class DetectorConfig:
     refine_iterations: int = field_doc(
         3, help="tracker Gauss-Newton iterations refining the IK pose (Wei: three); 0 = none"
     )
-    hint_unseen_limbs: bool = field_doc(
-        False,
-        "with a pose hint (the hybrid's last pose), a limb the labels do not show (no forearm "
-        "or shank pixels: its far angle; nor upper arm or thigh: all its angles) takes the "
-        "hint's angles instead of the IK start's",
-    )
     seed: int = field_doc(0, help="seed of the RANSAC sampling (results are deterministic)")
 
     def __post_init__(self) -> None:

@@ -272,9 +272,6 @@ def detect_pose(
     )  # fmt: skip
     best = int(torch.argmin(ik.rms))
     q_ik = ik.q[best]
-    if cfg.hint_unseen_limbs and q_hint is not None:
-        unseen = unseen_limb_dofs(present).to(q_ik.device)
-        q_ik = torch.where(unseen, q_hint.to(q_ik), q_ik)
     q, refined = q_ik, None
     if refine is not None:
         # The forest confuses left and right limbs (about a fifth of forearm and shank pixels),
@@ -298,44 +295,6 @@ def detect_pose(
 # angles are mirror motions and swapping the slots swaps the limbs).
 _LEG_SLOTS = ([26, 27, 28, 32], [29, 30, 31, 33])
 _ARM_SLOTS = ([14, 15, 18, 19, 20, 24], [16, 17, 21, 22, 23, 25])
-
-
-def _class(name: str) -> int:
-    return PART_NAMES.index(name) - 1  # centroid rows skip the background
-
-
-# (centroid classes of the limb's near part, of its far part, its angles, its far angle).
-_LIMB_PARTS = tuple(
-    (
-        [_class(f"{s}_upper_arm")],
-        [_class(f"{s}_forearm")],
-        [sk.DOF_NAMES.index(f"{s}_humerus_{a}") for a in ("abd", "flex", "twist")],
-        sk.DOF_NAMES.index(f"{s}_radius_flex"),
-    )
-    for s in "lr"
-) + tuple(
-    (
-        [_class(f"{s}_thigh_upper"), _class(f"{s}_thigh_lower")],
-        [_class(f"{s}_shank_upper"), _class(f"{s}_shank_lower")],
-        [sk.DOF_NAMES.index(f"{s}_femur_{a}") for a in ("flex", "abd", "twist")],
-        sk.DOF_NAMES.index(f"{s}_tibia_flex"),
-    )
-    for s in "lr"
-)
-
-
-def unseen_limb_dofs(present: torch.Tensor) -> torch.Tensor:
-    """(34,) bool: the angles of limbs the labels do not show, from the (19,) classes
-    ``present``: a limb without far-part pixels (forearm, shank) its far angle (elbow,
-    knee), one without any pixels all four of its angles."""
-    out = torch.zeros(sk.NUM_DOFS, dtype=torch.bool)
-    seen = present.cpu()
-    for near, far, angles, far_angle in _LIMB_PARTS:
-        if not bool(seen[far].any()):
-            out[far_angle] = True
-            if not bool(seen[near].any()):
-                out[angles] = True
-    return out
 
 
 def limb_swaps(q: torch.Tensor) -> list[torch.Tensor]:
