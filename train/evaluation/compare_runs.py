@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from collections import defaultdict
 from pathlib import Path
 
@@ -179,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
             load_runs(args.base, args.config), load_runs(args.new, args.config), args.margin
         )
     except CompareError as err:
-        print(f"compare_runs: {err}")
+        print(f"compare_runs: {err}", file=sys.stderr)
         return 2
     print(format_comparison(result))
     return 0

@@ -29,6 +29,7 @@ prints the table.
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -165,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
         entries = load_runs(args.outs, args.config).values()
         runs = [recording_places(e["recording"], e["result"]) for e in entries]
     except ValueError as err:  # a missing or malformed report, recording or result
-        print(f"error_sources: {err}")
+        print(f"error_sources: {err}", file=sys.stderr)
         return 2
     print(format_table(gross_error_table(runs, args.threshold)))
     return 0

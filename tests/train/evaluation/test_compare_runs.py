@@ -79,7 +79,7 @@ def test_halves_pool_and_refusals(recordings, tmp_path, capsys):
     assert "8 recordings, 80 frames" in capsys.readouterr().out
     # Different recordings, a folder without a report, the same recording twice.
     assert cr.main(["--base", str(a1), "--new", str(b)]) == 2
-    assert "different recordings" in capsys.readouterr().out
+    assert "different recordings" in capsys.readouterr().err
     with pytest.raises(cr.CompareError, match="no report.json"):
         cr.load_runs([tmp_path])
     with pytest.raises(cr.CompareError, match="more than one"):

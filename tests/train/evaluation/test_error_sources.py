@@ -126,4 +126,4 @@ def test_a_recording_end_to_end(tmp_path, capsys):
     assert "| in_front | on_surface |" in text and "| hidden | on_surface |" in text
     assert "| all gross |  | 12.5% |" in text  # 2 of the 16 joints
     assert es.main([str(tmp_path)]) == 2  # no report.json there: said, not a traceback
-    assert "no report.json" in capsys.readouterr().out
+    assert "no report.json" in capsys.readouterr().err
