@@ -256,13 +256,6 @@ class HybridConfig:
         "(runtime.hybrid.unseen_limbs; not in Wei). Tuning set, mean of trust regions 0.18, "
         "0.2, 0.22 rad: 48.20 -> 47.44 mm, better in each (docs/experiments.md)",
     )
-    detect_ahead: bool = field_doc(
-        True,
-        "after a frame that ran the detector, start the next frame's detection on a worker "
-        "thread beside its tracker fit, and take it if the fit fails or is rechecked "
-        "(runtime.hybrid.detect_ahead): the same poses as inline, the detector's frames "
-        "shorter by about the fit's time (docs/results.md)",
-    )
     detector: DetectorConfig = field_doc(help="detector settings", default_factory=DetectorConfig)
     tracker: TrackerConfig = field_doc(
         help="tracker settings (shipped: the label and collision terms on)",

@@ -24,7 +24,6 @@ from __future__ import annotations
 import functools
 import os
 import threading
-from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -41,7 +40,6 @@ from depthmocap.shared.so3 import rotvec_to_matrix
 from .arm_search import ArmSearch
 from .body_scale import BodyScaleSearch
 from .config import HybridConfig
-from .detect_ahead import DetectionAhead
 from .policy import Detection, choose, judge_track
 from .unseen_limbs import held_dofs, hold_unseen
 
@@ -65,8 +63,6 @@ class TrackState:
         refused_at: the frame whose detection was last refused (None: none since the reset).
         held: (34,) bool angles of the limbs the last tracked pose did not see
             (``cfg.hold_unseen_limbs``; None: none held).
-        detector_ran: the last frame ran the detector (the next one's detection then starts
-            beside its fit, ``cfg.detect_ahead``).
     """
 
     q_prev: torch.Tensor | None = None
@@ -75,7 +71,6 @@ class TrackState:
     turned_round: int = 0
     refused_at: int | None = None
     held: torch.Tensor | None = None
-    detector_ran: bool = False
 
 
 def _lower_priority() -> None:
@@ -103,9 +98,8 @@ class HybridEstimator:
         cfg: the settings.
         offsets: where the output joints sit relative to the model's
             (``shared.joint_offsets``), or None: the model's own joints.
-        background: run the size search's refits, and with ``cfg.detect_ahead`` the
-            detections started ahead, on worker threads (the same results as inline; False:
-            everything inline).
+        background: run the size search's refits on a worker thread (the same size, found
+            on the same frame, as inline; False: inline).
     """
 
     def __init__(
@@ -133,9 +127,6 @@ class HybridEstimator:
             if background and self.scale_search is not None
             else None
         )
-        # A frame's detection, started beside its fit when the last frame ran the detector.
-        self._ahead = DetectionAhead() if background and cfg.detect_ahead else None
-        self._detector_ran = False
 
     @property
     def body(self):
@@ -152,8 +143,6 @@ class HybridEstimator:
         """Forget the track: the next frame goes to the detector, which then behaves as a new
         one would (its random sequence restarts)."""
         self.state = TrackState()
-        if self._ahead is not None:
-            self._ahead.drop()
         self.detector.reset()
         if self.arm_search is not None:
             self.arm_search.reset()
@@ -193,51 +182,12 @@ class HybridEstimator:
         return joints[0].detach().cpu().double().numpy()
 
     def _run_detector(self, frame: Frame) -> DetectionResult:
-        """The detector on ``frame``, refined on the shared tracker; changes no state but the
-        detector's random generator. The detection started ahead for this frame if there is
-        one (:mod:`runtime.hybrid.detect_ahead`), else run here."""
-        self._detector_ran = True
-        if self._ahead is not None:
-            ahead = self._ahead.take(frame.index, self.detector)
-            if ahead is not None:
-                return ahead
-        return self._detect(frame, self.detector, self.tracker, self.state.q_prev)
-
-    def _detect(
-        self,
-        frame: Frame,
-        detector: Detector,
-        tracker: Tracker,
-        hint: torch.Tensor | None,
-        checkpoint: Callable[[], None] | None = None,
-    ) -> DetectionResult:
-        """``detector`` on ``frame``, its refinement on ``tracker``; ``hint`` (34,): one more
-        IK start (the last pose), used only if it fits the centroids best; ``checkpoint``
-        called before the refinement (a dropped detection stops there)."""
+        """The detector on ``frame``, refined on the shared tracker; changes no state."""
         labels = frame.labels(self.label_source)
-        k = detector.cfg.refine_iterations
-
-        def refine(starts: torch.Tensor) -> list[TrackResult]:
-            if checkpoint is not None:
-                checkpoint()
-            obs = frame.observation(tracker, self._tracker_labels(frame))
-            return tracker.fit_starts(obs, starts, k)
-
-        return detector.detect(
-            frame.depth_m, labels, frame.mask, q_hint=hint, refine=None if k <= 0 else refine
-        )
-
-    def _detect_ahead(self, frame: Frame) -> None:
-        """Start ``frame``'s detection on the worker when the last frame ran the detector."""
-        if self._ahead is None or not self.state.detector_ran:
-            return
-        tracker, hint = self.tracker, self.state.q_prev
-        frame.observation(tracker, self._tracker_labels(frame))  # made here, read there
-        self._ahead.start(
-            frame.index,
-            self.detector,
-            lambda detector, checkpoint: self._detect(frame, detector, tracker, hint, checkpoint),
-        )
+        hint = self.state.q_prev  # one more IK start, used only if it fits the centroids best
+        k = self.detector.cfg.refine_iterations
+        refine = None if k <= 0 else (lambda starts: self._fit_starts(frame, starts, k))
+        return self.detector.detect(frame.depth_m, labels, frame.mask, q_hint=hint, refine=refine)
 
     # ---- estimates, each updating the track ----
 
@@ -282,8 +232,6 @@ class HybridEstimator:
     def _use_body(self, body) -> None:
         """Track and detect with ``body`` from now on; the track goes on from its pose."""
         t, d = self.tracker, self.detector
-        if self._ahead is not None:
-            self._ahead.drop()  # made with the old body
         self._sizes = None
         self.tracker = Tracker(body, t.intr, t.cfg, device=t.device, dtype=t.dtype)
         detector = Detector(body, d.intr, d.cfg, device=d.device, dtype=d.dtype)
@@ -334,19 +282,9 @@ class HybridEstimator:
 
     def estimate(self, frame: Frame) -> PoseEstimate:
         """Pose of the person in ``frame`` (module docstring)."""
-        self._detector_ran = False
-        try:
-            return self._estimate(frame)
-        finally:
-            if self._ahead is not None:
-                self._ahead.drop()  # not asked for: the track passed
-            self.state.detector_ran = self._detector_ran
-
-    def _estimate(self, frame: Frame) -> PoseEstimate:
         state, cfg = self.state, self.cfg
         if state.q_prev is None:
             return self._detected(self._run_detector(frame), {})
-        self._detect_ahead(frame)
         res = self._fit(frame, state.q_prev, hold_unseen(state.q_prev, state.q_prev2, state.held))
         errors = res.signals.as_errors()
         state.passed += 1

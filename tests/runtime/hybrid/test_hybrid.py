@@ -89,9 +89,6 @@ def cfg_of(**flat) -> HybridConfig:
     keep_cfg = KeepBetterConfig(**keep) if flat.pop("keep_better", False) else None
     flat.setdefault("body_scale", None)  # the size search has its own tests (test_body_scale)
     flat.setdefault("joint_offsets", None)  # the model's joints: the scenes render the model
-    # Inline detections: the scenarios count the forest's calls to see when the detector ran
-    # (detections ahead have their own tests, test_detect_ahead).
-    flat.setdefault("detect_ahead", False)
     return HybridConfig(
         failure=FailureThresholds(**failure), keep_better=keep_cfg, arm_search=search, **flat
     )
