@@ -25,8 +25,15 @@ def damped(hess: torch.Tensor, damping: torch.Tensor) -> torch.Tensor:
 
 
 def solve(matrix: torch.Tensor, rhs: torch.Tensor) -> torch.Tensor:
-    """``A^-1 b`` for A (..., n, n) and b (..., n): (..., n)."""
-    return torch.linalg.solve(matrix, rhs[..., None])[..., 0]
+    """``A^-1 b`` for A (..., n, n) and b (..., n): (..., n).
+
+    On a GPU the factorization's error check is skipped (``solve_ex``), since reading it makes
+    the host wait for the device twice per Gauss-Newton iteration; a singular A then gives
+    non-finite values instead of an error. The callers' matrices are damped, so positive
+    definite."""
+    if matrix.device.type == "cpu":
+        return torch.linalg.solve(matrix, rhs[..., None])[..., 0]
+    return torch.linalg.solve_ex(matrix, rhs[..., None])[0][..., 0]
 
 
 def damped_solve(hess: torch.Tensor, grad: torch.Tensor, damping: torch.Tensor) -> torch.Tensor:

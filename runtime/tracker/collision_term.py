@@ -21,6 +21,8 @@ abdomen and chest, the lower back) turn both together, and their Jacobian column
 
 from __future__ import annotations
 
+import functools
+
 import torch
 from depthmocap.runtime.raycast import SegmentGeometry
 from depthmocap.shared import skeleton as sk
@@ -69,13 +71,25 @@ TORSO_SEGMENTS: tuple[int, ...] = tuple(
 )
 
 
+@functools.cache
+def _tables(dtype: torch.dtype, device: torch.device) -> dict[str, torch.Tensor]:
+    """The term's constant tables on ``device``, made once: a copy from the host per call
+    would make a GPU wait."""
+    return {
+        "segment": torch.as_tensor([s for s, _ in ARM_SAMPLES], device=device),
+        "fraction": torch.as_tensor([f for _, f in ARM_SAMPLES], dtype=dtype, device=device),
+        "hand": torch.as_tensor(HAND_SAMPLES, device=device),
+        "torso": torch.as_tensor(TORSO_SEGMENTS, device=device),
+        "affects": torch.as_tensor(sk.DOF_AFFECTS_SEGMENT, dtype=dtype, device=device),
+    }
+
+
 def arm_sample_points(kin: Kinematics) -> tuple[torch.Tensor, torch.Tensor]:
     """Camera-frame points on the arms' axes (:data:`ARM_SAMPLES`): (B, M, 3), and the
     segment each rides on, (M,) int64."""
-    dev = kin.origins.device
-    seg = torch.as_tensor([s for s, _ in ARM_SAMPLES], device=dev)
-    frac = torch.as_tensor([f for _, f in ARM_SAMPLES], dtype=kin.origins.dtype, device=dev)
-    return segment_axis_points(kin, seg, frac), seg
+    tables = _tables(kin.origins.dtype, kin.origins.device)
+    seg = tables["segment"]
+    return segment_axis_points(kin, seg, tables["fraction"]), seg
 
 
 def collision_rows(kin: Kinematics, geom: SegmentGeometry) -> tuple[Rows, torch.Tensor]:
@@ -88,7 +102,8 @@ def collision_rows(kin: Kinematics, geom: SegmentGeometry) -> tuple[Rows, torch.
     """
     points, seg = arm_sample_points(kin)  # (B, M, 3)
     B, M = points.shape[:2]
-    torso = torch.as_tensor(TORSO_SEGMENTS, device=points.device)
+    tables = _tables(points.dtype, points.device)
+    torso = tables["torso"]
     kernel = compiled_float32("depthmocap.runtime.tracker.collision_kernel", points)
     if kernel is not None:  # one compiled call, the same rows and columns
         rot, origin = geom.frames(kin)
@@ -114,14 +129,14 @@ def collision_rows(kin: Kinematics, geom: SegmentGeometry) -> tuple[Rows, torch.
     deepest = signed.argmin(-1)  # (B, M): the torso capsule the point is deepest in
     signed = signed.gather(-1, deepest[..., None])[..., 0]
     direction = direction.gather(2, deepest[..., None, None].expand(B, M, 1, 3))[:, :, 0]
-    hand = torch.as_tensor(HAND_SAMPLES, device=points.device)
+    hand = tables["hand"]
     tolerance = torch.where(hand, COLLISION_HAND_TOLERANCE_M, COLLISION_TOLERANCE_M).to(
         points.dtype
     )
     excess = (-tolerance - signed).clamp_min(0.0)  # (B, M)
     weight = (excess > 0).to(points.dtype) / SIGMA_COLLISION_M
     batch = torch.arange(B, device=points.device).repeat_interleave(M)
-    affects = torch.as_tensor(sk.DOF_AFFECTS_SEGMENT, dtype=points.dtype, device=points.device)
+    affects = tables["affects"]
     columns = 1.0 - affects[torso[deepest].reshape(-1)]  # drop the DoFs the torso moves with
     rows = Rows(
         batch,

@@ -375,20 +375,33 @@ class Tracker:
         )
         q0 = starts.to(device=self.device, dtype=self.dtype)
         fit = fit_frames(expand_observation(obs, K), q0, None, self.body, cfg, self.geometry)
-        return [self._result(fit, k) for k in range(K)]
+        host = _host_scalars(fit)
+        return [self._result(fit, k, host) for k in range(K)]
 
-    def _result(self, fit: FrameFit, k: int) -> TrackResult:
+    def _result(self, fit: FrameFit, k: int, host: torch.Tensor | None = None) -> TrackResult:
+        """Start ``k``'s result; ``host``: :func:`_host_scalars` of ``fit``, when made."""
         s = fit.signals
+        host = _host_scalars(fit) if host is None else host
+        depth_error, overlap, surface, steps, converged = host[k].tolist()
         return TrackResult(
             q=fit.q[k],
-            depth_error_cm=float(s.depth_error_cm[k]),
-            overlap=float(s.overlap[k]),
-            surface_error_q97_mm=float(s.surface_error_q97_mm[k]),
-            iterations=int(fit.steps[k]),
-            converged=bool(fit.converged[k]),
+            depth_error_cm=depth_error,
+            overlap=overlap,
+            surface_error_q97_mm=surface,
+            iterations=int(steps),
+            converged=bool(converged),
             limb_visibility=s.limb_visibility[k],
             observed=observed_joints(s.joint_support_cm2[k], self.cfg.observed_joint_area_cm2),
         )
+
+
+def _host_scalars(fit: FrameFit) -> torch.Tensor:
+    """(B, 5) float64 on the CPU: each pose's depth error, overlap, surface error, steps and
+    converged flag, read from the device in one copy (on a GPU, one host sync for the batch
+    instead of five per pose). float64 holds the float32 signals and the counts exactly."""
+    s = fit.signals
+    columns = (s.depth_error_cm, s.overlap, s.surface_error_q97_mm, fit.steps, fit.converged)
+    return torch.stack([c.to(torch.float64) for c in columns], 1).cpu()
 
 
 def track_sequence(

@@ -41,6 +41,18 @@ class TestSamplePixels:
             assert torch.allclose(ratio[idx[:, 0] == b], r_alone)
         assert bool((idx[1:, 0] >= idx[:-1, 0]).all())  # sorted by mask
 
+    @pytest.mark.parametrize("cap", [0, 400])
+    def test_the_torch_sampler_on_every_device(self, device, cap):
+        """The torch sampler (the GPU's) keeps the rows, counts and ratios of the CPU's."""
+        from depthmocap.runtime.tracker.regions import sample_pixels_torch
+
+        gen = torch.Generator().manual_seed(2)
+        masks = torch.rand(3, 61, 83, generator=gen) < torch.tensor([0.6, 0.0, 0.2])[:, None, None]
+        want = sample_pixels(masks, cap)
+        got = sample_pixels_torch(masks.to(device), cap)
+        for g, w in zip(got, want, strict=True):
+            assert g.device == device and g.dtype == w.dtype and torch.equal(g.cpu(), w)
+
 
 class TestBatchSlots:
     def test_groups_rows_by_pose(self):
@@ -51,6 +63,12 @@ class TestBatchSlots:
         assert real.sum(1).tolist() == [2, 0, 3, 0]
         empty, none = batch_slots(torch.zeros(0, dtype=torch.long), 2)
         assert empty.shape == (2, 0) and none.shape == (2, 0)
+
+    def test_on_every_device(self, device):
+        batch = torch.tensor([1, 1, 0, 1], device=device)
+        slots, real = batch_slots(batch, 3)
+        assert slots.device == device
+        assert slots[real].tolist() == [2, 0, 1, 3] and real.sum(1).tolist() == [1, 3, 0]
 
 
 class TestCompiledSampler:
