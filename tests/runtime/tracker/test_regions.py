@@ -51,7 +51,7 @@ class TestSamplePixels:
         want = sample_pixels(masks, cap)
         got = sample_pixels_torch(masks.to(device), cap)
         for g, w in zip(got, want, strict=True):
-            assert g.device == device and g.dtype == w.dtype and torch.equal(g.cpu(), w)
+            assert g.device.type == device.type and g.dtype == w.dtype and torch.equal(g.cpu(), w)
 
 
 class TestBatchSlots:
@@ -67,7 +67,7 @@ class TestBatchSlots:
     def test_on_every_device(self, device):
         batch = torch.tensor([1, 1, 0, 1], device=device)
         slots, real = batch_slots(batch, 3)
-        assert slots.device == device
+        assert slots.device.type == device.type
         assert slots[real].tolist() == [2, 0, 1, 3] and real.sum(1).tolist() == [1, 3, 0]
 
 
