@@ -84,8 +84,10 @@ def _lower_priority() -> None:
 
 def overlaps_of(sizes: Tracker, obs, starts: torch.Tensor, iterations: int) -> np.ndarray:
     """(S,) silhouette overlaps of ``obs`` refitted by ``sizes`` (a tracker of S bodies)
-    from the (S, 34) ``starts``, start k with body k."""
-    return np.array([r.overlap for r in sizes.fit_starts(obs, starts, iterations)])
+    from the (S, 34) ``starts``, start k with body k (in inference mode, as the estimate:
+    it runs on the size search's worker thread too)."""
+    with torch.inference_mode():
+        return np.array([r.overlap for r in sizes.fit_starts(obs, starts, iterations)])
 
 
 class HybridEstimator:

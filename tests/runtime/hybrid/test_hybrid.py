@@ -350,7 +350,9 @@ def test_recheck_is_off_without_keep_better_and_never_turns_the_track(scene, con
     )
     constants(MAX_TURN_FRAMES=2)
     estimate_frame(est, frame_of(depth, 0, mask))
-    est.state.q_prev[3:6] = torch.tensor([0.0, 0.0, math.pi])  # the track faces away but passes
+    turned = est.state.q_prev.clone()  # the estimate's own tensors are read-only out of it
+    turned[3:6] = torch.tensor([0.0, 0.0, math.pi])  # the track faces away but passes
+    est.state.q_prev = turned
     statuses = [estimate_frame(est, frame_of(depth, i, mask)).status for i in range(1, 5)]
     assert statuses == ["tracked"] * 4 and len(calls) == 5 and est.state.turned_round == 0
 
@@ -408,7 +410,9 @@ def test_a_track_turned_round_for_long_gives_way_to_the_detector(scene, constant
     est, _ = make_hybrid(scene, tracker, keep_better=True, max_turn_rad=1.6)
     constants(MAX_TURN_FRAMES=3)
     estimate_frame(est, frame_of(depth, 0, mask))
-    est.state.q_prev[3:6] = torch.tensor([0.0, 0.0, math.pi])  # the track faces away
+    turned = est.state.q_prev.clone()  # the estimate's own tensors are read-only out of it
+    turned[3:6] = torch.tensor([0.0, 0.0, math.pi])  # the track faces away
+    est.state.q_prev = turned
     statuses = [estimate_frame(est, frame_of(depth, i, mask)).status for i in range(1, 4)]
     assert statuses == ["tracked", "tracked", "detected"]  # the third turned detection wins
     assert root_turn(est.state.q_prev, q) < 0.3
