@@ -379,7 +379,7 @@ class Tracker:
         return [self._result(fit, k, host) for k in range(K)]
 
     def _result(self, fit: FrameFit, k: int, host: torch.Tensor | None = None) -> TrackResult:
-        """Start ``k``'s result; ``host``: :func:`_host_scalars` of ``fit``, when made."""
+        """The result of start ``k``; ``host``: :func:`_host_scalars` of ``fit``, when made."""
         s = fit.signals
         host = _host_scalars(fit) if host is None else host
         depth_error, overlap, surface, steps, converged = host[k].tolist()
