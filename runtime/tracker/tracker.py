@@ -355,7 +355,8 @@ class Tracker:
         )
         qp = q_prev.to(device=self.device, dtype=self.dtype)[None]
         qp2 = None if q_prev2 is None else q_prev2.to(device=self.device, dtype=self.dtype)[None]
-        return self._result(fit_frames(obs, qp, qp2, self.body, cfg, self.geometry), 0)
+        fit = fit_frames(obs, qp, qp2, self.body, cfg, self.geometry)
+        return self._result(fit, 0, _host_scalars(fit))
 
     def fit_starts(
         self, obs: Observation, starts: torch.Tensor, iterations: int | None = None
@@ -378,10 +379,9 @@ class Tracker:
         host = _host_scalars(fit)
         return [self._result(fit, k, host) for k in range(K)]
 
-    def _result(self, fit: FrameFit, k: int, host: torch.Tensor | None = None) -> TrackResult:
-        """The result of start ``k``; ``host``: :func:`_host_scalars` of ``fit``, when made."""
+    def _result(self, fit: FrameFit, k: int, host: torch.Tensor) -> TrackResult:
+        """The result of start ``k``; ``host``: :func:`_host_scalars` of ``fit``."""
         s = fit.signals
-        host = _host_scalars(fit) if host is None else host
         depth_error, overlap, surface, steps, converged = host[k].tolist()
         return TrackResult(
             q=fit.q[k],

@@ -332,6 +332,14 @@ def test_a_refused_detection_makes_the_detector_wait(scene, wait, asked):
     assert est.state.refused_at is None
 
 
+def _turn_round(est) -> None:
+    """Turn the estimator's track to face away from the camera (a new pose: the estimate's
+    own tensors are read-only outside it)."""
+    turned = est.state.q_prev.clone()
+    turned[3:6] = torch.tensor([0.0, 0.0, math.pi])
+    est.state.q_prev = turned
+
+
 def test_recheck_is_off_without_keep_better_and_never_turns_the_track(scene, constants):
     q, depth, labels, mask = scene
     est, calls = make_hybrid(scene, FakeTracker(surface_mm=1e4), recheck_badness=0.0)
@@ -350,9 +358,7 @@ def test_recheck_is_off_without_keep_better_and_never_turns_the_track(scene, con
     )
     constants(MAX_TURN_FRAMES=2)
     estimate_frame(est, frame_of(depth, 0, mask))
-    turned = est.state.q_prev.clone()  # the estimate's own tensors are read-only out of it
-    turned[3:6] = torch.tensor([0.0, 0.0, math.pi])  # the track faces away but passes
-    est.state.q_prev = turned
+    _turn_round(est)  # the track faces away but passes
     statuses = [estimate_frame(est, frame_of(depth, i, mask)).status for i in range(1, 5)]
     assert statuses == ["tracked"] * 4 and len(calls) == 5 and est.state.turned_round == 0
 
@@ -410,9 +416,7 @@ def test_a_track_turned_round_for_long_gives_way_to_the_detector(scene, constant
     est, _ = make_hybrid(scene, tracker, keep_better=True, max_turn_rad=1.6)
     constants(MAX_TURN_FRAMES=3)
     estimate_frame(est, frame_of(depth, 0, mask))
-    turned = est.state.q_prev.clone()  # the estimate's own tensors are read-only out of it
-    turned[3:6] = torch.tensor([0.0, 0.0, math.pi])  # the track faces away
-    est.state.q_prev = turned
+    _turn_round(est)  # the track faces away
     statuses = [estimate_frame(est, frame_of(depth, i, mask)).status for i in range(1, 4)]
     assert statuses == ["tracked", "tracked", "detected"]  # the third turned detection wins
     assert root_turn(est.state.q_prev, q) < 0.3
