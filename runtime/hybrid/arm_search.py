@@ -137,14 +137,11 @@ class ArmSearch:
             searched += 1
             found = None
             starts = arm_candidates(track.q, suspect.side)
-            if self.cfg.aimed_start != "off":
+            if self.cfg.aimed_start:
                 aimed = aimed_arm_start(
                     track.q, suspect.side, suspect.arm_points, suspect.arm_labels, self.body
-                ).to(starts)
-                # "instead": the labelled pixels place the arm; the blind sweep is for an arm
-                # the forest labels too little to aim at.
-                only = self.cfg.aimed_start == "instead" and len(aimed) > 0
-                starts = aimed if only else torch.cat([starts, aimed])
+                )
+                starts = torch.cat([starts, aimed.to(starts)])
             for r in refit(starts):
                 b = badness_of(r.signals)
                 if b < badness and self._accepts(suspect, r.q):

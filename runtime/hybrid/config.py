@@ -178,12 +178,10 @@ class ArmSearchConfig:
     misplaced: MisplacedArmConfig | None = field_doc(
         None, "search arms the model shows on pixels the forest calls something else (None: off)"
     )
-    aimed_start: str = field_doc(
-        "off",
-        "a start with the arm aimed at its labelled pixels by inverse kinematics "
-        "(:mod:`runtime.hybrid.aimed_arm`), for an arm held out sideways or towards the "
-        "camera: 'extra' after the fixed starts, 'instead' of them where the forest labels "
-        "enough of the arm to aim at, 'off'",
+    aimed_start: bool = field_doc(
+        False,
+        "one more start with the arm aimed at its labelled pixels by inverse kinematics "
+        "(:mod:`runtime.hybrid.aimed_arm`): an arm held out sideways or towards the camera",
     )
     cooldown_frames: int = field_doc(
         0,
@@ -199,9 +197,6 @@ class ArmSearchConfig:
                self.other_arm_margin_m)  # fmt: skip
         s = self.agreement_slack
         _check(s is None or s >= 0, "arm_search.agreement_slack must be >= 0 or None", s)
-        _check(self.aimed_start in ("off", "extra", "instead"),
-               "arm_search.aimed_start must be 'off', 'extra' or 'instead'",
-               self.aimed_start)  # fmt: skip
 
 
 def _shipped_failure() -> FailureThresholds:
