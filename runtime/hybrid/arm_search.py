@@ -28,7 +28,6 @@ from depthmocap.shared.body import BodyShape
 from depthmocap.shared.camera import masked_points
 from depthmocap.shared.kinematics import Kinematics, forward_kinematics
 
-from .aimed_arm import aimed_arm_start
 from .arm_labels import (
     AGREEMENT_MARGIN_M,
     CONFLICT_MARGIN_M,
@@ -92,7 +91,6 @@ class _Suspect:
 
     side: str
     arm_points: torch.Tensor  # (N, 3) the forest's pixels of the arm not near the other arm
-    arm_labels: torch.Tensor  # (N,) their part labels (the arm's upper arm or forearm)
     agreement_floor: float | None  # a refit keeps at least this share of them near the arm
     conflicts: float | None  # the track's labelled-otherwise points (misplaced arms), or None
     points: torch.Tensor  # (M, 3) all the person's points, for the conflict of a refit
@@ -136,13 +134,7 @@ class ArmSearch:
         for suspect in self._suspects(frame, labels, track):
             searched += 1
             found = None
-            starts = arm_candidates(track.q, suspect.side)
-            if self.cfg.aimed_start:
-                aimed = aimed_arm_start(
-                    track.q, suspect.side, suspect.arm_points, suspect.arm_labels, self.body
-                )
-                starts = torch.cat([starts, aimed.to(starts)])
-            for r in refit(starts):
+            for r in refit(arm_candidates(track.q, suspect.side)):
                 b = badness_of(r.signals)
                 if b < badness and self._accepts(suspect, r.q):
                     found, badness = r, b
@@ -203,7 +195,6 @@ class ArmSearch:
                 continue
             chosen = (arm_pixels(labels, mask, side) & ~explained)[mask]
             arm_points = points[chosen]
-            arm_labels = point_labels[chosen]
             mine = float(agreement_from_distances(signed[:, chosen], side, AGREEMENT_MARGIN_M)[0])
             partly = shown >= HIDDEN_VISIBILITY
             if conflicts is None and partly and not mine < PARTIAL_AGREEMENT:
@@ -211,7 +202,7 @@ class ArmSearch:
             # No forest pixels of the arm (NaN agreement): nothing to keep the refit near.
             check = cfg.agreement_slack is not None and math.isfinite(mine)
             floor = mine - cfg.agreement_slack if check else None
-            yield _Suspect(side, arm_points, arm_labels, floor, conflicts, points, point_labels)
+            yield _Suspect(side, arm_points, floor, conflicts, points, point_labels)
 
     def _accepts(self, suspect: _Suspect, q: torch.Tensor) -> bool:
         """Whether a refit's pose ``q`` keeps the arm's labelled pixels near it and, for a

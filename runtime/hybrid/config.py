@@ -178,11 +178,6 @@ class ArmSearchConfig:
     misplaced: MisplacedArmConfig | None = field_doc(
         None, "search arms the model shows on pixels the forest calls something else (None: off)"
     )
-    aimed_start: bool = field_doc(
-        False,
-        "one more start with the arm aimed at its labelled pixels by inverse kinematics "
-        "(:mod:`runtime.hybrid.aimed_arm`): an arm held out sideways or towards the camera",
-    )
     cooldown_frames: int = field_doc(
         0,
         "after a search of an arm found no refit to take, that arm is not searched again for "
