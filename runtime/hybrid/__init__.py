@@ -29,11 +29,10 @@ from .config import (
     KeepBetterConfig,
     MisplacedArmConfig,
 )
-from .estimator import HybridEstimator, TrackState, root_turn
-from .policy import MAX_TURN_FRAMES, Decision, Detection, TrackVerdict, choose, judge_track
+from .estimator import HybridEstimator, TrackState
+from .policy import Decision, Detection, TrackVerdict, choose, judge_track
 
 __all__ = [
-    "MAX_TURN_FRAMES",
     "ArmSearchConfig",
     "Decision",
     "Detection",
@@ -49,7 +48,6 @@ __all__ = [
     "create_estimator",
     "judge_track",
     "recording_labels",
-    "root_turn",
 ]
 
 

@@ -103,13 +103,6 @@ class KeepBetterConfig:
         "compare the two fits by their badness (all three signals over their thresholds) "
         "instead of the surface error alone",
     )
-    max_turn_rad: float | None = field_doc(
-        None,
-        "a detection whose root turns more than this from the track is not taken (rad): a "
-        "person does not turn round in one frame, but a profile fits facing either way; "
-        "unless the failing track has been turned round for "
-        "depthmocap.runtime.hybrid.policy.MAX_TURN_FRAMES frames in a row (None: any turn)",
-    )
     recheck_badness: float | None = field_doc(
         None,
         "also run the detector on a passed frame whose badness exceeds this (None: never)",
@@ -123,8 +116,6 @@ class KeepBetterConfig:
 
     def __post_init__(self) -> None:
         _check(self.wait_frames >= 0, "keep_better.wait_frames must be >= 0", self.wait_frames)
-        t = self.max_turn_rad
-        _check(t is None or t >= 0, "max_turn_rad must be >= 0 or None", t)
         b = self.recheck_badness
         _check(b is None or not math.isnan(b), "recheck_badness must be a number or None", b)
 
@@ -199,7 +190,7 @@ def _shipped_failure() -> FailureThresholds:
 
 
 def _shipped_keep_better() -> KeepBetterConfig:
-    return KeepBetterConfig(compare_all_tests=True, max_turn_rad=1.6, recheck_badness=2.4)
+    return KeepBetterConfig(compare_all_tests=True, recheck_badness=2.4)
 
 
 def _shipped_arm_search() -> ArmSearchConfig:

@@ -35,7 +35,6 @@ from depthmocap.runtime.frame import Frame, LabelSource
 from depthmocap.runtime.tracker.tracker import Tracker, TrackResult
 from depthmocap.shared.joint_offsets import JointOffsets, apply_offsets
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
-from depthmocap.shared.so3 import rotvec_to_matrix
 
 from .arm_search import ArmSearch
 from .body_scale import BodyScaleSearch
@@ -43,13 +42,7 @@ from .config import HybridConfig
 from .policy import Detection, choose, judge_track
 from .unseen_limbs import held_dofs, hold_unseen
 
-__all__ = ["HybridEstimator", "TrackState", "overlaps_of", "root_turn"]
-
-
-def root_turn(q_a: torch.Tensor, q_b: torch.Tensor) -> float:
-    """Angle (rad) of the rotation between the root orientations of two (34,) poses."""
-    r = rotvec_to_matrix(q_a[3:6]) @ rotvec_to_matrix(q_b[3:6]).T
-    return float(torch.arccos(((torch.diagonal(r).sum() - 1.0) / 2.0).clamp(-1.0, 1.0)))
+__all__ = ["HybridEstimator", "TrackState", "overlaps_of"]
 
 
 @dataclass
@@ -59,7 +52,6 @@ class TrackState:
     Attributes:
         q_prev, q_prev2: (34,) the last two poses (None: no track).
         passed: frames tracked since the detector last ran.
-        turned_round: failed frames in a row whose detection turned the person round.
         refused_at: the frame whose detection was last refused (None: none since the reset).
         held: (34,) bool angles of the limbs the last tracked pose did not see
             (``cfg.hold_unseen_limbs``; None: none held).
@@ -68,7 +60,6 @@ class TrackState:
     q_prev: torch.Tensor | None = None
     q_prev2: torch.Tensor | None = None
     passed: int = 0
-    turned_round: int = 0
     refused_at: int | None = None
     held: torch.Tensor | None = None
 
@@ -307,7 +298,6 @@ class HybridEstimator:
                 errors["arms_searched"] = float(found.arms_searched)
         verdict = judge_track(res.signals, badness, state.passed, cfg.failure, cfg.keep_better)
         if not verdict.run_detector:
-            state.turned_round = 0
             return self._tracked(res, errors, frame)
         wait = 0 if cfg.keep_better is None else cfg.keep_better.wait_frames
         if state.refused_at is not None and frame.index - state.refused_at <= wait:
@@ -318,15 +308,10 @@ class HybridEstimator:
         det = self._run_detector(frame)
         if cfg.keep_better is None:
             return self._detected(det, failed)
-        turn = None if not det.found else root_turn(det.q.to(state.q_prev), state.q_prev)
-        detection = Detection(det.found, det.refined.signals if det.refined else None, turn)
-        decision = choose(
-            res.signals, detection, verdict.failed, state.turned_round, cfg.failure,
-            cfg.keep_better,
-        )  # fmt: skip
+        detection = Detection(det.found, det.refined.signals if det.refined else None)
+        decision = choose(res.signals, detection, cfg.failure, cfg.keep_better)
         if decision.forget and self.arm_search is not None:
             self.arm_search.reset()
-        state.turned_round = decision.turned_round
         if decision.keep_track:
             state.refused_at = frame.index
             kept = {"kept_over_detector": 1.0} if verdict.failed else {"rechecked": 1.0}

@@ -5,8 +5,7 @@ Two decisions per frame, both free of state and tensors so that tables can test 
 1. :func:`judge_track`: has the tracked fit failed, or should the detector question it anyway
    (a recheck)? Either way the detector runs.
 2. :func:`choose`: given the detection, keep the track or take the detection? Wei always takes
-   the detection; with ``keep_better`` it is taken only when it fits better and does not turn
-   the person round, unless the track has kept failing and being turned round for a while.
+   the detection; with ``keep_better`` it is taken only when it fits better.
 
 The estimator (:mod:`runtime.hybrid.estimator`) carries the counters these read between frames.
 """
@@ -19,12 +18,7 @@ from depthmocap.runtime.tracker.signals import FitSignals
 
 from .config import FailureThresholds, KeepBetterConfig
 
-__all__ = ["MAX_TURN_FRAMES", "Decision", "Detection", "TrackVerdict", "choose", "judge_track"]
-
-# A detection that turns the person round is refused (keep_better.max_turn_rad) until the
-# failing track has been turned round this many frames in a row: then the track itself is
-# taken to face the wrong way (half a second at 30 frames/s).
-MAX_TURN_FRAMES = 15
+__all__ = ["Decision", "Detection", "TrackVerdict", "choose", "judge_track"]
 
 
 @dataclass(frozen=True)
@@ -46,24 +40,19 @@ class Detection:
     Attributes:
         found: the detector found a person (enough labelled pixels).
         signals: the refined detection's signals, None when it was not refined (nothing to
-            compare: the detection is taken unless it turns the person round).
-        turn_rad: how far its root orientation is turned from the track's previous pose
-            (rad), None when not found.
+            compare: the detection is taken).
     """
 
     found: bool
     signals: FitSignals | None = None
-    turn_rad: float | None = None
 
 
 @dataclass(frozen=True)
 class Decision:
-    """Keep the track (``keep_track``) or take the detection; ``turned_round``: the new count
-    of failed frames in a row whose detection turned the person round; ``forget``: the
-    detector found no one, so per-track memories (cooldowns) are dropped."""
+    """Keep the track (``keep_track``) or take the detection; ``forget``: the detector found
+    no one, so per-track memories (cooldowns) are dropped."""
 
     keep_track: bool
-    turned_round: int
     forget: bool = False
 
 
@@ -88,24 +77,15 @@ def judge_track(
 def choose(
     track: FitSignals,
     detection: Detection,
-    failed: bool,
-    turned_round: int,
     failure: FailureThresholds,
     keep_better: KeepBetterConfig,
 ) -> Decision:
-    """Keep the track or take the detection (module docstring). ``failed``: the track failed
-    its tests (rather than being rechecked); ``turned_round``: the count so far."""
+    """Keep the track or take the detection (module docstring)."""
     if not detection.found:
-        return Decision(keep_track=True, turned_round=0, forget=True)
+        return Decision(keep_track=True, forget=True)
     worse = detection.signals is not None
     if worse and keep_better.compare_all_tests:
         worse = failure.badness(detection.signals) >= failure.badness(track)
     elif worse:
         worse = detection.signals.surface_error_q97_mm >= track.surface_error_q97_mm
-    limit = keep_better.max_turn_rad
-    turned = limit is not None and detection.turn_rad is not None and detection.turn_rad > limit
-    # Only a track that keeps failing may be turned round; a recheck never.
-    turned_round = turned_round + 1 if turned and failed else 0
-    if turned_round < MAX_TURN_FRAMES:
-        worse = worse or turned
-    return Decision(keep_track=worse, turned_round=turned_round)
+    return Decision(keep_track=worse)

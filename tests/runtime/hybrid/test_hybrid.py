@@ -20,7 +20,6 @@ from depthmocap.runtime.hybrid import (
     KeepBetterConfig,
     MisplacedArmConfig,
     create_estimator,
-    root_turn,
 )
 from depthmocap.runtime.hybrid import arm_search as arm_search_module
 from depthmocap.runtime.hybrid import hybrid_config as config_from_mapping
@@ -65,9 +64,9 @@ def cfg_of(**flat) -> HybridConfig:
                if k in flat}  # fmt: skip
     if "epsilon3_mm" in failure:
         failure["epsilon3_mm"] = _off(failure["epsilon3_mm"])
-    keep = {k: flat.pop(k) for k in ("compare_all_tests", "max_turn_rad", "recheck_badness",
+    keep = {k: flat.pop(k) for k in ("compare_all_tests", "recheck_badness",
                                      "wait_frames") if k in flat}  # fmt: skip
-    for k in ("max_turn_rad", "recheck_badness"):
+    for k in ("recheck_badness",):
         if k in keep:
             keep[k] = _off(keep[k])
     arm = {k: flat.pop(k) for k in ("other_arm_margin_m",) if k in flat}
@@ -332,15 +331,7 @@ def test_a_refused_detection_makes_the_detector_wait(scene, wait, asked):
     assert est.state.refused_at is None
 
 
-def _turn_round(est) -> None:
-    """Turn the estimator's track to face away from the camera (a new pose: the estimate's
-    own tensors are read-only outside it)."""
-    turned = est.state.q_prev.clone()
-    turned[3:6] = torch.tensor([0.0, 0.0, math.pi])
-    est.state.q_prev = turned
-
-
-def test_recheck_is_off_without_keep_better_and_never_turns_the_track(scene, constants):
+def test_recheck_is_off_without_keep_better(scene):
     q, depth, labels, mask = scene
     est, calls = make_hybrid(scene, FakeTracker(surface_mm=1e4), recheck_badness=0.0)
     assert [estimate_frame(est, frame_of(depth, i, mask)).status for i in range(3)] == [
@@ -350,17 +341,11 @@ def test_recheck_is_off_without_keep_better_and_never_turns_the_track(scene, con
     ]
     assert len(calls) == 1
     est, calls = make_hybrid(
-        scene,
-        FakeTracker(surface_mm=1e4),
-        keep_better=True,
-        recheck_badness=0.0,  # every passed frame is rechecked
-        max_turn_rad=1.6,
+        scene, FakeTracker(surface_mm=1e4), keep_better=True, recheck_badness=0.0
     )
-    constants(MAX_TURN_FRAMES=2)
-    estimate_frame(est, frame_of(depth, 0, mask))
-    _turn_round(est)  # the track faces away but passes
-    statuses = [estimate_frame(est, frame_of(depth, i, mask)).status for i in range(1, 5)]
-    assert statuses == ["tracked"] * 4 and len(calls) == 5 and est.state.turned_round == 0
+    for i in range(3):  # every passed frame is rechecked: the detector runs on each
+        estimate_frame(est, frame_of(depth, i, mask))
+    assert len(calls) == 3
 
 
 def test_fit_badness_golden():
@@ -383,48 +368,6 @@ def test_keep_better_can_compare_all_three_signals(scene, compare_all, status):
     estimate_frame(est, frame_of(depth, 0, mask))
     got = estimate_frame(est, frame_of(depth, 1, mask))
     assert got.status == status
-
-
-def test_root_turn_golden():
-    q = rest_pose(1)[0]
-    turned = q.clone()
-    # Root (pi, 0, 0) then 120 degrees more about the same axis: 120 degrees apart.
-    turned[3:6] = torch.tensor([math.pi + math.radians(120), 0.0, 0.0])
-    assert root_turn(q, q) == pytest.approx(0.0, abs=1e-3)
-    assert root_turn(turned, q) == pytest.approx(math.radians(120), abs=1e-4)
-
-
-@pytest.mark.parametrize("max_turn, status", [(math.inf, "detected"), (1.6, "tracked")])
-def test_a_detector_pose_turned_round_is_not_taken(scene, max_turn, status):
-    q, depth, labels, mask = scene
-    tracker = FakeTracker(fail_calls={1}, surface_mm=1e4)
-    est, _ = make_hybrid(scene, tracker, keep_better=True, max_turn_rad=max_turn)
-    assert estimate_frame(est, frame_of(depth, 0, mask)).status == "detected"
-    # The track so far faces away; the detector (which finds the true pose) turns it round.
-    away = est.state.q_prev.clone()
-    away[3:6] = torch.tensor([0.0, 0.0, math.pi])  # facing (pi, 0, 0) turned about y
-    est.state.q_prev = away
-    got = estimate_frame(est, frame_of(depth, 1, mask))
-    assert got.status == status
-    if status == "tracked":
-        assert got.errors["kept_over_detector"] == 1.0
-
-
-def test_a_track_turned_round_for_long_gives_way_to_the_detector(scene, constants):
-    q, depth, labels, mask = scene
-    tracker = FakeTracker(fail_calls={1, 2, 3, 5}, surface_mm=1e4)
-    est, _ = make_hybrid(scene, tracker, keep_better=True, max_turn_rad=1.6)
-    constants(MAX_TURN_FRAMES=3)
-    estimate_frame(est, frame_of(depth, 0, mask))
-    _turn_round(est)  # the track faces away
-    statuses = [estimate_frame(est, frame_of(depth, i, mask)).status for i in range(1, 4)]
-    assert statuses == ["tracked", "tracked", "detected"]  # the third turned detection wins
-    assert root_turn(est.state.q_prev, q) < 0.3
-    # A frame that passes resets the count.
-    assert (
-        estimate_frame(est, frame_of(depth, 4, mask)).status == "tracked"
-        and est.state.turned_round == 0
-    )
 
 
 def test_with_real_tracker_and_detector(scene):
@@ -467,10 +410,9 @@ def test_config_and_factory_errors(tmp_path):
         ("failure", {"epsilon2": 1.0}),
         ("failure", {"epsilon3_mm": float("nan")}),
         ("keep_better", {"recheck_badness": float("nan")}),
-        ("keep_better", {"max_turn_rad": -1.0}),
         ("keep_better", {"wait_frames": -1}),
     ):
-        with pytest.raises(HybridError, match="epsilon|recheck|max_turn|wait_frames"):
+        with pytest.raises(HybridError, match="epsilon|recheck|wait_frames"):
             config_from_mapping({section: bad})
     with pytest.raises(HybridError, match="recheck_every"):  # a setting that is no more
         create_estimator(
@@ -484,7 +426,7 @@ def test_the_shipped_preset_is_a_tree_of_values():
 
     cfg = config_from_mapping(load_settings("configs/hybrid.yaml"))
     assert cfg.failure == FailureThresholds(3.0, 0.7, 80.0, lost_overlap=0.3)
-    assert cfg.keep_better == KeepBetterConfig(True, 1.6, 2.4)
+    assert cfg.keep_better == KeepBetterConfig(True, 2.4)
     assert cfg.arm_search.badness == 1.9 and cfg.arm_search.misplaced.conflict == 0.7
     assert cfg.tracker.use_labels and cfg.tracker.use_collision
 

@@ -6,7 +6,6 @@ import math
 
 import pytest
 from depthmocap.runtime.hybrid import (
-    MAX_TURN_FRAMES,
     Decision,
     Detection,
     FailureThresholds,
@@ -40,38 +39,28 @@ def test_judge_track(signals, passed, keep, failed, recheck):
     assert verdict.run_detector == (failed or recheck)
 
 
-KEEP = KeepBetterConfig(compare_all_tests=True, max_turn_rad=1.6)
-N = MAX_TURN_FRAMES
+KEEP = KeepBetterConfig(compare_all_tests=True)
 SURFACE_ONLY = KeepBetterConfig(compare_all_tests=False)
 BETTER = FitSignals(1.0, 0.9, 60.0)  # badness 1.42 < FAILED badness 1.92; surface 60 > 20
 WORSE = FitSignals(3.5, 0.6, 90.0)
 
 
 @pytest.mark.parametrize(
-    "track, detection, failed, turned, keep, expected",
+    "track, detection, keep, expected",
     [
         # Better by badness: taken; worse: the track stays.
-        (FAILED, Detection(True, BETTER, 0.1), True, 0, KEEP, Decision(False, 0)),
-        (FAILED, Detection(True, WORSE, 0.1), True, 0, KEEP, Decision(True, 0)),
+        (FAILED, Detection(True, BETTER), KEEP, Decision(False)),
+        (FAILED, Detection(True, WORSE), KEEP, Decision(True)),
         # By the surface error alone the same detection loses.
-        (FAILED, Detection(True, BETTER, 0.1), True, 0, SURFACE_ONLY, Decision(True, 0)),
+        (FAILED, Detection(True, BETTER), SURFACE_ONLY, Decision(True)),
         # Not refined: nothing to compare, taken.
-        (FAILED, Detection(True, None, 0.1), True, 0, KEEP, Decision(False, 0)),
-        # Turned round: not taken, counted while the track keeps failing ...
-        (FAILED, Detection(True, BETTER, 3.0), True, 0, KEEP, Decision(True, 1)),
-        # ... until it has turned MAX_TURN_FRAMES times in a row.
-        (FAILED, Detection(True, BETTER, 3.0), True, N - 2, KEEP, Decision(True, N - 1)),
-        (FAILED, Detection(True, BETTER, 3.0), True, N - 1, KEEP, Decision(False, N)),
-        # A recheck never turns the track, nor counts.
-        (FAILED, Detection(True, BETTER, 3.0), False, N - 1, KEEP, Decision(True, 0)),
-        # No limit on the turn.
-        (FAILED, Detection(True, BETTER, 3.0), True, 0, SURFACE_ONLY, Decision(True, 0)),
+        (FAILED, Detection(True, None), KEEP, Decision(False)),
         # Nobody found: keep the track and forget the per-track memories.
-        (FAILED, Detection(False), True, 2, KEEP, Decision(True, 0, forget=True)),
+        (FAILED, Detection(False), KEEP, Decision(True, forget=True)),
     ],
 )
-def test_choose(track, detection, failed, turned, keep, expected):
-    assert choose(track, detection, failed, turned, SHIPPED, keep) == expected
+def test_choose(track, detection, keep, expected):
+    assert choose(track, detection, SHIPPED, keep) == expected
 
 
 def test_badness_and_failure_on_the_thresholds():
