@@ -51,7 +51,6 @@ class TrackState:
 
     Attributes:
         q_prev, q_prev2: (34,) the last two poses (None: no track).
-        passed: frames tracked since the detector last ran.
         refused_at: the frame whose detection was last refused (None: none since the reset).
         held: (34,) bool angles of the limbs the last tracked pose did not see
             (``cfg.hold_unseen_limbs``; None: none held).
@@ -59,7 +58,6 @@ class TrackState:
 
     q_prev: torch.Tensor | None = None
     q_prev2: torch.Tensor | None = None
-    passed: int = 0
     refused_at: int | None = None
     held: torch.Tensor | None = None
 
@@ -280,7 +278,6 @@ class HybridEstimator:
             return self._detected(self._run_detector(frame), {})
         res = self._fit(frame, state.q_prev, hold_unseen(state.q_prev, state.q_prev2, state.held))
         errors = res.signals.as_errors()
-        state.passed += 1
         badness = cfg.failure.badness(res.signals)
         if self.arm_search is not None and self.arm_search.wanted(badness):
             found = self.arm_search.search(
@@ -296,14 +293,13 @@ class HybridEstimator:
                 errors = {**res.signals.as_errors(), "arm_searched": 1.0}
             if found.arms_searched:  # refits tried, taken or not: what the search costs
                 errors["arms_searched"] = float(found.arms_searched)
-        verdict = judge_track(res.signals, badness, state.passed, cfg.failure, cfg.keep_better)
+        verdict = judge_track(res.signals, badness, cfg.failure, cfg.keep_better)
         if not verdict.run_detector:
             return self._tracked(res, errors, frame)
         wait = 0 if cfg.keep_better is None else cfg.keep_better.wait_frames
         if state.refused_at is not None and frame.index - state.refused_at <= wait:
             # The detector was just refused: the track is kept without asking it again.
             return self._keep(res, errors, {"detector_waited": 1.0}, frame)
-        state.passed = 0
         failed = {f"tracker_{k}": v for k, v in errors.items()}
         det = self._run_detector(frame)
         if cfg.keep_better is None:

@@ -7,7 +7,7 @@ Two decisions per frame, both free of state and tensors so that tables can test 
 2. :func:`choose`: given the detection, keep the track or take the detection? Wei always takes
    the detection; with ``keep_better`` it is taken only when it fits better.
 
-The estimator (:mod:`runtime.hybrid.estimator`) carries the counters these read between frames.
+The estimator (:mod:`runtime.hybrid.estimator`) calls both and keeps what carries over frames.
 """
 
 from __future__ import annotations
@@ -59,13 +59,10 @@ class Decision:
 def judge_track(
     signals: FitSignals,
     badness: float,
-    passed: int,
     failure: FailureThresholds,
     keep_better: KeepBetterConfig | None,
 ) -> TrackVerdict:
-    """The tests on a tracked frame; ``passed``: frames tracked since the detector last ran,
-    this one included."""
-    del passed  # kept in the signature: a periodic recheck would read it
+    """The tests on a tracked frame (``badness``: its signals' ``failure.badness``)."""
     recheck = (
         keep_better is not None
         and keep_better.recheck_badness is not None

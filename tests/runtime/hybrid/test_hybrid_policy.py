@@ -22,19 +22,19 @@ FAILED = FitSignals(4.0, 0.9, 20.0)  # depth error over epsilon1
 
 
 @pytest.mark.parametrize(
-    "signals, passed, keep, failed, recheck",
+    "signals, keep, failed, recheck",
     [
-        (GOOD, 1, None, False, False),
-        (FAILED, 1, None, True, False),
-        (SUSPECT, 1, KeepBetterConfig(recheck_badness=2.0), False, True),
-        (SUSPECT, 1, KeepBetterConfig(recheck_badness=2.4), False, False),
-        (GOOD, 1, KeepBetterConfig(recheck_badness=0.0), False, True),
-        (SUSPECT, 9, None, False, False),  # rechecks need keep_better
-        (FitSignals(math.nan, 0.95, 30.0), 1, None, True, False),  # NaN fails
+        (GOOD, None, False, False),
+        (FAILED, None, True, False),
+        (SUSPECT, KeepBetterConfig(recheck_badness=2.0), False, True),
+        (SUSPECT, KeepBetterConfig(recheck_badness=2.4), False, False),
+        (GOOD, KeepBetterConfig(recheck_badness=0.0), False, True),
+        (SUSPECT, None, False, False),  # rechecks need keep_better
+        (FitSignals(math.nan, 0.95, 30.0), None, True, False),  # NaN fails
     ],
 )
-def test_judge_track(signals, passed, keep, failed, recheck):
-    verdict = judge_track(signals, SHIPPED.badness(signals), passed, SHIPPED, keep)
+def test_judge_track(signals, keep, failed, recheck):
+    verdict = judge_track(signals, SHIPPED.badness(signals), SHIPPED, keep)
     assert (verdict.failed, verdict.recheck) == (failed, recheck)
     assert verdict.run_detector == (failed or recheck)
 
