@@ -11,7 +11,9 @@ CPU, once per Gauss-Newton iteration. Here each primitive's conservative pixel b
 (:func:`runtime.capsule_pixels.segment_boxes`' bound, per pose) is cast in place against the
 z-buffer. The intersection is the same closed form (Inigo Quilez's capsule in the
 primitive's scaled frame) in float64; a pixel where two primitives meet at the same depth to
-rounding may go to the other one, as in the torch code's float32.
+rounding may go to the other one, as in the torch code's float32. The float64 z-buffer is one
+pose's, and only the union of that pose's boxes is cleared and read back: the tracker's window
+is several times the person, and whole-image passes were a quarter of a render.
 
 :func:`segment_distances_cpu` is :func:`runtime.raycast.segment_distances` (every point to
 every capsule, for the surface-error signal and the arm search's label checks), one pass over
@@ -42,20 +44,72 @@ def _capsule_frame(basis, rot, m):  # pragma: no cover - compiled
             m[i, j] = basis[i, 0] * rot[j, 0] + basis[i, 1] * rot[j, 1] + basis[i, 2] * rot[j, 2]
 
 
+@numba.njit(inline="always")
+def _pixel_box(
+    rot, origin, basis, scale, span, near, fx, fy, cx, cy, H, W, cen
+):  # pragma: no cover - compiled
+    """(u0, u1, v0, v1), end-exclusive, of the pixels one capsule can cover; empty (u0 >= u1
+    or v0 >= v1) when it lies behind the camera or its pose is not a number."""
+    # The capsule lies in the hull of two spheres of its largest semi-axis around its cap
+    # centres; each sphere's x/z and y/z are extreme at its box corners.
+    radius = max(scale[0], max(scale[1], scale[2]))
+    ul, uh, vl, vh = np.inf, -np.inf, np.inf, -np.inf
+    for e in range(2):
+        for i in range(3):
+            axis = rot[i, 0] * basis[2, 0] + rot[i, 1] * basis[2, 1] + rot[i, 2] * basis[2, 2]
+            cen[i] = origin[i] + span[e] * axis
+        far = cen[2] + radius
+        if far <= near:
+            continue
+        close = max(cen[2] - radius, near)
+        for s in (-radius, radius):
+            for zz in (close, far):
+                ul = min(ul, (cen[0] + s) / zz)
+                uh = max(uh, (cen[0] + s) / zz)
+                vl = min(vl, (cen[1] + s) / zz)
+                vh = max(vh, (cen[1] + s) / zz)
+    if not (ul <= uh and vl <= vh):
+        return 0, 0, 0, 0
+    u0 = int(max(math.floor(max(min(ul * fx + cx, 1e6), -1e6)), 0.0))
+    u1 = int(min(math.ceil(max(min(uh * fx + cx, 1e6), -1e6)) + 1.0, W))
+    v0 = int(max(math.floor(max(min(vl * fy + cy, 1e6), -1e6)), 0.0))
+    v1 = int(min(math.ceil(max(min(vh * fy + cy, 1e6), -1e6)) + 1.0, H))
+    return u0, u1, v0, v1
+
+
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def _zbuffer(
-    rot, origin, basis, scale, span, fx, fy, cx, cy, near, depth, prim, segment_of, segment, out
+    rot, origin, basis, scale, span, fx, fy, cx, cy, near, prim, segment_of, segment, out
 ):  # pragma: no cover
     B, P = origin.shape[0], origin.shape[1]
-    H, W = depth.shape[1], depth.shape[2]
+    H, W = prim.shape[1], prim.shape[2]
     m = np.empty((3, 3))
     cen = np.empty(3)
+    boxes = np.empty((P, 4), np.int64)
+    depth = np.empty((H, W))  # the float64 z-buffer of one pose, inside the boxes' union
     for b in range(B):
-        for v in range(H):
-            for u in range(W):
-                depth[b, v, u] = np.inf
-                prim[b, v, u] = -1
+        # Background everywhere first (three plain fills); the z-buffer's own passes then
+        # cover only the union of the capsules' boxes, a few times the person's pixels where
+        # the window is ~10 times them.
+        prim[b] = -1
+        segment[b] = -1
+        out[b] = 0.0
+        U0, U1, V0, V1 = W, 0, H, 0
         for p in range(P):
+            u0, u1, v0, v1 = _pixel_box(
+                rot[b, p], origin[b, p], basis[p], scale[b, p], span[b, p], near, fx, fy, cx,
+                cy, H, W, cen,
+            )  # fmt: skip
+            boxes[p, 0], boxes[p, 1], boxes[p, 2], boxes[p, 3] = u0, u1, v0, v1
+            if u0 < u1 and v0 < v1:
+                U0, U1, V0, V1 = min(U0, u0), max(U1, u1), min(V0, v0), max(V1, v1)
+        for v in range(V0, V1):
+            for u in range(U0, U1):
+                depth[v, u] = np.inf
+        for p in range(P):
+            u0, u1, v0, v1 = boxes[p, 0], boxes[p, 1], boxes[p, 2], boxes[p, 3]
+            if not (u0 < u1 and v0 < v1):
+                continue
             # World -> scaled local: m = diag(1 / scale) basis R^T, o = -m origin.
             _capsule_frame(basis[p], rot[b, p], m)
             for i in range(3):
@@ -66,31 +120,6 @@ def _zbuffer(
                 cen[i] -= m[i, 2] * origin[b, p, 2]
             ox, oy, oz = cen[0], cen[1], cen[2]
             za, zb = span[b, p, 0] / scale[b, p, 2], span[b, p, 1] / scale[b, p, 2]
-            # Pixel box: the capsule lies in the hull of two spheres of its largest semi-axis
-            # around its cap centres; each sphere's x/z and y/z are extreme at its box corners.
-            radius = max(scale[b, p, 0], max(scale[b, p, 1], scale[b, p, 2]))
-            ul, uh, vl, vh = np.inf, -np.inf, np.inf, -np.inf
-            for e in range(2):
-                for i in range(3):
-                    axis = rot[b, p, i, 0] * basis[p, 2, 0] + rot[b, p, i, 1] * basis[p, 2, 1]
-                    axis += rot[b, p, i, 2] * basis[p, 2, 2]
-                    cen[i] = origin[b, p, i] + span[b, p, e] * axis
-                far = cen[2] + radius
-                if far <= near:
-                    continue
-                close = max(cen[2] - radius, near)
-                for s in (-radius, radius):
-                    for zz in (close, far):
-                        ul = min(ul, (cen[0] + s) / zz)
-                        uh = max(uh, (cen[0] + s) / zz)
-                        vl = min(vl, (cen[1] + s) / zz)
-                        vh = max(vh, (cen[1] + s) / zz)
-            if not (ul <= uh and vl <= vh):  # behind the camera, or not a number (NaN pose)
-                continue
-            u0 = int(max(math.floor(max(min(ul * fx + cx, 1e6), -1e6)), 0.0))
-            u1 = int(min(math.ceil(max(min(uh * fx + cx, 1e6), -1e6)) + 1.0, W))
-            v0 = int(max(math.floor(max(min(vl * fy + cy, 1e6), -1e6)), 0.0))
-            v1 = int(min(math.ceil(max(min(vh * fy + cy, 1e6), -1e6)) + 1.0, H))
             for v in range(v0, v1):
                 ry = (v - cy) / fy
                 for u in range(u0, u1):
@@ -115,18 +144,15 @@ def _zbuffer(
                             continue
                         t = (-b_s - math.sqrt(h_s)) / a_s
                     # Ties go to the later primitive, as the torch z-buffer's amax does.
-                    if t > near and t <= depth[b, v, u]:
-                        depth[b, v, u] = t
+                    if t > near and t <= depth[v, u]:
+                        depth[v, u] = t
                         prim[b, v, u] = p
-        for v in range(H):
-            for u in range(W):
+        for v in range(V0, V1):
+            for u in range(U0, U1):
                 p = prim[b, v, u]
-                if p < 0:
-                    depth[b, v, u] = 0.0
-                    segment[b, v, u] = -1
-                else:
+                if p >= 0:
                     segment[b, v, u] = segment_of[p]
-                out[b, v, u] = depth[b, v, u]  # rounded to out's dtype, as torch's .to
+                    out[b, v, u] = depth[v, u]  # rounded to out's dtype, as torch's .to
 
 
 def zbuffer_cpu(
@@ -147,7 +173,6 @@ def zbuffer_cpu(
     background)."""
     B, P = origin.shape[:2]
     shape = (B, intr.height, intr.width)
-    depth = np.empty(shape)
     prim = np.empty(shape, dtype=np.int64)
     segment = np.empty(shape, dtype=np.int64)
     out = np.empty(shape, dtype=torch.empty(0, dtype=rot.dtype).numpy().dtype)
@@ -155,7 +180,7 @@ def zbuffer_cpu(
     _zbuffer(
         _f64(rot, B, P, 3, 3), _f64(origin, B, P, 3), _f64(basis, P, 3, 3), _f64(scale, B, P, 3),
         _f64(span, B, P, 2), float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy),
-        float(near), depth, prim, table, segment, out,
+        float(near), prim, table, segment, out,
     )  # fmt: skip
     if segment_of is None:
         return torch.from_numpy(out), torch.from_numpy(prim)
