@@ -25,26 +25,41 @@ __all__ = ["sample_pixels_cpu", "rendered_points_cpu", "sampled", "points_at"]
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
-def _count(mask, total):  # pragma: no cover - compiled
-    """Each mask's count of True pixels into ``total``; returns their sum."""
+def _count(mask, total, box):  # pragma: no cover - compiled
+    """Each mask's count of True pixels into ``total`` and the rows and columns (v0, v1, u0,
+    u1), end-exclusive, that hold them into ``box`` (B, 4); returns the counts' sum."""
     nb, h, w = mask.shape
     n = 0
     for b in range(nb):
         c = 0
+        v0, v1, u0, u1 = h, 0, w, 0
         for v in range(h):
+            row = 0
             for u in range(w):
-                if mask[b, v, u]:
-                    c += 1
+                row += mask[b, v, u]  # branch-free, so the row is summed in vector lanes
+            if row == 0:
+                continue
+            c += row
+            v0, v1 = min(v0, v), v + 1
+            first = 0
+            while not mask[b, v, first]:
+                first += 1
+            last = w - 1
+            while not mask[b, v, last]:
+                last -= 1
+            u0, u1 = min(u0, first), max(u1, last + 1)
         total[b] = c
+        box[b, 0], box[b, 1], box[b, 2], box[b, 3] = v0, v1, u0, u1
         n += c
     return n
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
-def _sample(mask, max_count, thin, total, idx, kept):  # pragma: no cover - compiled
+def _sample(mask, max_count, thin, total, box, idx, kept):  # pragma: no cover - compiled
     """Rows (b, v, u) of the kept True pixels of ``mask`` (B, H, W) into ``idx``, row-major,
-    and each mask's count of kept ones into ``kept``; ``thin``: whether the cap applies.
-    Returns the number of rows written."""
+    and each mask's count of kept ones into ``kept``; ``thin``: whether the cap applies;
+    ``box``: :func:`_count`'s, outside which the masks are False. Returns the number of rows
+    written."""
     nb, h, w = mask.shape
     rows = 0
     for b in range(nb):
@@ -54,8 +69,8 @@ def _sample(mask, max_count, thin, total, idx, kept):  # pragma: no cover - comp
         if stride < 1:
             stride = 1
         k = 0
-        for v in range(h):
-            for u in range(w):
+        for v in range(box[b, 0], box[b, 1]):
+            for u in range(box[b, 2], box[b, 3]):
                 if mask[b, v, u]:
                     key = (np.int64(u) * 73856093) ^ (np.int64(v) * 19349663)
                     if key % stride == 0:
@@ -108,10 +123,11 @@ def sampled(mask, max_count):  # pragma: no cover - compiled
     nb = mask.shape[0]
     total = np.zeros(nb, np.int64)
     kept = np.zeros(nb, np.int64)
-    n = _count(mask, total)
+    box = np.empty((nb, 4), np.int64)
+    n = _count(mask, total, box)
     thin = max_count > 0 and n > max_count
     idx = np.empty((n, 3), np.int64)  # the True pixels bound the kept ones
-    rows = _sample(mask, max_count, thin, total, idx, kept)
+    rows = _sample(mask, max_count, thin, total, box, idx, kept)
     idx = idx[:rows]
     ratio = np.ones(rows, np.float64)
     if thin:

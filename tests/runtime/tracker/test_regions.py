@@ -83,7 +83,13 @@ class TestCompiledSampler:
         gen = torch.Generator().manual_seed(cap)
         density = torch.tensor([0.6, 0.0, 0.02, 0.3])[:, None, None]  # one mask empty
         masks = torch.rand(4, 61, 83, generator=gen) < density
-        for m in (masks, masks[:1].expand(3, -1, -1), masks[:, ::2, 1::3], masks[:0]):
+        # The kernel samples within the rows and columns holding True pixels: a patch inside,
+        # single pixels in the far and near corners.
+        patch = torch.zeros(3, 61, 83, dtype=torch.bool)
+        patch[0, 20:30, 40:50] = masks[0, 20:30, 40:50]
+        patch[1, 60, 82] = patch[2, 0, 0] = True
+        views = (masks, masks[:1].expand(3, -1, -1), masks[:, ::2, 1::3], masks[:0], patch)
+        for m in views:
             got = sample_pixels_cpu(m, cap)
             want = sample_pixels_torch(m, cap)
             for g, w in zip(got, want, strict=True):
