@@ -40,6 +40,7 @@ from .arm_search import ArmSearch
 from .body_scale import BodyScaleSearch
 from .config import HybridConfig
 from .policy import Detection, choose, judge_track
+from .split_refits import SplitRefits
 from .unseen_limbs import held_dofs, hold_unseen
 
 __all__ = ["HybridEstimator", "TrackState", "overlaps_of"]
@@ -90,7 +91,9 @@ class HybridEstimator:
         offsets: where the output joints sit relative to the model's
             (``shared.joint_offsets``), or None: the model's own joints.
         background: run the size search's refits on a worker thread (the same size, found
-            on the same frame, as inline; False: inline).
+            on the same frame, as inline) and half of every batched refit's starts on a
+            helper thread (:mod:`~runtime.hybrid.split_refits`; the same fits); False: all
+            on the calling thread.
     """
 
     def __init__(
@@ -111,6 +114,7 @@ class HybridEstimator:
         self.scale_search = (
             None if cfg.body_scale is None else BodyScaleSearch(cfg.body_scale, tracker.body)
         )
+        self._refits = SplitRefits(background)
         self._sizes: Tracker | None = None  # the size search's tracker of all candidates
         # The size search's refits run here, off the frame's path (``_size_overlaps``).
         self._worker = (
@@ -159,9 +163,10 @@ class HybridEstimator:
 
     def _fit_starts(self, frame: Frame, starts: torch.Tensor,
                     iterations: int | None = None) -> list[TrackResult]:  # fmt: skip
-        """Refits of ``frame`` from each of the (K, 34) ``starts``, in one batched fit."""
+        """Refits of ``frame`` from each of the (K, 34) ``starts``, batched (split over two
+        threads on the CPU)."""
         obs = frame.observation(self.tracker, self._tracker_labels(frame))
-        return self.tracker.fit_starts(obs, starts, iterations)
+        return self._refits.fit_starts(self.tracker, obs, starts, iterations)
 
     def _joints(self, q: torch.Tensor) -> np.ndarray:
         """(J, 3) output joints of pose ``q`` (34,): the model's, moved by the offsets."""
