@@ -106,6 +106,14 @@ class ArmSearch:
         self.misplaced_failed_at: dict[str, int] = {}
         self.failed_at: dict[str, int] = {}
 
+    def with_body(self, body: BodyShape) -> ArmSearch:
+        """The same search for ``body`` (the person's size found): the cooldowns carry over,
+        as they are about the arms' recent searches, not the body's shape."""
+        search = ArmSearch(self.cfg, body)
+        search.misplaced_failed_at = dict(self.misplaced_failed_at)
+        search.failed_at = dict(self.failed_at)
+        return search
+
     def reset(self) -> None:
         """Forget the cooldowns (a new track)."""
         self.misplaced_failed_at = {}

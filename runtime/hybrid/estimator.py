@@ -116,6 +116,7 @@ class HybridEstimator:
         )
         self._refits = SplitRefits(background)
         self._sizes: Tracker | None = None  # the size search's tracker of all candidates
+        self._scale_in_use = 1.0  # the factor on the search's body that is tracked with
         # The size search's refits run here, off the frame's path (``_size_overlaps``).
         self._worker = (
             ThreadPoolExecutor(1, thread_name_prefix="size-search", initializer=_lower_priority)
@@ -195,12 +196,16 @@ class HybridEstimator:
         )
         if self.cfg.hold_unseen_limbs:
             self.state.held = held_dofs(estimate.observed)
-        if self.scale_search is not None:
-            scale = self.scale_search.offer(frame, q, self._size_overlaps, estimate.joints)
-            if scale is not None:
-                self._use_body(self.body.scaled(scale))
+        search = self.scale_search
+        if search is not None:
+            scale = search.offer(frame, q, self._size_overlaps, estimate.joints)
+            if scale is not None and scale != self._scale_in_use:
+                self._use_body(search.body.scaled(scale))
+                self._scale_in_use = scale
+            if search.scale is not None:  # the search is over
+                self._sizes = None
                 if self._worker is not None:
-                    self._worker.shutdown(wait=False)  # the search is over
+                    self._worker.shutdown(wait=False)
                     self._worker = None
         return estimate
 
@@ -228,13 +233,12 @@ class HybridEstimator:
     def _use_body(self, body) -> None:
         """Track and detect with ``body`` from now on; the track goes on from its pose."""
         t, d = self.tracker, self.detector
-        self._sizes = None
         self.tracker = Tracker(body, t.intr, t.cfg, device=t.device, dtype=t.dtype)
         detector = Detector(body, d.intr, d.cfg, device=d.device, dtype=d.dtype)
         detector.generator.set_state(d.generator.get_state())
         self.detector = detector
         if self.arm_search is not None:
-            self.arm_search = ArmSearch(self.cfg.arm_search, body)
+            self.arm_search = self.arm_search.with_body(body)
 
     def _unsupported(self, overlap: float) -> bool:
         """The fit explains too little of the silhouette to be the person's pose."""

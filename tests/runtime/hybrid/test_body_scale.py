@@ -46,7 +46,8 @@ def test_peak_of_a_parabola_is_its_vertex():
 
 def test_refits_every_kth_frame_at_all_sizes_then_stops():
     body = BodyShape.default()
-    search = BodyScaleSearch(BodyScaleConfig(samples=3, every=2, correction=1.0), body)
+    cfg = BodyScaleConfig(samples=3, every=2, correction=1.0, interim_after=None)
+    search = BodyScaleSearch(cfg, body)
     stature = float(body.stature())
     seen = []
 
@@ -77,7 +78,7 @@ def test_samples_on_a_thread_give_the_inline_size_on_the_same_frame():
     def fit(bodies, frame, q):
         return -((bodies.stature().numpy() / stature - 0.9 - 0.01 * frame) ** 2)
 
-    cfg = BodyScaleConfig(samples=4, every=3, correction=1.0)
+    cfg = BodyScaleConfig(samples=4, every=3, correction=1.0, interim_after=None)
     inline = BodyScaleSearch(cfg, body)
     found_inline = [inline.offer(i, torch.zeros(34), fit) for i in range(16)]
     with ThreadPoolExecutor(1) as worker:
@@ -97,6 +98,87 @@ def test_samples_on_a_thread_give_the_inline_size_on_the_same_frame():
         assert failing.offer(0, torch.zeros(34), lambda *a: worker.submit(broken, *a)) is None
         with pytest.raises(RuntimeError, match="refit failed"):
             failing.offer(1, torch.zeros(34), fit)
+
+
+def test_interim_sizes_from_the_samples_read_so_far():
+    """With ``interim_after`` k, each sampled frame once k samples are read returns the size
+    of those samples (the one being refitted not waited for); the final size is the same as
+    without interim sizes, on the same frame."""
+    body = BodyShape.default()
+    stature = float(body.stature())
+    peaks = [1.10, 1.02, 0.98, 1.06]  # each sample's overlaps peak at its own size
+
+    def fit(bodies, frame, q):
+        return -((bodies.stature().numpy() / stature - peaks[frame // 2]) ** 2)
+
+    def run(**kw):
+        search = BodyScaleSearch(BodyScaleConfig(samples=4, every=2, **kw), body)
+        return search, [search.offer(i, torch.zeros(34), fit) for i in range(10)]
+
+    plain, found_plain = run(interim_after=None)
+    search, found = run(interim_after=1)
+    # Frames 0, 2, 4, 6 are sampled; at frame 2 the sample of frame 0 is read, and so on.
+    assert found[0] is None and found[1] is None and found[3] is None and found[5] is None
+    assert found[2] == pytest.approx(1.10, abs=1e-6)
+    assert found[4] == pytest.approx(1.06, abs=0.005)  # the peak of the mean of two curves
+    assert search.interim == found[4]
+    assert found[6] == found_plain[6] == search.scale and found[7:] == [None] * 3
+    _, later = run(interim_after=2)
+    assert later[2] is None and later[4] == found[4]
+    _, never = run(interim_after=4)  # as many as the samples: only the final size
+    assert never == found_plain
+    assert BodyScaleConfig().interim_after == 1  # shipped
+    with pytest.raises(ConfigError):
+        BodyScaleConfig(samples=4, interim_after=0)
+
+
+def test_the_hybrid_tracks_with_the_interim_sizes(one_thread):
+    """On the demo the hybrid moves its tracker to each interim size and then the final one,
+    each the search's own body scaled (not a scaled body scaled again), and the arm search
+    keeps its memory across the changes; background and inline runs agree."""
+    from depthmocap.runtime.estimator import estimate_frame, make_estimator, prepare_frame
+    from depthmocap.runtime.estimator_setup import load_body
+    from depthmocap.runtime.forest.inference import DEFAULT_MODEL
+    from depthmocap.runtime.hybrid import HybridEstimator
+    from depthmocap.runtime.segmentation import PersonSegmenter, SegmentationConfig
+    from depthmocap.runtime.streams import open_stream
+
+    config = {"body_scale": {"samples": 3, "every": 1, "min_scale": 0.9, "max_scale": 1.1,
+                             "step": 0.1, "interim_after": 1, "iterations": 2}}  # fmt: skip
+    runs = []
+    for background in (True, False):
+        segment = PersonSegmenter(SegmentationConfig())
+        with open_stream("demo") as stream:
+            shipped = make_estimator(
+                "hybrid", DEFAULT_MODEL, load_body(None), stream.intrinsics, "cpu", config
+            )
+            est = HybridEstimator(
+                shipped.label_source, shipped.detector, shipped.tracker, shipped.cfg,
+                shipped.offsets, background=background,
+            )  # fmt: skip
+            base = est.body
+            est.arm_search.failed_at["left"] = -5  # a memory that must survive the changes
+            statures, poses = [], []
+            for k, frame in enumerate(stream):
+                if k == 6:
+                    break
+                poses.append(estimate_frame(est, prepare_frame(est, frame, segment)).q)
+                statures.append(float(est.body.stature()))
+            search = est.scale_search
+            runs.append((statures, poses, search.scale, search.interim))
+            assert est.arm_search.failed_at.get("left") == -5
+            for other in (est.arm_search.body, est.detector.body):
+                torch.testing.assert_close(other.lengths, est.body.lengths)
+    (statures, poses, scale, interim), inline = runs
+    # Frame 0 detected; samples at 1, 2, 3: an interim size at 2 (sample 1 read), then 3 final.
+    base_stature = float(base.stature())
+    assert statures[:2] == [base_stature] * 2
+    assert interim is not None and statures[2] == pytest.approx(base_stature * interim, rel=1e-5)
+    assert statures[3] == pytest.approx(base_stature * scale, rel=1e-5)
+    assert statures[3:] == [statures[3]] * 3
+    assert (statures, scale, interim) == (inline[0], inline[2], inline[3])
+    for a, b in zip(poses, inline[1], strict=True):
+        np.testing.assert_array_equal(a, b)
 
 
 def _stick_figure(l_thigh, r_thigh) -> np.ndarray:
@@ -175,7 +257,11 @@ def test_the_search_finds_the_size_of_a_rendered_person(one_thread, true_scale):
         for i in range(len(truth))
     ]
     assert found[20] == pytest.approx(true_scale, abs=0.03)  # the 6th frame taken, every 4th
-    assert [f for f in found if f is not None] == [found[20]]
+    assert found[20] == search.scale and found[21:] == [None] * 3
+    # Interim sizes at the frames taken after the first, from the samples read before them.
+    interim = [f for i, f in enumerate(found[:20]) if f is not None]
+    assert [i for i, f in enumerate(found[:20]) if f is not None] == [4, 8, 12, 16]
+    assert interim[-1] == pytest.approx(true_scale, abs=0.03)
 
 
 @pytest.mark.slow
