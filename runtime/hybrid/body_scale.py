@@ -16,7 +16,9 @@ The body tracked follows the search as its samples come in (``interim_after``): 
 second sample taken, each sampled frame moves it to the size of the samples read so far, so
 a short or tall person is tracked near their size from the 4th frame instead of at the
 population's for the search's 22 frames, when the tracking failures were twice the later
-rate (broad protocol); the final size is the same as without.
+rate (broad protocol); the final size is the same as without. Interim sizes stop at the first
+sample of a folded body (``interim_max_fold_deg``): a seated body is sized too large, and a
+body tracked too large early drew the final size up with it (UTD-MHAD sit to stand).
 
 A seated start is sized too large: a person seated facing the camera shows a lap (both thighs
 pointing at the camera, the hands on them, bits of the chair around) that larger capsules
@@ -74,6 +76,14 @@ class BodyScaleConfig:
         "1 against None: tuning set 46.4 -> 42.3 mm, tracking failure 9.7 -> 7.0%; size "
         "tuning set 44.5 -> 41.8 mm, 8.9 -> 6.5% (docs/experiments.md, 23rd session)",
     )
+    interim_max_fold_deg: float | None = field_doc(
+        60.0,
+        "interim sizes only while every sample taken so far shows a body folded at most this "
+        "much (:func:`fold_angle_deg`); after a folded one the body stays until the final "
+        "size. A seated or crouched body is sized too large (its lap covers more), and a body "
+        "tracked too large early drew the final size up with it (real depth, seated starts). "
+        "None: every sample",
+    )
     correction: float = field_doc(
         1.0,
         "factor applied to the size found, kept within min_scale..max_scale (1: none). "
@@ -93,13 +103,15 @@ class BodyScaleConfig:
             and 0.5 < self.correction < 2.0
             and (self.max_fold_deg is None or 0.0 < self.max_fold_deg <= 180.0)
             and (self.interim_after is None or self.interim_after >= 1)
+            and (self.interim_max_fold_deg is None or 0.0 < self.interim_max_fold_deg <= 180.0)
         )
         if not ok:
             raise ConfigError(
                 "body_scale: need samples, every, iterations >= 1 and "
                 f"0 < min_scale < max_scale, 0 < step <= their difference, "
                 f"0.5 < correction < 2, 0 < max_fold_deg <= 180 or None, "
-                f"interim_after >= 1 or None, got {self}"
+                f"interim_after >= 1 or None, 0 < interim_max_fold_deg <= 180 or None, "
+                f"got {self}"
             )
 
     def scales(self) -> np.ndarray:
@@ -179,6 +191,7 @@ class BodyScaleSearch:
         self._seen = 0
         self._read_count = 0  # samples whose overlaps are in the score
         self.interim: float | None = None  # the last interim factor returned
+        self._folded = False  # a sample taken so far showed a folded body
         self.scale: float | None = None  # the result, once found
         self.peak: float | None = None  # the overlaps' peak, before the correction
         self.curves: list[np.ndarray] = []
@@ -206,9 +219,12 @@ class BodyScaleSearch:
             self._read(self._pending)
         self._pending = fit(self.bodies, frame, q.detach())
         self.samples += 1
+        fold = self.cfg.interim_max_fold_deg
+        if fold is not None and joints is not None and not fold_angle_deg(joints) <= fold:
+            self._folded = True
         if self.samples < self.cfg.samples:
             first = self.cfg.interim_after
-            if first is None or self._read_count < first:
+            if first is None or self._read_count < first or self._folded:
                 return None
             self.interim = self._factor(peak_of(self.factors, self._score / self._read_count))
             return self.interim

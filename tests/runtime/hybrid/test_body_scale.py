@@ -132,6 +132,32 @@ def test_interim_sizes_from_the_samples_read_so_far():
         BodyScaleConfig(samples=4, interim_after=0)
 
 
+def test_no_interim_size_after_a_folded_sample():
+    """A sample of a folded body (seated, crouched) stops the interim sizes: the body stays
+    until the final size, which still counts every sample."""
+    body = BodyShape.default()
+    stature = float(body.stature())
+    standing = _stick_figure((0, 1, 0), (0, 1, 0))
+    seated = _stick_figure((0, 0, -1), (0, 0, -1))
+
+    def fit(bodies, frame, q):
+        return -((bodies.stature().numpy() / stature - 1.0 - 0.02 * frame) ** 2)
+
+    def run(poses, **kw):
+        search = BodyScaleSearch(BodyScaleConfig(samples=4, every=1, **kw), body)
+        return [search.offer(i, torch.zeros(34), fit, j) for i, j in enumerate(poses)]
+
+    upright = run([standing] * 5)
+    assert [f is not None for f in upright] == [False, True, True, True, False]
+    sits = run([standing, standing, seated, standing, standing])
+    assert sits[1] == upright[1] and sits[2] is None and sits[3] == upright[3]  # final kept
+    starts_seated = run([seated] + [standing] * 4)
+    assert starts_seated[:3] == [None] * 3 and starts_seated[3] == upright[3]
+    assert run([seated] * 5, interim_max_fold_deg=None) == upright  # the gate off
+    with pytest.raises(ConfigError):
+        BodyScaleConfig(interim_max_fold_deg=0.0)
+
+
 def test_the_hybrid_tracks_with_the_interim_sizes(one_thread):
     """On the demo the hybrid moves its tracker to each interim size and then the final one,
     each the search's own body scaled (not a scaled body scaled again), and the arm search
