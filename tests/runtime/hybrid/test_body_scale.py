@@ -158,14 +158,28 @@ def test_no_interim_size_after_a_folded_sample():
         BodyScaleConfig(interim_max_fold_deg=0.0)
 
 
+def _demo_hybrid(stream, config: dict, background: bool):
+    """The shipped hybrid with ``config`` over it for ``stream``, its size refits on a worker
+    thread or inline."""
+    from depthmocap.runtime.estimator import make_estimator
+    from depthmocap.runtime.estimator_setup import load_body
+    from depthmocap.runtime.forest.inference import DEFAULT_MODEL
+    from depthmocap.runtime.hybrid import HybridEstimator
+
+    shipped = make_estimator(
+        "hybrid", DEFAULT_MODEL, load_body(None), stream.intrinsics, "cpu", config
+    )
+    return HybridEstimator(
+        shipped.label_source, shipped.detector, shipped.tracker, shipped.cfg,
+        shipped.offsets, background=background,
+    )  # fmt: skip
+
+
 def test_the_hybrid_tracks_with_the_interim_sizes(one_thread):
     """On the demo the hybrid moves its tracker to each interim size and then the final one,
     each the search's own body scaled (not a scaled body scaled again), and the arm search
     keeps its memory across the changes; background and inline runs agree."""
-    from depthmocap.runtime.estimator import estimate_frame, make_estimator, prepare_frame
-    from depthmocap.runtime.estimator_setup import load_body
-    from depthmocap.runtime.forest.inference import DEFAULT_MODEL
-    from depthmocap.runtime.hybrid import HybridEstimator
+    from depthmocap.runtime.estimator import estimate_frame, prepare_frame
     from depthmocap.runtime.segmentation import PersonSegmenter, SegmentationConfig
     from depthmocap.runtime.streams import open_stream
 
@@ -175,13 +189,7 @@ def test_the_hybrid_tracks_with_the_interim_sizes(one_thread):
     for background in (True, False):
         segment = PersonSegmenter(SegmentationConfig())
         with open_stream("demo") as stream:
-            shipped = make_estimator(
-                "hybrid", DEFAULT_MODEL, load_body(None), stream.intrinsics, "cpu", config
-            )
-            est = HybridEstimator(
-                shipped.label_source, shipped.detector, shipped.tracker, shipped.cfg,
-                shipped.offsets, background=background,
-            )  # fmt: skip
+            est = _demo_hybrid(stream, config, background)
             base = est.body
             est.arm_search.failed_at["left"] = -5  # a memory that must survive the changes
             statures, poses = [], []
@@ -347,10 +355,7 @@ def test_the_corrected_size_stays_within_the_grid():
 def test_the_hybrid_sizes_on_its_worker_thread_as_inline(one_thread):
     """The shipped hybrid's size refits on its worker thread give the inline run's size on
     the same frame and the same poses (the demo, a short search)."""
-    from depthmocap.runtime.estimator import estimate_frame, make_estimator, prepare_frame
-    from depthmocap.runtime.estimator_setup import load_body
-    from depthmocap.runtime.forest.inference import DEFAULT_MODEL
-    from depthmocap.runtime.hybrid import HybridEstimator
+    from depthmocap.runtime.estimator import estimate_frame, prepare_frame
     from depthmocap.runtime.segmentation import PersonSegmenter, SegmentationConfig
     from depthmocap.runtime.streams import open_stream
 
@@ -361,13 +366,7 @@ def test_the_hybrid_sizes_on_its_worker_thread_as_inline(one_thread):
         segment = PersonSegmenter(SegmentationConfig())
         poses, scales = [], []
         with open_stream("demo") as stream:
-            shipped = make_estimator(
-                "hybrid", DEFAULT_MODEL, load_body(None), stream.intrinsics, "cpu", config
-            )
-            est = HybridEstimator(
-                shipped.label_source, shipped.detector, shipped.tracker, shipped.cfg,
-                shipped.offsets, background=background,
-            )  # fmt: skip
+            est = _demo_hybrid(stream, config, background)
             assert (est._worker is not None) == background
             for k, frame in enumerate(stream):
                 if k == 8:
