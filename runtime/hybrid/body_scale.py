@@ -16,7 +16,7 @@ The body tracked follows the search as its samples come in (``interim_after``): 
 second sample taken, each sampled frame moves it to the size of the samples read so far, so
 a short or tall person is tracked near their size from the 4th frame instead of at the
 population's for the search's 22 frames, when the tracking failures were twice the later
-rate (broad protocol); the final size is the same as without. Interim sizes stop at the first
+rate (broad protocol); the final size is computed as without. Interim sizes stop at the first
 sample of a folded body (``interim_max_fold_deg``): a seated body is sized too large, and a
 body tracked too large early drew the final size up with it (UTD-MHAD sit to stand).
 
@@ -189,7 +189,6 @@ class BodyScaleSearch:
         self.samples = 0  # frames refitted so far (their refits started)
         self._pending = None  # the last sample's (S,) overlaps, or a Future of them
         self._seen = 0
-        self._read_count = 0  # samples whose overlaps are in the score
         self.interim: float | None = None  # the last interim factor returned
         self._folded = False  # a sample taken so far showed a folded body
         self.scale: float | None = None  # the result, once found
@@ -208,8 +207,11 @@ class BodyScaleSearch:
         interim one), None when the body stays."""
         if self.scale is not None:
             return None
-        limit = self.cfg.max_fold_deg
-        if limit is not None and joints is not None and not fold_angle_deg(joints) <= limit:
+        limit, interim_limit = self.cfg.max_fold_deg, self.cfg.interim_max_fold_deg
+        fold = None
+        if joints is not None and (limit is not None or interim_limit is not None):
+            fold = fold_angle_deg(joints)  # NaN where degenerate: folded for both tests
+        if limit is not None and fold is not None and not fold <= limit:
             return None  # folded (or degenerate): not counted towards ``every`` either
         take = self._seen % self.cfg.every == 0
         self._seen += 1
@@ -219,14 +221,14 @@ class BodyScaleSearch:
             self._read(self._pending)
         self._pending = fit(self.bodies, frame, q.detach())
         self.samples += 1
-        fold = self.cfg.interim_max_fold_deg
-        if fold is not None and joints is not None and not fold_angle_deg(joints) <= fold:
+        if interim_limit is not None and fold is not None and not fold <= interim_limit:
             self._folded = True
         if self.samples < self.cfg.samples:
+            read = len(self.curves)  # samples whose overlaps are in the score
             first = self.cfg.interim_after
-            if first is None or self._read_count < first or self._folded:
+            if first is None or read < first or self._folded:
                 return None
-            self.interim = self._factor(peak_of(self.factors, self._score / self._read_count))
+            self.interim = self._factor(peak_of(self.factors, self._score / read))
             return self.interim
         self._read(self._pending)  # the last sample: the size is wanted now
         self._pending = None
@@ -247,5 +249,4 @@ class BodyScaleSearch:
         if overlaps.shape != self._score.shape:
             raise ValueError(f"fit returned {overlaps.shape} overlaps for {self._score.shape}")
         self._score += overlaps
-        self._read_count += 1
         self.curves.append(overlaps)
