@@ -34,6 +34,15 @@ class DetectorConfig:
     refine_iterations: int = field_doc(
         3, help="tracker Gauss-Newton iterations refining the IK pose (Wei: three); 0 = none"
     )
+    reset_limbs: str = field_doc(
+        "limbs",
+        help="more refinement starts: the IK pose with one limb set back to its rest angles "
+        "(a straight leg, a hanging arm), for each leg ('legs') or each limb ('limbs'), the "
+        "best fit of all starts kept; the forest can label another part as a hidden limb (a "
+        "forearm as the far shank in a side view) and the IK then bends that limb to reach "
+        "it. 'none': the four limb swaps only (Wei). Tuning sets: 42.6 -> 40.5 mm and 42.4 "
+        "-> 41.3 mm (docs/experiments.md, twenty-fifth session)",
+    )
     seed: int = field_doc(0, help="seed of the RANSAC sampling (results are deterministic)")
 
     def __post_init__(self) -> None:
@@ -42,6 +51,10 @@ class DetectorConfig:
             raise ConfigError(
                 f"detector: ransac_samples and min_person_pixels must be >= 1, got "
                 f"{self.ransac_samples}, {self.min_person_pixels}"
+            )
+        if self.reset_limbs not in ("none", "legs", "limbs"):
+            raise ConfigError(
+                f"detector: reset_limbs must be none, legs or limbs, got {self.reset_limbs!r}"
             )
         if self.refine_iterations < 0:
             raise ConfigError(

@@ -3,7 +3,8 @@
 labels (forest argmax, or ground truth) -> 3D points -> RANSAC bone fitting drops misclassified
 pixels (:mod:`.bone_ransac`) -> per-class centroids as markers (:mod:`.centroids`) -> inverse
 kinematics in joint-angle space with joint limits (``shared.ik.fit_pose``, Levenberg-Marquardt)
--> a few iterations of the MAP tracker from the IK pose as refinement (Wei: three).
+-> a few iterations of the MAP tracker from the IK pose as refinement (Wei: three), from its
+limb swaps and limb resets too (:func:`limb_swaps`, :func:`limb_resets`), the best fit kept.
 
 The IK is local, so it runs from several root orientations at once (one batch) and keeps the
 best fit: the torso frame measured from the centroids (up: pelvis -> chest; left: right-side
@@ -71,7 +72,16 @@ ARM_STARTS = 2
 # order (one batched fit: ``Tracker.fit_starts``).
 Refine = Callable[[torch.Tensor], "list[TrackResult]"]
 
-__all__ = ["DetectionResult", "DetectorError", "Refine", "detect_pose", "labels_from", "Detector"]
+__all__ = [
+    "DetectionResult",
+    "DetectorError",
+    "Refine",
+    "detect_pose",
+    "labels_from",
+    "limb_resets",
+    "limb_swaps",
+    "Detector",
+]
 
 
 class DetectorError(ValueError):
@@ -276,8 +286,11 @@ def detect_pose(
     if refine is not None:
         # The forest confuses left and right limbs (about a fifth of forearm and shank pixels),
         # which IK turns into crossed legs or arms; refine the pose with each pair of limbs
-        # swapped too and keep the one that explains the depth best.
-        for res in refine(torch.stack(limb_swaps(q_ik))):
+        # swapped too and keep the one that explains the depth best. It also labels other
+        # parts as a limb it cannot see (a forearm as the far shank in a side view), and the
+        # IK bends that limb out to them; the same pose with one limb at rest is a start too.
+        starts = limb_swaps(q_ik) + limb_resets(q_ik, cfg.reset_limbs)
+        for res in refine(torch.stack(starts)):
             if refined is None or (res.depth_error_cm, -res.overlap) < (
                 refined.depth_error_cm,
                 -refined.overlap,
@@ -305,6 +318,18 @@ def limb_swaps(q: torch.Tensor) -> list[torch.Tensor]:
         for left, right in (_LEG_SLOTS, _ARM_SLOTS) if slots is None else (slots,):
             swapped[left], swapped[right] = q[right], q[left]
         out.append(swapped)
+    return out
+
+
+def limb_resets(q: torch.Tensor, which: str) -> list[torch.Tensor]:
+    """``q`` (34,) with one limb at a time set back to its rest angles: each leg for
+    ``which="legs"``, each leg and arm for ``"limbs"``, nothing for ``"none"``."""
+    groups = {"none": (), "legs": _LEG_SLOTS, "limbs": _LEG_SLOTS + _ARM_SLOTS}[which]
+    out = []
+    for slots in groups:
+        reset = q.clone()
+        reset[slots] = 0.0
+        out.append(reset)
     return out
 
 

@@ -24,7 +24,7 @@ def test_wei2012_is_the_paper():
     assert cfg.failure == FailureThresholds(2.5, 0.9, None) and cfg.failure.lost_overlap is None
     assert cfg.keep_better is None and cfg.arm_search is None and cfg.body_scale is None
     assert not cfg.tracker.use_labels and not cfg.tracker.use_collision
-    assert cfg.detector.label_smoothing_window == 1
+    assert cfg.detector.label_smoothing_window == 1 and cfg.detector.reset_limbs == "none"
 
 
 def test_a_partial_config_changes_only_what_it_names():

@@ -282,6 +282,29 @@ def test_limb_swaps_mirror_legs_and_arms():
     assert torch.equal(limb_swaps(both)[3], q)  # swapping twice is the identity
 
 
+def test_reset_limbs_is_checked():
+    with pytest.raises(ValueError, match="reset_limbs"):
+        DetectorConfig(reset_limbs="arms")
+
+
+def test_limb_resets_set_one_limb_back_at_a_time():
+    from depthmocap.runtime.detector.detect import limb_resets
+
+    q = torch.arange(1, 35, dtype=torch.float64)
+    assert limb_resets(q, "none") == []
+    left_leg, right_leg = limb_resets(q, "legs")
+    assert torch.equal(left_leg[[26, 27, 28, 32]], torch.zeros(4, dtype=q.dtype))
+    assert torch.equal(right_leg[[29, 30, 31, 33]], torch.zeros(4, dtype=q.dtype))
+    # Everything else, the other leg included, is the IK pose's.
+    keep = [i for i in range(34) if i not in (26, 27, 28, 32)]
+    assert torch.equal(left_leg[keep], q[keep])
+    resets = limb_resets(q, "limbs")
+    assert len(resets) == 4 and torch.equal(resets[0], left_leg)
+    assert torch.equal(resets[2][[14, 15, 18, 19, 20, 24]], torch.zeros(6, dtype=q.dtype))
+    assert torch.equal(resets[3][16:18], torch.zeros(2, dtype=q.dtype))
+    assert torch.equal(q, torch.arange(1, 35, dtype=torch.float64))  # not changed in place
+
+
 @pytest.mark.parametrize("use_labels", [False, True])
 def test_refinement_gets_the_labels_for_the_label_term(use_labels):
     """Every limb-swap refinement is given the frame's labels; a tracker with the label term
@@ -298,5 +321,28 @@ def test_refinement_gets_the_labels_for_the_label_term(use_labels):
         return tracker.fit_starts(obs, starts)
 
     res = detect_pose(depth, labels, INTR, BODY, DetectorConfig(), mask=mask, refine=refine)
-    assert len(seen) == 4  # the IK pose and its three limb swaps
+    assert len(seen) == 8  # the IK pose, its three limb swaps and its four limb resets
     assert float((res.joints - true_joints(q)).norm(dim=-1).mean()) < 0.05
+
+
+@pytest.mark.parametrize("reset_limbs", ["none", "legs", "limbs"])
+def test_a_limb_drawn_to_mislabelled_pixels_is_set_back(refiner, reset_limbs):
+    """The forest labels a forearm as the left lower shank and misses the real one (as in a
+    side view): the IK bends the left leg up to the forearm. The start with that leg set back
+    explains the depth better, so with limb resets the leg is found where the data put it."""
+    q = make_pose("rest")
+    depth, labels, mask = render_labels(q, BODY)
+    shank, forearm = PART_NAMES.index("l_shank_lower"), PART_NAMES.index("r_forearm")
+    wrong = labels.clone()
+    wrong[labels == shank] = 0
+    wrong[labels == forearm] = shank
+    res = detect_pose(
+        depth, wrong, INTR, BODY, DetectorConfig(reset_limbs=reset_limbs), mask=mask,
+        refine=refine_with(refiner, depth, mask),
+    )  # fmt: skip
+    ankle = sk.JOINT_NAMES.index("l_ankle")
+    error = float((res.joints[ankle] - true_joints(q)[ankle]).norm())
+    if reset_limbs == "none":
+        assert error > 0.2  # the scene is the failure it is meant to be
+    else:
+        assert error < 0.05
