@@ -8,9 +8,12 @@ The offsets are output-only (``shared.joint_offsets``): the poses ``q`` a run tr
 depend on them, so a run's joints under other offsets follow from its ``poses.jsonl``. Each
 frame's joints are the model's joints of its ``q`` on the body tracked at that frame, moved by
 the offsets at that pose. A run without a body file tracks the population body until the size
-search ends and the scaled body (the result's ``body.json``) from then on: for each frame the
-body whose joints under ``--old-offsets`` reproduce the recorded ones (to 1 mm) is taken, and
-a frame that neither reproduces is an error (the run was made with other offsets or bodies).
+search ends and the scaled body (the result's ``body.json``) from then on, and in between the
+population body at the search's interim sizes (``body_scale.interim_after``): for each frame
+the body whose joints under ``--old-offsets`` reproduce the recorded ones (to 1 mm) is taken,
+the population body scaled by the factor that reproduces them where neither does (the joints
+are linear in a uniform scale: every bone and offset scales with it), and a frame that none
+reproduces is an error (the run was made with other offsets or bodies).
 Every other field of ``poses.jsonl`` is kept; ``summary.json``, ``body.json`` and the BVH are
 copied, so the evaluation (``dev_benchmark --reuse-results``, ``train-eval``) reads the new
 folder as a run of its own.
@@ -36,7 +39,7 @@ from depthmocap.shared.joint_offsets import (
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
 from depthmocap.shared.resources import CONFIGS_DIR
 
-__all__ = ["ReapplyError", "joints_with_offsets", "reapply_result", "main"]
+__all__ = ["ReapplyError", "fitted_scales", "joints_with_offsets", "reapply_result", "main"]
 
 MATCH_M = 1e-3  # recorded joints are rounded to 1 um; float32 tracking differs by ~1e-6 m
 
@@ -57,17 +60,53 @@ def joints_with_offsets(q: np.ndarray, body: BodyShape, offsets: JointOffsets | 
     return apply_offsets(joints, kin.rotations, pose, offsets, body.stature()).numpy()
 
 
+def fitted_scales(
+    q: np.ndarray, recorded: np.ndarray, body: BodyShape, offsets: JointOffsets | None
+) -> np.ndarray:
+    """(F,) per frame the uniform scale of ``body`` whose joints under ``offsets`` come closest
+    to the ``recorded`` (F, J, 3) joints of poses ``q`` (F, 34): the joints are affine in the
+    scale (``A + s B``), so two evaluations give it in closed form."""
+    at_one = joints_with_offsets(q, body.scaled(1.0), offsets)
+    slope = joints_with_offsets(q, body.scaled(2.0), offsets) - at_one
+    rest = np.nan_to_num(recorded - at_one + slope)  # recorded - A, with A = J(1) - B
+    slope = np.where(np.isfinite(recorded), slope, 0.0)
+    denom = (slope * slope).sum(axis=(1, 2))
+    return (slope * rest).sum(axis=(1, 2)) / np.where(denom > 0, denom, 1.0)
+
+
+def _scaled_candidates(
+    q: np.ndarray, recorded: np.ndarray, body: BodyShape, old: JointOffsets | None
+) -> tuple[list[BodyShape], np.ndarray, np.ndarray]:
+    """``body`` at each distinct fitted scale of these frames (S bodies), each frame's index
+    into them (F,), and its max joint error (F,) under ``old`` at its own scale (inf where a
+    joint is unwritten)."""
+    scales = np.round(fitted_scales(q, recorded, body, old), 6)
+    distinct, index = np.unique(scales, return_inverse=True)
+    bodies, err = [], np.full(len(q), np.inf)
+    for k, s in enumerate(distinct):
+        mine = index == k
+        scaled = body.scaled(float(s))
+        bodies.append(scaled)
+        e = np.abs(joints_with_offsets(q[mine], scaled, old) - recorded[mine]).max(axis=(1, 2))
+        err[mine] = np.where(np.isfinite(e), e, np.inf)
+    return bodies, index, err
+
+
 def reapply_result(
     result: Path,
     out: Path,
     bodies: list[BodyShape],
     old: JointOffsets | None,
     new: JointOffsets | None,
+    scalable: BodyShape | None = None,
 ) -> int:
     """Write ``result`` (a run's folder) to ``out`` with its joints under ``new``.
 
     Args:
         bodies: the bodies the run may have tracked at a frame (its ``body.json`` first).
+        scalable: a body the run may have tracked at any uniform scale (the population
+            body at the size search's interim sizes), tried where no body of ``bodies``
+            reproduces a frame; None: none.
     Returns:
         the number of frames moved.
     Raises:
@@ -90,6 +129,14 @@ def reapply_result(
         )  # (candidates, F); NaN rows (unwritten joints) never match
         which = np.argmin(np.where(np.isfinite(err), err, np.inf), axis=0)
         best = err[which, np.arange(len(posed))]
+        if scalable is not None:
+            # Where the fitted scale reproduces a frame better (an interim size can lie
+            # within MATCH_M of a listed body), it is that frame's body.
+            extra, index, extra_err = _scaled_candidates(q, recorded, scalable, old)
+            closer = extra_err < best
+            which = np.where(closer, len(bodies) + index, which)
+            best = np.where(closer, extra_err, best)
+            bodies = list(bodies) + extra
         bad = ~(best < MATCH_M)
         if bad.any():
             k = posed[int(np.argmax(bad))]
@@ -162,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
             bodies = [population]
             if (inner / "body.json").is_file():
                 bodies.insert(0, BodyShape.load(inner / "body.json"))
-            moved += reapply_result(inner, target, bodies, old, new)
+            moved += reapply_result(inner, target, bodies, old, new, scalable=population)
         except (ReapplyError, ValueError, OSError) as err:  # body loader: ValueError
             print(f"error: {run.name}: {err}", file=sys.stderr)
             return 2

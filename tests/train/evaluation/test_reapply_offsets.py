@@ -12,14 +12,15 @@ from depthmocap.shared import skeleton as sk
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.joint_offsets import NUM_POSE_FEATURES, JointOffsets, save_joint_offsets
 from depthmocap.shared.poses_format import pose_record
-from depthmocap.train.evaluation.reapply_offsets import joints_with_offsets, main
+from depthmocap.train.evaluation.reapply_offsets import fitted_scales, joints_with_offsets, main
 
 J = len(sk.JOINT_NAMES)
 
 
-def _run(tmp_path, old):
-    """A run of 5 frames: the population body for 2, the scaled body after (its body.json),
-    one lost frame; joints written under ``old``."""
+def _run(tmp_path, old, interim=(1.0, 1.0)):
+    """A run of 5 frames: the population body for frame 0, ``interim`` sizes of it for frames
+    1 and 2 (the size search's interim sizes), the scaled body after (its body.json), frame
+    3 lost; joints written under ``old``."""
     rng = np.random.default_rng(0)
     population = BodyShape.load(POPULATION_BODY)
     scaled = population.scaled(1.08)
@@ -32,7 +33,7 @@ def _run(tmp_path, old):
     (run / "summary.json").write_text("{}")
     lines = []
     for i in range(5):
-        body = population if i < 2 else scaled
+        body = population if i == 0 else population.scaled(interim[i - 1]) if i < 3 else scaled
         if i == 3:
             lines.append(pose_record(i, i / 30, "lost", None, None))
             continue
@@ -42,7 +43,11 @@ def _run(tmp_path, old):
     return run, q, population, scaled
 
 
-def test_runs_move_to_new_offsets_on_the_body_of_each_frame(tmp_path, capsys):
+@pytest.mark.parametrize("interim", [(1.0, 1.0), (1.0003, 1.0517)])
+def test_runs_move_to_new_offsets_on_the_body_of_each_frame(tmp_path, capsys, interim):
+    """Each frame moves on the body it was tracked with: the population body, the result's
+    body.json, or an interim size between them (1.0003: within a millimetre of the
+    population body's joints, which must not be taken for it)."""
     rng = np.random.default_rng(1)
     old = JointOffsets(rng.normal(0, 0.02, (J, 3)), 1.78)
     new = JointOffsets(
@@ -51,14 +56,15 @@ def test_runs_move_to_new_offsets_on_the_body_of_each_frame(tmp_path, capsys):
     )  # fmt: skip
     save_joint_offsets(tmp_path / "old.json", old)
     save_joint_offsets(tmp_path / "new.json", new)
-    run, q, population, scaled = _run(tmp_path, old)
+    run, q, population, scaled = _run(tmp_path, old, interim)
     args = ["--results", str(tmp_path / "runs"), "--old-offsets", str(tmp_path / "old.json")]
     assert main([*args, "--offsets", str(tmp_path / "new.json"), "--out", str(tmp_path / "o")]) == 0
     assert "4 posed frames" in capsys.readouterr().out
     out = tmp_path / "o" / "take" / "result"
     lines = [json.loads(x) for x in (out / "poses.jsonl").read_text().splitlines()]
     assert lines[3]["joints"] is None and lines[0]["errors"] == {"overlap": 0.8}
-    for i, body in ((0, population), (1, population), (2, scaled), (4, scaled)):
+    first, second = (population.scaled(f) for f in interim)
+    for i, body in ((0, population), (1, first), (2, second), (4, scaled)):
         want = joints_with_offsets(q[i : i + 1], body, new)[0]
         got = np.array([lines[i]["joints"][n] for n in sk.JOINT_NAMES])
         np.testing.assert_allclose(got, want, atol=2e-6)
@@ -112,3 +118,20 @@ def test_bad_input_is_a_clear_error_and_a_torn_last_line_is_dropped(tmp_path, ca
     (run / "body.json").write_text("{}")
     assert main([*args, "--offsets", "none", "--out", str(tmp_path / "o")]) == 2
     assert "take" in capsys.readouterr().err
+
+
+def test_the_fitted_scale_is_the_one_the_joints_were_made_at():
+    rng = np.random.default_rng(2)
+    body = BodyShape.load(POPULATION_BODY)
+    offsets = JointOffsets(
+        rng.normal(0, 0.02, (J, 3)), 1.78,
+        pose_coefficients_m=rng.normal(0, 0.005, (J, NUM_POSE_FEATURES, 3)),
+    )  # fmt: skip
+    q = np.zeros((3, sk.NUM_DOFS))
+    q[:, 2] = 2.5
+    q[:, 6:] = rng.normal(0, 0.3, (3, sk.NUM_DOFS - 6))
+    truth = np.array([0.86, 1.0, 1.137])
+    joints = np.concatenate(
+        [joints_with_offsets(q[i : i + 1], body.scaled(s), offsets) for i, s in enumerate(truth)]
+    )
+    np.testing.assert_allclose(fitted_scales(q, joints, body, offsets), truth, atol=1e-9)
