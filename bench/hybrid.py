@@ -18,6 +18,7 @@ real tracker would see larger motion.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +36,7 @@ __all__ = [
     "paced_latency",
     "recordings_in",
     "recordings_rows",
+    "spread_rows",
     "work_rows",
 ]
 
@@ -66,11 +68,17 @@ class _FrameLog:
 
 
 def benchmark_hybrid(
-    source: str, device: str, frames: int | None, warmup: int = 3, pipelined: bool = True
+    source: str,
+    device: str,
+    frames: int | None,
+    warmup: int = 3,
+    pipelined: bool = True,
+    config: str | Path | Mapping | None = None,
 ) -> dict:
     """Per-frame wall times of the shipped hybrid on the first ``frames`` frames of ``source``
     (any ``open_stream`` name; None: all of them), after ``warmup`` untimed frames of the
     same source, run by ``runtime-track``'s own loop (:func:`runtime.track_loop.track`).
+    ``config``: settings laid over the shipped preset (``runtime-track --config``).
 
     ``pipelined``: as ``runtime-track`` runs a file, each frame's mask and forest labels
     made on the reader thread beside the previous frame's estimate, a frame's time the
@@ -80,7 +88,7 @@ def benchmark_hybrid(
         ``ms`` (F,) per-frame milliseconds, ``statuses`` (F,) str, ``work`` (F,) str (what
         each frame ran, :func:`frame_work`), ``device``.
     """
-    tracker = Tracker(device=device)  # the shipped preset and default body, as runtime-track
+    tracker = Tracker(device=device, config=config)  # default body, as runtime-track
     with open_stream(source) as stream:
         for frame in itertools.islice(stream, warmup):  # allocator growth, kernel caches
             tracker.track(frame)
@@ -183,7 +191,8 @@ def recordings_in(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.is_dir() and is_recording(p))
 
 
-def _spread_rows(ms: np.ndarray, label: str, note: str) -> list[tuple[str, float, str]]:
+def spread_rows(ms: np.ndarray, label: str, note: str) -> list[tuple[str, float, str]]:
+    """Median, 95th percentile, mean, replayed latency and slowest of frame times ``ms``."""
     median = float(np.median(ms))
     latency, skipped = paced_latency(ms)
     return [
@@ -208,7 +217,7 @@ def hybrid_rows(source: str, device: str, frames: int) -> list[tuple[str, float,
     """Rows for ``runtime-bench``: median, 95th percentile and mean frame time, the replayed
     latency, and the statuses."""
     r = benchmark_hybrid(source, device, frames)
-    return _spread_rows(r["ms"], f"{len(r['ms'])} frames", _status_note(r["statuses"]))
+    return spread_rows(r["ms"], f"{len(r['ms'])} frames", _status_note(r["statuses"]))
 
 
 def recordings_rows(folder: Path, device: str) -> list[tuple[str, float, str]]:
@@ -220,7 +229,7 @@ def recordings_rows(folder: Path, device: str) -> list[tuple[str, float, str]]:
     runs = [benchmark_hybrid(str(rec), device, None) for rec in recs]
     ms = np.concatenate([r["ms"] for r in runs])
     statuses = np.concatenate([r["statuses"] for r in runs])
-    rows = _spread_rows(ms, f"{len(recs)} recordings, {len(ms)} frames", _status_note(statuses))
+    rows = spread_rows(ms, f"{len(recs)} recordings, {len(ms)} frames", _status_note(statuses))
     rows += work_rows(ms, np.concatenate([r["work"] for r in runs]))
     for rec, r in zip(recs, runs, strict=True):
         median = float(np.median(r["ms"]))
