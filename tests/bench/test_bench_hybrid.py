@@ -65,19 +65,12 @@ def test_paced_latency_replays_a_camera_where_the_newest_frame_wins():
     assert np.isnan(paced_latency(np.zeros(0))[0])
 
 
-def test_recordings_rows_time_every_recording(tmp_path, one_thread):
+def test_recordings_rows_time_every_recording(tmp_path, one_thread, write_demo_recordings):
     """The whole hybrid on a folder of recordings: pooled rows, then one per recording; a
     folder that is itself a recording counts as one."""
     from depthmocap.bench.hybrid import recordings_in, recordings_rows
-    from depthmocap.runtime.streams import open_stream
-    from depthmocap.shared.recording import RecordingWriter
 
-    for name in ("b", "a"):
-        with open_stream("demo") as stream:
-            frames = [f for _, f in zip(range(2), stream, strict=False)]
-        with RecordingWriter(tmp_path / name, frames[0].intrinsics, fps=30.0, source="t") as w:
-            for f in frames:
-                w.write_frame(f.depth_mm)
+    write_demo_recordings(tmp_path, ("b", "a"))
     (tmp_path / "notes").mkdir()
     assert [p.name for p in recordings_in(tmp_path)] == ["a", "b"]
     assert recordings_in(tmp_path / "a") == [tmp_path / "a"]

@@ -8,18 +8,10 @@ from depthmocap.bench.hybrid_ab import ab_rows, benchmark_settings, main, parse_
 
 
 @pytest.fixture(scope="module")
-def recordings(tmp_path_factory):
+def recordings(tmp_path_factory, write_demo_recordings):
     """Two 2-frame recordings of the demo person."""
-    from depthmocap.runtime.streams import open_stream
-    from depthmocap.shared.recording import RecordingWriter
-
     root = tmp_path_factory.mktemp("recs")
-    for name in ("a", "b"):
-        with open_stream("demo") as stream:
-            frames = [f for _, f in zip(range(2), stream, strict=False)]
-        with RecordingWriter(root / name, frames[0].intrinsics, fps=30.0, source="t") as w:
-            for f in frames:
-                w.write_frame(f.depth_mm)
+    write_demo_recordings(root, ("a", "b"))
     return root
 
 
