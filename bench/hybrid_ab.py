@@ -114,9 +114,11 @@ def main(argv: list[str] | None = None) -> int:
     missing = [str(f) for f in settings.values() if f is not None and not f.is_file()]
     if missing:
         p.error(f"no such settings file: {', '.join(missing)}")
+    if args.every < 1 or args.start < 0:
+        p.error(f"--every must be >= 1 and --start >= 0, got {args.every} and {args.start}")
     if not args.recordings.is_dir():
         p.error(f"--recordings {args.recordings}: no such folder")
-    recs = recordings_in(args.recordings)[args.start :: max(args.every, 1)]
+    recs = recordings_in(args.recordings)[args.start :: args.every]
     if not recs:
         p.error(f"no recordings in {args.recordings}")
     torch.set_num_threads(args.threads)

@@ -40,7 +40,12 @@ def test_the_command_line(recordings, tmp_path, capsys, one_thread):
     assert main([*args, "--setting", "shipped=", "--setting", f"off={off}"]) == 0
     out = capsys.readouterr().out
     assert "== 1 recordings" in out and "mean against shipped" in out
-    for bad in (["--setting", "shipped="], ["--setting", "x=missing.yaml", "--setting", "y="]):
+    two = ["--setting", "a=", "--setting", "b="]
+    for bad in (
+        ["--setting", "shipped="],
+        ["--setting", "x=missing.yaml", "--setting", "y="],
+        ["--every", "0", *two],
+    ):
         with pytest.raises(SystemExit):
             main([*args, *bad])
     assert parse_setting("a=") == ("a", None)

@@ -10,10 +10,12 @@ frame's joints are the model's joints of its ``q`` on the body tracked at that f
 the offsets at that pose. A run without a body file tracks the population body until the size
 search ends and the scaled body (the result's ``body.json``) from then on, and in between the
 population body at the search's interim sizes (``body_scale.interim_after``): for each frame
-the body whose joints under ``--old-offsets`` reproduce the recorded ones (to 1 mm) is taken,
-the population body scaled by the factor that reproduces them where neither does (the joints
-are linear in a uniform scale: every bone and offset scales with it), and a frame that none
-reproduces is an error (the run was made with other offsets or bodies).
+the body whose joints under ``--old-offsets`` come closest to the recorded ones is taken:
+``body.json``, the population body, or the population body at the factor fitted to that
+frame (the joints are affine in a uniform scale: every bone and offset scales with it; an
+interim size can lie within a millimetre of the population body, so the fitted factor is
+tried on every frame). A frame that none reproduces to 1 mm is an error (the run was made
+with other offsets or bodies).
 Every other field of ``poses.jsonl`` is kept; ``summary.json``, ``body.json`` and the BVH are
 copied, so the evaluation (``dev_benchmark --reuse-results``, ``train-eval``) reads the new
 folder as a run of its own.
@@ -105,8 +107,8 @@ def reapply_result(
     Args:
         bodies: the bodies the run may have tracked at a frame (its ``body.json`` first).
         scalable: a body the run may have tracked at any uniform scale (the population
-            body at the size search's interim sizes), tried where no body of ``bodies``
-            reproduces a frame; None: none.
+            body at the size search's interim sizes): at its fitted scale, it is a frame's
+            body wherever it reproduces that frame better than ``bodies`` do; None: none.
     Returns:
         the number of frames moved.
     Raises:
