@@ -113,9 +113,17 @@ class KeepBetterConfig:
         "again for this many frames: a failed or suspect track is kept meanwhile (0: it runs "
         "on every failed or suspect frame)",
     )
+    take_margin: float = field_doc(
+        0.0,
+        "with compare_all_tests, the detection replaces the track only when its badness is "
+        "lower by more than this: taking it restarts the motion prior, which a marginally "
+        "better fit does not pay for (0: any lower badness)",
+    )
 
     def __post_init__(self) -> None:
         _check(self.wait_frames >= 0, "keep_better.wait_frames must be >= 0", self.wait_frames)
+        m = self.take_margin
+        _check(m >= 0 and math.isfinite(m), "keep_better.take_margin must be >= 0", m)
         b = self.recheck_badness
         _check(b is None or not math.isnan(b), "recheck_badness must be a number or None", b)
 

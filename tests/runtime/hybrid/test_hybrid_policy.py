@@ -57,10 +57,19 @@ WORSE = FitSignals(3.5, 0.6, 90.0)
         (FAILED, Detection(True, None), KEEP, Decision(False)),
         # Nobody found: keep the track and forget the per-track memories.
         (FAILED, Detection(False), KEEP, Decision(True, forget=True)),
+        # A margin: better by 0.5 (1.92 - 1.42) passes 0.4, not 0.6.
+        (FAILED, Detection(True, BETTER), KeepBetterConfig(True, take_margin=0.4), Decision(False)),
+        (FAILED, Detection(True, BETTER), KeepBetterConfig(True, take_margin=0.6), Decision(True)),
     ],
 )
 def test_choose(track, detection, keep, expected):
     assert choose(track, detection, SHIPPED, keep) == expected
+
+
+@pytest.mark.parametrize("margin", [-0.1, math.nan, math.inf])
+def test_take_margin_must_be_a_finite_non_negative_number(margin):
+    with pytest.raises(ValueError, match="take_margin"):
+        KeepBetterConfig(take_margin=margin)
 
 
 def test_badness_and_failure_on_the_thresholds():
