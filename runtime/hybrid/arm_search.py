@@ -83,7 +83,6 @@ class SearchResult:
     best: TrackResult | None
     badness: float
     arms_searched: int
-    side: str | None = None  # the arm of ``best`` ("l" or "r")
 
 
 @dataclass
@@ -139,7 +138,7 @@ class ArmSearch:
         """Search every suspect arm of ``track`` (whose badness is ``badness``) on ``frame``
         with its part ``labels`` (H, W); ``refit`` fits the frame from each of K start poses
         (one batched fit per arm)."""
-        best, side, searched = None, None, 0
+        best, searched = None, 0
         for suspect in self._suspects(frame, labels, track):
             searched += 1
             found = None
@@ -148,12 +147,12 @@ class ArmSearch:
                 if b < badness and self._accepts(suspect, r.q):
                     found, badness = r, b
             if found is not None:
-                best, side = found, suspect.side
+                best = found
                 continue
             self.failed_at[suspect.side] = frame.index
             if suspect.conflicts is not None:
                 self.misplaced_failed_at[suspect.side] = frame.index
-        return SearchResult(best, badness, searched, side)
+        return SearchResult(best, badness, searched)
 
     def _suspects(self, frame: Frame, labels: torch.Tensor, track: TrackResult):
         """The arms to search, in order (left, right), lazily: most suspect frames have none."""

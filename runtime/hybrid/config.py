@@ -182,11 +182,6 @@ class ArmSearchConfig:
         "after a search of an arm found no refit to take, that arm is not searched again for "
         "this many frames (0: every suspect frame is searched)",
     )
-    still_after_refit: bool = field_doc(
-        False,
-        "the arm of a refit taken starts the next frame still: the prior predicts its angles "
-        "at this frame's, since the jump from the track to the refit is no motion to carry on",
-    )
 
     def __post_init__(self) -> None:
         _check(not math.isnan(self.badness), "arm_search.badness must be a number", self.badness)

@@ -41,7 +41,7 @@ from .body_scale import BodyScaleSearch
 from .config import HybridConfig
 from .policy import Detection, choose, judge_track
 from .split_refits import SplitRefits
-from .unseen_limbs import arm_dofs, held_dofs, hold_unseen
+from .unseen_limbs import held_dofs, hold_unseen
 
 __all__ = ["HybridEstimator", "TrackState", "overlaps_of"]
 
@@ -188,19 +188,14 @@ class HybridEstimator:
 
     # ---- estimates, each updating the track ----
 
-    def _tracked(
-        self, res: TrackResult, errors: dict, frame: Frame, still: torch.Tensor | None = None
-    ) -> PoseEstimate:
-        """``still``: (34,) bool angles set by a refit, held at the next frame (or None)."""
+    def _tracked(self, res: TrackResult, errors: dict, frame: Frame) -> PoseEstimate:
         q = res.q.detach()
         self.state.q_prev, self.state.q_prev2 = q, self.state.q_prev
         estimate = PoseEstimate(
             q.cpu().double().numpy(), self._joints(q), "tracked", errors, observed=observed_of(res)
         )
-        held = held_dofs(estimate.observed) if self.cfg.hold_unseen_limbs else None
-        if still is not None:
-            held = still if held is None else held | still
-        self.state.held = held
+        if self.cfg.hold_unseen_limbs:
+            self.state.held = held_dofs(estimate.observed)
         search = self.scale_search
         if search is not None:
             scale = search.offer(frame, q, self._size_overlaps, estimate.joints)
@@ -255,20 +250,13 @@ class HybridEstimator:
         self.reset()
         return lost(**errors)
 
-    def _keep(
-        self,
-        res: TrackResult,
-        errors: dict,
-        flags: dict,
-        frame: Frame,
-        still: torch.Tensor | None = None,
-    ) -> PoseEstimate:
+    def _keep(self, res: TrackResult, errors: dict, flags: dict, frame: Frame) -> PoseEstimate:
         """A failed or suspect track kept instead of a detection: tracked with ``flags`` added
         to its errors, unless it explains too little of the silhouette to be the person's pose
         (then lost)."""
         if self._unsupported(res.signals.overlap):
             return self._lose({**errors, "unsupported": 1.0})
-        return self._tracked(res, {**errors, **flags}, frame, still)
+        return self._tracked(res, {**errors, **flags}, frame)
 
     def _detected(self, det: DetectionResult, errors: dict) -> PoseEstimate:
         errors["labelled_pixels"] = float(det.labelled_pixels)
@@ -300,7 +288,6 @@ class HybridEstimator:
         res = self._fit(frame, state.q_prev, hold_unseen(state.q_prev, state.q_prev2, state.held))
         errors = res.signals.as_errors()
         badness = cfg.failure.badness(res.signals)
-        still = None  # angles a refit set: no velocity of theirs carries on
         if self.arm_search is not None and self.arm_search.wanted(badness):
             found = self.arm_search.search(
                 frame,
@@ -313,17 +300,15 @@ class HybridEstimator:
             if found.best is not None:
                 res, badness = found.best, found.badness
                 errors = {**res.signals.as_errors(), "arm_searched": 1.0}
-                if cfg.arm_search.still_after_refit:
-                    still = arm_dofs(found.side)
             if found.arms_searched:  # refits tried, taken or not: what the search costs
                 errors["arms_searched"] = float(found.arms_searched)
         verdict = judge_track(res.signals, badness, cfg.failure, cfg.keep_better)
         if not verdict.run_detector:
-            return self._tracked(res, errors, frame, still)
+            return self._tracked(res, errors, frame)
         wait = 0 if cfg.keep_better is None else cfg.keep_better.wait_frames
         if state.refused_at is not None and frame.index - state.refused_at <= wait:
             # The detector was just refused: the track is kept without asking it again.
-            return self._keep(res, errors, {"detector_waited": 1.0}, frame, still)
+            return self._keep(res, errors, {"detector_waited": 1.0}, frame)
         failed = {f"tracker_{k}": v for k, v in errors.items()}
         det = self._run_detector(frame)
         if cfg.keep_better is None:
@@ -335,5 +320,5 @@ class HybridEstimator:
         if decision.keep_track:
             state.refused_at = frame.index
             kept = {"kept_over_detector": 1.0} if verdict.failed else {"rechecked": 1.0}
-            return self._keep(res, errors, kept, frame, still)
+            return self._keep(res, errors, kept, frame)
         return self._detected(det, failed)

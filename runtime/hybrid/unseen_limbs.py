@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from depthmocap.shared.skeleton import DOF_NAMES, JOINT_NAMES
 
-__all__ = ["HELD_LIMBS", "arm_dofs", "held_dofs", "hold_unseen"]
+__all__ = ["HELD_LIMBS", "held_dofs", "hold_unseen"]
 
 # (joints that must all be inferred, the angles then held): a whole arm or leg when its middle
 # and end joints are unseen, the forearm or shank when only the end is.
@@ -34,14 +34,6 @@ _INDEX = tuple(
     ([JOINT_NAMES.index(j) for j in joints], [DOF_NAMES.index(d) for d in dofs])
     for joints, dofs in HELD_LIMBS
 )
-
-
-def arm_dofs(side: str) -> torch.Tensor:
-    """(34,) bool: the four angles of the ``side`` ("l" or "r") arm that the hybrid holds (and
-    the arm search sets): the humerus's three and the elbow's."""
-    held = torch.zeros(len(DOF_NAMES), dtype=torch.bool)
-    held[_INDEX[0 if side == "l" else 4][1]] = True
-    return held
 
 
 def held_dofs(observed: np.ndarray | None) -> torch.Tensor | None:

@@ -24,7 +24,6 @@ from depthmocap.runtime.hybrid import (
 from depthmocap.runtime.hybrid import arm_search as arm_search_module
 from depthmocap.runtime.hybrid import hybrid_config as config_from_mapping
 from depthmocap.runtime.hybrid import policy as policy_module
-from depthmocap.runtime.hybrid.unseen_limbs import arm_dofs, hold_unseen
 from depthmocap.runtime.raycast import part_labels, render_body
 from depthmocap.runtime.streams.base import DepthFrame
 from depthmocap.runtime.tracker import Tracker, TrackerConfig
@@ -75,8 +74,6 @@ def cfg_of(**flat) -> HybridConfig:
         arm["cooldown_frames"] = flat.pop("arm_search_cooldown")
     if "arm_agreement_slack" in flat:
         arm["agreement_slack"] = _off(flat.pop("arm_agreement_slack"))
-    if "arm_still_after_refit" in flat:
-        arm["still_after_refit"] = flat.pop("arm_still_after_refit")
     misplaced_names = {"misplaced_arm_conflict": "conflict",
                        "misplaced_arm_cooldown": "cooldown_frames",
                        "misplaced_arm_relief": "relief"}  # fmt: skip
@@ -483,26 +480,6 @@ def test_hidden_arm_search_keeps_the_best_refit(scene, use_labels):
     assert flex == pytest.approx(ArmHidingTracker.GOOD[0], abs=1e-6)
     # The refits get the frame's labels exactly when the tracker has the label term.
     assert all((seen is not None) == use_labels for seen in tracker.labels_seen[-8:])
-
-
-@pytest.mark.parametrize("still", [False, True])
-def test_the_arm_a_refit_set_starts_the_next_frame_still(scene, still):
-    """The jump from the track to a refit taken is no motion: with ``still_after_refit`` the
-    pose before, as the next frame's prior sees it, has the refitted arm at this frame's."""
-    q, depth, labels, mask = scene
-    det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
-    cfg = cfg_of(
-        arm_search_badness=1.0, arm_agreement_slack=math.inf, arm_still_after_refit=still,
-        hold_unseen_limbs=False,
-    )  # fmt: skip
-    est = HybridEstimator(lambda f: labels * f.mask, det, ArmHidingTracker(), cfg)
-    assert estimate_frame(est, frame_of(depth, 0, mask)).status == "detected"
-    assert estimate_frame(est, frame_of(depth, 1, mask)).errors["arm_searched"] == 1.0
-    arm = arm_dofs("l")
-    before = hold_unseen(est.state.q_prev, est.state.q_prev2, est.state.held)
-    jumped = (est.state.q_prev - before).abs() > 0.5  # the refit's 40 degrees of flexion
-    assert bool(jumped[arm].any()) != still
-    assert not bool(jumped[~arm].any())
 
 
 @pytest.mark.parametrize("slack, searched", [(0.1, False), (1.0, True)])
