@@ -5,8 +5,8 @@ Two decisions per frame, both free of state and tensors so that tables can test 
 1. :func:`judge_track`: has the tracked fit failed, or should the detector question it anyway
    (a recheck)? Either way the detector runs.
 2. :func:`choose`: given the detection, keep the track or take the detection? Wei always takes
-   the detection; with ``keep_better`` it is taken only when it fits better (by more than
-   ``take_margin`` in badness).
+   the detection; with ``keep_better`` it is taken only when it fits better (than a track
+   that passed its tests, by more than ``take_margin`` in badness).
 
 The estimator (:mod:`runtime.hybrid.estimator`) calls both and keeps what carries over frames.
 """
@@ -83,7 +83,9 @@ def choose(
         return Decision(keep_track=True, forget=True)
     worse = detection.signals is not None
     if worse and keep_better.compare_all_tests:
-        margin = keep_better.take_margin
+        # The margin guards a track that passed its tests (a recheck): a failed one has no
+        # continuity worth keeping over any better fit.
+        margin = 0.0 if failure.failed(track) else keep_better.take_margin
         worse = failure.badness(detection.signals) >= failure.badness(track) - margin
     elif worse:
         worse = detection.signals.surface_error_q97_mm >= track.surface_error_q97_mm

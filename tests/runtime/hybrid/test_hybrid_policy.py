@@ -57,9 +57,16 @@ WORSE = FitSignals(3.5, 0.6, 90.0)
         (FAILED, Detection(True, None), KEEP, Decision(False)),
         # Nobody found: keep the track and forget the per-track memories.
         (FAILED, Detection(False), KEEP, Decision(True, forget=True)),
-        # A margin: better by 0.5 (1.92 - 1.42) passes 0.4, not 0.6.
-        (FAILED, Detection(True, BETTER), KeepBetterConfig(True, take_margin=0.4), Decision(False)),
-        (FAILED, Detection(True, BETTER), KeepBetterConfig(True, take_margin=0.6), Decision(True)),
+        # A margin over a passed (rechecked) track: better by 0.83 (2.25 - 1.42) passes 0.8,
+        # not 0.9; a failed track (1.92) gives way to the same detection whatever the margin.
+        (
+            SUSPECT,
+            Detection(True, BETTER),
+            KeepBetterConfig(True, take_margin=0.8),
+            Decision(False),
+        ),
+        (SUSPECT, Detection(True, BETTER), KeepBetterConfig(True, take_margin=0.9), Decision(True)),
+        (FAILED, Detection(True, BETTER), KeepBetterConfig(True, take_margin=0.9), Decision(False)),
     ],
 )
 def test_choose(track, detection, keep, expected):
