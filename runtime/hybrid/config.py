@@ -127,6 +127,9 @@ class KeepBetterConfig:
         _check(self.wait_frames >= 0, "keep_better.wait_frames must be >= 0", self.wait_frames)
         m = self.take_margin
         _check(m >= 0 and math.isfinite(m), "keep_better.take_margin must be >= 0", m)
+        # The margin is in badness units; the surface-only comparison would ignore it.
+        _check(m == 0 or self.compare_all_tests,
+               "keep_better.take_margin needs compare_all_tests: true", m)  # fmt: skip
         b = self.recheck_badness
         _check(b is None or not math.isnan(b), "recheck_badness must be a number or None", b)
 

@@ -79,6 +79,12 @@ def test_take_margin_must_be_a_finite_non_negative_number(margin):
         KeepBetterConfig(take_margin=margin)
 
 
+def test_take_margin_needs_the_badness_comparison():
+    with pytest.raises(ValueError, match="take_margin needs compare_all_tests"):
+        KeepBetterConfig(compare_all_tests=False, take_margin=0.15)
+    assert KeepBetterConfig(compare_all_tests=False).take_margin == 0.0
+
+
 def test_badness_and_failure_on_the_thresholds():
     on_all = FitSignals(3.0, 0.7, 80.0)
     assert SHIPPED.badness(on_all) == pytest.approx(3.0)
