@@ -1,13 +1,16 @@
 """``train-import``: convert other depth datasets into the project's recordings.
 
     train-import --utd-mhad DIR --out DIR [--actions 5 22] [--subjects 1] [--trials 1]
-                 [--max-frames N] [--overwrite]
+                 [--max-frames N] [--skeleton-lag N] [--overwrite]
 
 UTD-MHAD (:mod:`train.importers.utd_mhad`): one recording per take, named ``a05_s1_t1``, with
 the un-mirrored depth, the camera's intrinsics and the Kinect SDK's skeleton as
-``reference.npz`` (another tracker, not ground truth). A recording already imported (its
-``reference.npz`` written last) is skipped unless ``--overwrite``. Exit status 2 with one
-``error:`` line on a missing folder, a missing or malformed ``.mat`` file or no matching take.
+``reference.npz`` (another tracker, not ground truth), each skeleton paired with the depth
+frame that shows the same moment (``--skeleton-lag``: the dataset's depth stream runs 2 frames
+late, so the first 2 depth frames, which have no skeleton, are not imported). A recording
+already imported (its ``reference.npz`` written last) is skipped unless ``--overwrite``. Exit
+status 2 with one ``error:`` line on a missing folder, a missing or malformed ``.mat`` file or
+no matching take.
 """
 
 from __future__ import annotations
@@ -24,14 +27,23 @@ __all__ = ["main", "build_parser", "import_utd_sequence"]
 
 
 def import_utd_sequence(
-    seq: utd.Sequence, out: Path, max_frames: int | None = None, overwrite: bool = False
+    seq: utd.Sequence,
+    out: Path,
+    max_frames: int | None = None,
+    overwrite: bool = False,
+    lag: int = utd.SKELETON_LAG_FRAMES,
 ) -> int:
     """Write one take as the recording ``out``; returns its frame count.
 
     Both files are read and checked before anything is written, so a malformed take leaves
     no half recording behind.
+
+    Args:
+        max_frames: keep at most this many frames (after pairing the streams; None: all).
+        lag: :func:`utd_mhad.align_streams`'s lag in frames.
     """
-    depth, skel = utd.read_sequence(seq, max_frames)
+    depth, skel = utd.read_sequence(seq, None if max_frames is None else max_frames + lag)
+    depth, skel = utd.align_streams(depth, skel, lag)
     # An interrupted import (meta.json but no reference.npz) is replaced without asking.
     overwrite = overwrite or not (out / "reference.npz").is_file()
     intr = utd.utd_intrinsics()
@@ -39,7 +51,10 @@ def import_utd_sequence(
         for frame in utd.unmirror_depth(depth):
             writer.write_frame(frame)
         writer.write_reference(
-            utd.kinect_to_camera(skel), utd.KINECT_JOINTS, utd.REFERENCE_SOURCE, utd.JOINT_MAP
+            utd.kinect_to_camera(skel),
+            utd.KINECT_JOINTS,
+            utd.reference_source(lag),
+            utd.JOINT_MAP,
         )
     return len(depth)
 
@@ -55,6 +70,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--subjects", type=int, nargs="+", help="only these subjects")
     p.add_argument("--trials", type=int, nargs="+", help="only these trials")
     p.add_argument("--max-frames", type=int, help="only the first N frames of each take")
+    p.add_argument(
+        "--skeleton-lag", type=int, default=utd.SKELETON_LAG_FRAMES, metavar="N",
+        help="pair each skeleton with the depth frame N later (the stored depth runs late; "
+        f"default {utd.SKELETON_LAG_FRAMES}, measured by "
+        "python -m depthmocap.train.evaluation.reference_lag; 0: as stored)",
+    )  # fmt: skip
     p.add_argument("--overwrite", action="store_true", help="re-import recordings already there")
     p.add_argument("--quiet", "-q", action="store_true", help="no line per recording")
     return p
@@ -76,6 +97,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.max_frames is not None and args.max_frames < 1:
         print("error: --max-frames must be at least 1", file=sys.stderr)
         return 2
+    if args.skeleton_lag < 0:
+        print("error: --skeleton-lag must be 0 or more", file=sys.stderr)
+        return 2
     try:
         seqs = _selected(utd.find_sequences(args.utd_mhad), args)
         if not seqs:
@@ -86,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
             if (out / "reference.npz").is_file() and not args.overwrite:
                 skipped += 1
                 continue
-            n = import_utd_sequence(seq, out, args.max_frames, args.overwrite)
+            n = import_utd_sequence(seq, out, args.max_frames, args.overwrite, args.skeleton_lag)
             written, frames = written + 1, frames + n
             if not args.quiet:
                 print(f"wrote {out} ({n} frames)")

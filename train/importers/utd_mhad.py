@@ -18,6 +18,17 @@ y points down). ``z`` stays.
 The SDK's skeleton is stored as a *reference* (``reference.npz``), never as ground truth: it is
 another tracker's estimate (Helten et al. 2013 measured it at about 96 mm mean error against
 Vicon), with its own idea of where joints are (3-12 cm behind the visible surface).
+
+Time. The dataset stores the two streams index by index, but they are not in step: the
+skeleton at index ``k`` shows the body as the depth frame at index ``k + 2`` does (the depth
+stream runs about 55 ms late). The depth image alone shows it, without any tracker: over all
+192 takes of the shared copy, the SDK's joints lie off the person or in the seen-empty space
+in front of it (:mod:`train.evaluation.depth_refutation`) 4,280 times when paired index by
+index, 1,780 at one frame, 1,367 at two and 3,493 at three (a parabola through these puts the
+lag at 1.7 frames; ``python -m depthmocap.train.evaluation.reference_lag`` measures it).
+Helten et al. (section IV) calibrate each sequence in time before comparing trackers for the
+same reason. :func:`align_streams` pairs them, dropping the first ``lag`` depth frames (no
+skeleton of theirs was kept) and the last ``lag`` skeletons (no depth frame).
 """
 
 from __future__ import annotations
@@ -43,6 +54,9 @@ __all__ = [
     "utd_intrinsics",
     "unmirror_depth",
     "kinect_to_camera",
+    "SKELETON_LAG_FRAMES",
+    "align_streams",
+    "reference_source",
 ]
 
 # Skeleton_joint_order.txt of the dataset; "left" is the person's left.
@@ -94,6 +108,9 @@ ACTION_NAMES: dict[int, str] = {
 FOCAL_PX = 285.63  # NUI_CAMERA_SKELETON_TO_DEPTH_IMAGE_MULTIPLIER_320x240 of the SDK
 FPS = 30.0
 REFERENCE_SOURCE = "Kinect SDK v1 skeleton (another tracker)"
+# Depth frames by which the dataset's depth stream runs behind its skeleton stream (module
+# docstring): measured from the depth alone over all 192 takes, not fitted to any tracker.
+SKELETON_LAG_FRAMES = 2
 WIDTH, HEIGHT = 320, 240
 _NAME = re.compile(r"^a(\d+)_s(\d+)_t(\d+)_depth\.mat$")
 
@@ -201,6 +218,38 @@ def read_sequence(seq: Sequence, max_frames: int | None = None) -> tuple[np.ndar
     if not np.isfinite(skel).all() or (skel[..., 2] <= 0).any():
         raise UtdError(f"{seq.skeleton_file}: joints must be finite with z > 0")
     return depth, skel
+
+
+def align_streams(
+    depth: np.ndarray, skeleton: np.ndarray, lag: int = SKELETON_LAG_FRAMES
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pair each skeleton with the depth frame that shows the same moment.
+
+    Args:
+        depth: (T, H, W) frames; skeleton: (T, K, 3) joints, index by index as stored.
+        lag: depth frames by which the depth stream runs late (0: as stored).
+    Returns:
+        depth[lag:] and skeleton[:T - lag], (T - lag, ...) each.
+    Raises:
+        UtdError: a negative lag, or a take no longer than the lag.
+    """
+    if lag < 0:
+        raise UtdError(f"the skeleton lag must be 0 or more frames, got {lag}")
+    if len(depth) != len(skeleton):
+        raise UtdError(f"{len(depth)} depth frames but {len(skeleton)} skeletons")
+    if len(depth) <= lag:
+        raise UtdError(f"a take of {len(depth)} frames has none left after a lag of {lag}")
+    return depth[lag:], skeleton[: len(skeleton) - lag]
+
+
+def reference_source(lag: int) -> str:
+    """The reference's ``source`` text, saying how it was put in step with the depth."""
+    if lag == 0:
+        return f"{REFERENCE_SOURCE}; paired with the depth index by index, as stored"
+    return (
+        f"{REFERENCE_SOURCE}; each skeleton paired with the depth frame {lag} later in the "
+        "stored stream (the stored depth runs late)"
+    )
 
 
 def utd_intrinsics() -> Intrinsics:

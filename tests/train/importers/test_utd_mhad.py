@@ -1,5 +1,6 @@
 """``train-import --utd-mhad`` on tiny synthetic .mat files written here with scipy: mirroring,
-axes and intrinsics against golden pixels, the round trip, filters, and malformed input."""
+axes and intrinsics against golden pixels, the round trip, the streams put in step, filters, and
+malformed input."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from depthmocap.train.importers.cli import main
 
 scipy_io = pytest.importorskip("scipy.io")
 
-T = 3
+T = 5
 F = utd.FOCAL_PX
 # A left wrist 70 px left of the mirrored image's centre column 160 and 40 px above row 120:
 # f x / z = -70 and f y / z = 40 exactly at z = f / 100 metres.
@@ -91,7 +92,7 @@ def test_a_joint_projects_onto_its_pixel_in_the_unmirrored_image(take, tmp_path)
 
 
 def test_round_trip(take, tmp_path):
-    assert _import(take, tmp_path / "out") == 0
+    assert _import(take, tmp_path / "out", "--skeleton-lag", "0") == 0
     rec = Recording(tmp_path / "out" / "a05_s1_t1")
     assert len(rec) == T and rec.fps == 30.0 and not rec.has_groundtruth
     assert rec.meta["source"].startswith("UTD-MHAD a5_s1_t1")
@@ -99,7 +100,7 @@ def test_round_trip(take, tmp_path):
     for i in range(T):
         np.testing.assert_array_equal(rec.read_depth_mm(i), mirrored[:, ::-1, i])
     ref = rec.reference()
-    assert str(ref["source"]) == "Kinect SDK v1 skeleton (another tracker)"
+    assert str(ref["source"]).startswith("Kinect SDK v1 skeleton (another tracker); paired")
     assert tuple(ref["joint_names"]) == utd.KINECT_JOINTS
     expected = np.moveaxis(_skeleton(), 2, 0) * [-1, -1, 1]
     np.testing.assert_allclose(ref["joints"], expected, atol=1e-6)
@@ -110,6 +111,33 @@ def test_round_trip(take, tmp_path):
     np.testing.assert_allclose(joints[:, names.index("l_wrist")], expected[:, 6], atol=1e-6)
     unmapped = set(utd.KINECT_JOINTS) - {theirs for _, theirs in utd.JOINT_MAP}
     assert unmapped == {"left_hand", "right_hand", "left_foot", "right_foot"}
+
+
+@pytest.mark.parametrize("lag", [1, utd.SKELETON_LAG_FRAMES])
+def test_each_skeleton_meets_the_depth_frame_lag_later(take, tmp_path, lag):
+    extra = () if lag == utd.SKELETON_LAG_FRAMES else ("--skeleton-lag", str(lag))
+    assert _import(take, tmp_path / "out", *extra) == 0
+    rec = Recording(tmp_path / "out" / "a05_s1_t1")
+    assert len(rec) == T - lag  # the first `lag` depth frames have no skeleton of theirs
+    stored = np.moveaxis(_skeleton(), 2, 0) * [-1, -1, 1]
+    ref = rec.reference()
+    for i in range(T - lag):
+        assert rec.read_depth_mm(i)[0, -1] == i + lag + 1  # the stored frame i + lag (un-mirrored)
+        np.testing.assert_allclose(ref["joints"][i], stored[i], atol=1e-6)
+    assert f"depth frame {lag} later" in str(ref["source"])
+
+
+def test_align_streams_golden_and_errors():
+    depth, skel = np.arange(4)[:, None, None], np.arange(4)[:, None, None] * 10.0
+    d, s = utd.align_streams(depth, skel, 1)
+    assert d[:, 0, 0].tolist() == [1, 2, 3] and s[:, 0, 0].tolist() == [0.0, 10.0, 20.0]
+    assert len(utd.align_streams(depth, skel, 0)[0]) == 4
+    with pytest.raises(utd.UtdError, match="0 or more"):
+        utd.align_streams(depth, skel, -1)
+    with pytest.raises(utd.UtdError, match="none left"):
+        utd.align_streams(depth, skel, 4)
+    with pytest.raises(utd.UtdError, match="4 depth frames but 3"):
+        utd.align_streams(depth, skel[:3], 1)
 
 
 def test_filters_max_frames_and_reruns(tmp_path, capsys):
@@ -126,7 +154,7 @@ def test_filters_max_frames_and_reruns(tmp_path, capsys):
     assert "2 recordings" in capsys.readouterr().out.splitlines()[-1]  # one was there already
     assert len(Recording(out / "a05_s2_t1")) == 2
     assert _import(src, out, "--subjects", "2", "--overwrite") == 0
-    assert len(Recording(out / "a05_s2_t1")) == T
+    assert len(Recording(out / "a05_s2_t1")) == T - utd.SKELETON_LAG_FRAMES
 
 
 def _expect_error(capsys, src, out, pattern, *extra):
@@ -165,8 +193,8 @@ def _expect_error(capsys, src, out, pattern, *extra):
             ),
             "d_skel must be float (20, 3, T)",
         ),
-        (lambda r: write_take(r, skel=_skeleton(T + 1)), "3 depth frames but 4 skeleton frames"),
-        (lambda r: write_take(r, skel=_skeleton() * [1, 1, -1]), "z > 0"),
+        (lambda r: write_take(r, skel=_skeleton(T + 1)), "5 depth frames but 6 skeleton frames"),
+        (lambda r: write_take(r, skel=_skeleton() * np.array([1, 1, -1])[:, None]), "z > 0"),
     ],
 )
 def test_malformed_takes_are_one_error_line_and_write_nothing(
@@ -181,3 +209,5 @@ def test_bad_folders_and_filters(take, tmp_path, capsys):
     _expect_error(capsys, tmp_path / "nothing", tmp_path / "out", "no Depth/ subfolder")
     _expect_error(capsys, take, tmp_path / "out", "no take matches", "--actions", "99")
     _expect_error(capsys, take, tmp_path / "out", "--max-frames must be", "--max-frames", "0")
+    _expect_error(capsys, take, tmp_path / "out", "--skeleton-lag must be", "--skeleton-lag", "-1")
+    _expect_error(capsys, take, tmp_path / "out", "none left", "--skeleton-lag", str(T))

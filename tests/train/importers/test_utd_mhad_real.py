@@ -9,6 +9,7 @@ import pytest
 from depthmocap.shared.recording import Recording, mapped_reference
 from depthmocap.train.evaluation.evaluate import evaluate
 from depthmocap.train.evaluation.overlay_sheet import project
+from depthmocap.train.importers import utd_mhad as utd
 from depthmocap.train.importers.cli import main as import_main
 
 pytestmark = pytest.mark.shareddata
@@ -88,3 +89,22 @@ def test_shipped_system_agrees_with_the_kinect_sdk_on_real_frames(utd_root, tmp_
     # (the SDK's spine sits low on the back), but a swapped side would be 30 cm off.
     raw = r["per_joint_error_mm"]
     assert all(v < 200 for v in raw.values()), raw
+
+
+def test_the_stored_depth_runs_two_frames_behind_the_skeleton(utd_root, tmp_path):
+    from depthmocap.train.evaluation.reference_lag import refuted_by_lag
+
+    # Two fast takes, imported as stored (index by index).
+    lags, counts = [0, 1, 2, 3], 0
+    for action in (5, 17):
+        args = ["--utd-mhad", str(utd_root), "--out", str(tmp_path), "-q", "--actions",
+                str(action), "--subjects", "1", "--trials", "1", "--skeleton-lag", "0"]  # fmt: skip
+        assert import_main(args) == 0
+        rec = Recording(tmp_path / f"a{action:02d}_s1_t1")
+        reference, _ = mapped_reference(rec.reference())
+        depth = [rec.read_depth(i) for i in range(len(rec))]
+        counts = counts + refuted_by_lag(depth, reference, rec.intrinsics, lags)
+    # The depth image alone refutes the SDK's joints far less often two frames later (the
+    # importer's default pairing) than index by index: 58, 15, 8, 42 when this was written.
+    assert int(np.argmin(counts)) == lags.index(utd.SKELETON_LAG_FRAMES), counts
+    assert counts[2] < counts[0] / 3, counts
