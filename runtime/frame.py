@@ -106,6 +106,20 @@ class Frame:
         """Whether the segmentation found anyone: a frame without is lost as it stands."""
         return bool(self.mask.any())
 
+    def drop_pixels(self, drop: torch.Tensor) -> None:
+        """Take ``drop`` (H, W) bool out of the person's mask (and their labels out of the
+        labels computed so far), before any observation is made of the frame.
+
+        Raises:
+            FrameError: an observation was already made (it would still hold them).
+        """
+        if self._observations:
+            raise FrameError(f"frame {self.index}: pixels dropped after an observation was made")
+        keep = ~drop.to(device=self.device, dtype=torch.bool)
+        self.mask = self.mask & keep
+        for source, labels in self._labels.items():
+            self._labels[source] = labels * keep
+
     def labels(self, source: LabelSource) -> torch.Tensor:
         """(H, W) int64 part labels from ``source``, computed on the first call per source."""
         if source not in self._labels:

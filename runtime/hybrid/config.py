@@ -18,6 +18,7 @@ from depthmocap.runtime.tracker.config import TrackerConfig
 from depthmocap.runtime.tracker.signals import FitSignals
 from depthmocap.shared.config import ConfigError, field_doc
 
+from .behind_model import BehindModelConfig
 from .body_scale import BodyScaleConfig
 
 __all__ = [
@@ -235,6 +236,11 @@ class HybridConfig:
     arm_search: ArmSearchConfig | None = field_doc(
         help="refit a hidden or misplaced arm on suspect frames (None: off, as in Wei)",
         default_factory=_shipped_arm_search,
+    )
+    behind_model: BehindModelConfig | None = field_doc(
+        None,
+        "drop mask pixels that stay still far behind the tracked body (furniture touching "
+        "the person: runtime.hybrid.behind_model; None: off)",
     )
     body_scale: BodyScaleConfig | None = field_doc(
         help="estimate the person's size from the first tracked frames when no body file is "

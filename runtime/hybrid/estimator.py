@@ -37,6 +37,7 @@ from depthmocap.shared.joint_offsets import JointOffsets, apply_offsets
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
 
 from .arm_search import ArmSearch
+from .behind_model import StaticBehindMask
 from .body_scale import BodyScaleSearch
 from .config import HybridConfig
 from .policy import Detection, choose, judge_track
@@ -114,6 +115,7 @@ class HybridEstimator:
         self.scale_search = (
             None if cfg.body_scale is None else BodyScaleSearch(cfg.body_scale, tracker.body)
         )
+        self._behind = None if cfg.behind_model is None else StaticBehindMask(cfg.behind_model)
         self._refits = SplitRefits(background)
         self._sizes: Tracker | None = None  # the size search's tracker of all candidates
         self._scale_in_use = 1.0  # the factor on the search's body that is tracked with
@@ -142,6 +144,8 @@ class HybridEstimator:
         self.detector.reset()
         if self.arm_search is not None:
             self.arm_search.reset()
+        if self._behind is not None:
+            self._behind.reset()
 
     def prefetch(self, frame: Frame) -> None:
         """Compute what every frame needs before the estimate (the forest's labels, when the
@@ -177,6 +181,16 @@ class HybridEstimator:
         if self.offsets is not None:
             joints = apply_offsets(joints, kin.rotations, q[None], self.offsets, body.stature())
         return joints[0].detach().cpu().double().numpy()
+
+    def _drop_behind(self, frame: Frame) -> None:
+        """Take the static surfaces far behind the last tracked pose out of ``frame``'s mask
+        (:mod:`~runtime.hybrid.behind_model`), before anything reads the mask."""
+        q = self.state.q_prev
+        body = self.tracker.body
+        kin = None if q is None else forward_kinematics(q[None].to(body.lengths), body)
+        drop = self._behind.update(frame.depth_m, frame.mask, kin, frame.intrinsics)
+        if bool(drop.any()):
+            frame.drop_pixels(drop)
 
     def _run_detector(self, frame: Frame) -> DetectionResult:
         """The detector on ``frame``, refined on the shared tracker; changes no state."""
@@ -283,6 +297,8 @@ class HybridEstimator:
     def estimate(self, frame: Frame) -> PoseEstimate:
         """Pose of the person in ``frame`` (module docstring)."""
         state, cfg = self.state, self.cfg
+        if self._behind is not None:
+            self._drop_behind(frame)
         if state.q_prev is None:
             return self._detected(self._run_detector(frame), {})
         res = self._fit(frame, state.q_prev, hold_unseen(state.q_prev, state.q_prev2, state.held))

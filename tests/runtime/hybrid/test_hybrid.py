@@ -24,6 +24,7 @@ from depthmocap.runtime.hybrid import (
 from depthmocap.runtime.hybrid import arm_search as arm_search_module
 from depthmocap.runtime.hybrid import hybrid_config as config_from_mapping
 from depthmocap.runtime.hybrid import policy as policy_module
+from depthmocap.runtime.hybrid.behind_model import BehindModelConfig
 from depthmocap.runtime.raycast import part_labels, render_body
 from depthmocap.runtime.streams.base import DepthFrame
 from depthmocap.runtime.tracker import Tracker, TrackerConfig
@@ -923,3 +924,28 @@ def test_the_hybrid_holds_an_unseen_arm(scene):
         assert torch.equal(before[arm], prev[arm])
         assert torch.equal(before[rest], before_p[rest])
         assert float(prev_p[elbow] - before_p[elbow]) > 0.05  # off: the velocity carried on
+
+
+def test_a_still_chair_behind_the_legs_leaves_the_mask(scene):
+    """The static-surface memory (``behind_model``) runs before the frame's estimate: a patch
+    0.4 m behind the legs in the mask is dropped once it has been still behind the tracked
+    body for ``static_frames`` frames, and never a body pixel."""
+    q, depth, labels, mask = scene
+    rows, cols = torch.nonzero(mask, as_tuple=True)
+    chair = torch.zeros_like(mask)
+    v0 = int(rows.float().quantile(0.55))
+    chair[v0 : v0 + 12, int(cols.min()) - 6 : int(cols.max()) + 6] = True
+    chair &= ~mask
+    d = torch.where(chair, torch.full_like(depth, 2.9), depth)
+    det = Detector(BODY, INTR, DetectorConfig(refine_iterations=2))
+    trk = Tracker(BODY, INTR, TrackerConfig(iterations=3))
+    cfg = HybridConfig(behind_model=BehindModelConfig(behind_m=0.12, static_frames=2))
+    est = HybridEstimator(lambda f: labels * f.mask, det, trk, cfg)
+    kept = []
+    for i in range(5):
+        frame = frame_of(d, i, mask | chair)
+        assert estimate_frame(est, frame).status in ("detected", "tracked")
+        kept.append(int((frame.mask & chair).sum()))
+        assert bool(frame.mask[mask].all())
+    # Frame 0 has no track, frame 1 none before it; counted from frame 2, dropped at frame 3.
+    assert kept[:3] == [int(chair.sum())] * 3 and kept[3:] == [0, 0]
