@@ -38,10 +38,12 @@ class BehindModelConfig:
     """Dropping static surfaces seen far behind the tracked body (module docstring)."""
 
     behind_m: float = field_doc(
-        0.2,
+        0.12,
         "a pixel counts as behind the body when it lies this much farther from the camera than "
-        "the closest point of the nearest segment axis of the last tracked pose (m); a seen "
-        "body point lies at most a limb's radius (5-15 cm) behind its own axis",
+        "the closest point of the nearest segment axis of the last tracked pose (m): a seen "
+        "body point lies in front of its own axis, and up to a limb's radius (5-8 cm) behind "
+        "a neighbouring one, plus the tracker's few centimetres of error. 0.2 caught little of "
+        "a chair the model's legs had already been drawn towards (docs/experiments.md)",
     )
     static_frames: int = field_doc(
         5, "frames in a row a pixel must be behind and at the same depth before it is dropped"

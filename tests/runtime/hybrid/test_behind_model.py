@@ -128,7 +128,8 @@ def test_the_frame_drops_pixels_from_its_mask_and_labels():
         frame.drop_pixels(drop)
 
 
-def test_the_setting_loads_from_a_preset_and_is_off_by_default():
-    assert HybridConfig().behind_model is None
-    cfg = config_from_dict(HybridConfig, {"behind_model": {"behind_m": 0.12}})
-    assert cfg.behind_model == BehindModelConfig(behind_m=0.12)
+def test_the_setting_loads_from_a_preset_and_is_shipped_on():
+    assert HybridConfig().behind_model == BehindModelConfig(behind_m=0.12, static_frames=5)
+    cfg = config_from_dict(HybridConfig, {"behind_model": {"behind_m": 0.3}})
+    assert cfg.behind_model == BehindModelConfig(behind_m=0.3)
+    assert config_from_dict(HybridConfig, {"behind_model": None}).behind_model is None
