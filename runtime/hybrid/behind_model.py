@@ -87,7 +87,8 @@ def depth_behind_axes(points: torch.Tensor, start: torch.Tensor, end: torch.Tens
     t = (((points[:, None] - start[None]) * axis[None]).sum(-1) / length2).clamp(0.0, 1.0)
     closest = start[None] + t[..., None] * axis[None]  # (N, S, 3)
     nearest = (points[:, None] - closest).norm(dim=-1).argmin(1)  # (N,)
-    return points[:, 2] - closest[torch.arange(len(points)), nearest, 2]
+    rows = torch.arange(len(points), device=points.device)
+    return points[:, 2] - closest[rows, nearest, 2]
 
 
 def _pixel_points(depth_m: torch.Tensor, pixels: torch.Tensor, intr: Intrinsics) -> torch.Tensor:

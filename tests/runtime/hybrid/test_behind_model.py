@@ -133,3 +133,14 @@ def test_the_setting_loads_from_a_preset_and_is_shipped_on():
     cfg = config_from_dict(HybridConfig, {"behind_model": {"behind_m": 0.3}})
     assert cfg.behind_model == BehindModelConfig(behind_m=0.3)
     assert config_from_dict(HybridConfig, {"behind_model": None}).behind_model is None
+
+
+def test_the_memory_follows_the_input_s_device(device):
+    """On a GPU the torch code runs where the frame is (the compiled loop is for the CPU)."""
+    body, q, depth, chair = _scene()
+    kin = forward_kinematics(q.to(device), body.to(device=device))
+    memory = StaticBehindMask(BehindModelConfig(behind_m=0.12, static_frames=1), compiled=False)
+    d = torch.where(chair, torch.full_like(depth, 2.9), depth).to(device)
+    assert not memory.update(d, d > 0, kin, INTR).any()
+    drop = memory.update(d, d > 0, kin, INTR)
+    assert drop.device == d.device and bool(drop[chair.to(device)].all())
