@@ -34,8 +34,8 @@ def _update(
             z = np.float64(depth[v, u])
             if abs(np.float64(depth[v, u]) - np.float64(prev[v, u])) > tol:
                 continue
-            x = (u - cx) * z / fx
-            y = (v - cy) * z / fy
+            x = (u - cx) / fx * z  # shared.camera.masked_points' order
+            y = (v - cy) / fy * z
             best = np.inf
             best_z = 0.0
             for s in range(s_count):

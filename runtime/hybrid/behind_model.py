@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import torch
 from depthmocap.shared import skeleton as sk
-from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.camera import Intrinsics, masked_points
 from depthmocap.shared.compiled import compiled_module
 from depthmocap.shared.config import ConfigError, field_doc
 from depthmocap.shared.kinematics import Kinematics, segment_axis_points
@@ -91,16 +91,6 @@ def depth_behind_axes(points: torch.Tensor, start: torch.Tensor, end: torch.Tens
     return points[:, 2] - closest[rows, nearest, 2]
 
 
-def _pixel_points(depth_m: torch.Tensor, pixels: torch.Tensor, intr: Intrinsics) -> torch.Tensor:
-    """Camera-frame points (N, 3) float64 of ``pixels`` (N, 2) rows and columns of
-    ``depth_m``."""
-    v, u = pixels.unbind(1)
-    z = depth_m[v, u].double()
-    x = (u.double() - intr.cx) * z / intr.fx
-    y = (v.double() - intr.cy) * z / intr.fy
-    return torch.stack([x, y, z], 1)
-
-
 class StaticBehindMask:
     """Per-pixel memory of a stream: how long each pixel has been behind the body and still.
 
@@ -142,7 +132,8 @@ class StaticBehindMask:
             )  # fmt: skip
         else:
             count, drop = self._update_torch(depth_m, mask, start.detach(), end.detach(), intr)
-        self._depth, self._count = depth_m.clone(), count
+        # The frame's depth is never written to, so it is kept, not copied.
+        self._depth, self._count = depth_m, count
         return drop
 
     def _update_torch(self, depth_m, mask, start, end, intr) -> tuple[torch.Tensor, torch.Tensor]:
@@ -152,12 +143,12 @@ class StaticBehindMask:
         if self._depth is None or self._depth.shape != depth_m.shape:
             return count, torch.zeros_like(mask)
         still = (depth_m.double() - self._depth.double()).abs() <= cfg.static_tol_m
-        pixels = (mask & still).nonzero()
+        candidates = mask & still
         behind = torch.zeros_like(mask)
-        if len(pixels):
-            points = _pixel_points(depth_m, pixels, intr)
+        if candidates.any():
+            points = masked_points(depth_m.double(), candidates, intr)
             far = depth_behind_axes(points, start.double(), end.double()) > cfg.behind_m
-            behind[pixels[far, 0], pixels[far, 1]] = True
+            behind[candidates] = far
         before = self._count
         if before is not None and before.shape == mask.shape:
             count = torch.where(behind, before + 1, count)
