@@ -8,7 +8,8 @@ the un-mirrored depth, the camera's intrinsics and the Kinect SDK's skeleton as
 ``reference.npz`` (another tracker, not ground truth), each skeleton paired with the depth
 frame that shows the same moment (``--skeleton-lag``: the dataset's depth stream runs 2 frames
 late, so the first 2 depth frames, which have no skeleton, are not imported). A recording
-already imported (its ``reference.npz`` written last) is skipped unless ``--overwrite``. Exit
+already imported (its ``reference.npz`` written last) with the same pairing is skipped unless
+``--overwrite``; one paired otherwise is imported again. Exit
 status 2 with one ``error:`` line on a missing folder, a missing or malformed ``.mat`` file or
 no matching take.
 """
@@ -59,6 +60,19 @@ def import_utd_sequence(
     return len(depth)
 
 
+def _paired_as(out: Path, lag: int) -> bool:
+    """Whether the recording ``out`` was imported with this skeleton lag (an import made with
+    another, or before the lag existed, is re-imported rather than kept: results scored
+    against it would compare other moments)."""
+    import numpy as np
+
+    try:
+        with np.load(out / "reference.npz") as ref:
+            return str(ref["source"]) == utd.reference_source(lag)
+    except (OSError, ValueError, KeyError):
+        return False  # unreadable: imported again
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="train-import", description=__doc__.split("\n\n")[0])
     p.add_argument(
@@ -104,14 +118,18 @@ def main(argv: list[str] | None = None) -> int:
         seqs = _selected(utd.find_sequences(args.utd_mhad), args)
         if not seqs:
             raise utd.UtdError(f"{args.utd_mhad}: no take matches the filters")
-        written = skipped = frames = 0
+        written = skipped = repaired = frames = 0
         for seq in seqs:
             out = args.out / seq.name
-            if (out / "reference.npz").is_file() and not args.overwrite:
+            there = (out / "reference.npz").is_file()
+            stale = there and not _paired_as(out, args.skeleton_lag)
+            if there and not stale and not args.overwrite:
                 skipped += 1
                 continue
-            n = import_utd_sequence(seq, out, args.max_frames, args.overwrite, args.skeleton_lag)
-            written, frames = written + 1, frames + n
+            n = import_utd_sequence(
+                seq, out, args.max_frames, args.overwrite or stale, args.skeleton_lag
+            )
+            written, frames, repaired = written + 1, frames + n, repaired + stale
             if not args.quiet:
                 print(f"wrote {out} ({n} frames)")
     except (utd.UtdError, OSError) as err:
@@ -120,6 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"{written} recordings ({frames} frames) written to {args.out}"
         + (f", {skipped} already there (--overwrite re-imports them)" if skipped else "")
+        + (f"; {repaired} of them replaced an import paired otherwise" if repaired else "")
     )
     return 0
 

@@ -127,6 +127,18 @@ def test_each_skeleton_meets_the_depth_frame_lag_later(take, tmp_path, lag):
     assert f"depth frame {lag} later" in str(ref["source"])
 
 
+def test_an_import_paired_otherwise_is_replaced(take, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert _import(take, out, "--skeleton-lag", "0") == 0
+    assert len(Recording(out / "a05_s1_t1")) == T
+    capsys.readouterr()
+    assert _import(take, out) == 0  # the default lag: the stale pairing is not kept
+    assert len(Recording(out / "a05_s1_t1")) == T - utd.SKELETON_LAG_FRAMES
+    assert "1 of them replaced an import paired otherwise" in capsys.readouterr().out
+    assert _import(take, out) == 0  # the same pairing again: skipped
+    assert "1 already there" in capsys.readouterr().out
+
+
 def test_align_streams_golden_and_errors():
     depth, skel = np.arange(4)[:, None, None], np.arange(4)[:, None, None] * 10.0
     d, s = utd.align_streams(depth, skel, 1)
