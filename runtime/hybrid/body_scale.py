@@ -181,8 +181,8 @@ class BodyScaleSearch:
     The last sample is read at once: the call that takes the ``cfg.samples``-th frame returns
     the factor (also :attr:`scale`), the overlaps' peak (:attr:`peak`) times
     ``cfg.correction``; with ``cfg.read_last_later`` it is read a sampling period later too,
-    and the call at that next slot returns the factor. With ``cfg.interim_after`` the calls
-    that take a sample before that return the factor of the samples read so far (:attr:`interim`), once that many are read:
+    and the call at that next slot returns the factor. With ``cfg.interim_after`` the calls that take a sample before that
+    return the factor of the samples read so far (:attr:`interim`), once that many are read:
     the body to track with until the final one. The result does not depend on where the
     overlaps are computed: the same size on the same frame as with an inline ``fit``. A
     search runs once per estimator; :attr:`curves` keeps each sample's (S,) overlaps for
