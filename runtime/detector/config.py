@@ -34,12 +34,6 @@ class DetectorConfig:
     refine_iterations: int = field_doc(
         3, help="tracker Gauss-Newton iterations refining the IK pose (Wei: three); 0 = none"
     )
-    refine_keep: int | None = field_doc(
-        None,
-        "after ``refine_keep_after`` iterations only this many of the refinement's starts go "
-        "on, those with the smallest depth error (runtime.tracker.start_pruning); None: all",
-    )
-    refine_keep_after: int = field_doc(1, "iterations every refinement start runs (>= 1)")
     reset_limbs: str = field_doc(
         "limbs",
         help="more refinement starts: the IK pose with one limb set back to its rest angles "
@@ -61,11 +55,6 @@ class DetectorConfig:
         if self.reset_limbs not in ("none", "legs", "limbs"):
             raise ConfigError(
                 f"detector: reset_limbs must be none, legs or limbs, got {self.reset_limbs!r}"
-            )
-        if (self.refine_keep is not None and self.refine_keep < 1) or self.refine_keep_after < 1:
-            raise ConfigError(
-                f"detector: refine_keep must be >= 1 or None and refine_keep_after >= 1, got "
-                f"{self.refine_keep}, {self.refine_keep_after}"
             )
         if self.refine_iterations < 0:
             raise ConfigError(

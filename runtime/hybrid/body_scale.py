@@ -84,13 +84,6 @@ class BodyScaleConfig:
         "tracked too large early drew the final size up with it (real depth, seated starts). "
         "None: every sample",
     )
-    read_last_later: bool = field_doc(
-        False,
-        "read the last sample's refits a sampling period later too, as every other sample's: "
-        "the size is final ``every`` tracked frames after the last sample (the interim size "
-        "tracks until then), and no frame waits for the refits (with False the frame that "
-        "takes the last sample waits for all of them, ~45 ms)",
-    )
     correction: float = field_doc(
         1.0,
         "factor applied to the size found, kept within min_scale..max_scale (1: none). "
@@ -180,8 +173,7 @@ class BodyScaleSearch:
     path), and a sample is read at the next sampled frame, a whole sampling period later.
     The last sample is read at once: the call that takes the ``cfg.samples``-th frame returns
     the factor (also :attr:`scale`), the overlaps' peak (:attr:`peak`) times
-    ``cfg.correction``; with ``cfg.read_last_later`` it is read a sampling period later too,
-    and the call at that next slot returns the factor. With ``cfg.interim_after`` the calls that take a sample before that
+    ``cfg.correction``. With ``cfg.interim_after`` the calls that take a sample before that
     return the factor of the samples read so far (:attr:`interim`), once that many are read:
     the body to track with until the final one. The result does not depend on where the
     overlaps are computed: the same size on the same frame as with an inline ``fit``. A
@@ -225,26 +217,20 @@ class BodyScaleSearch:
         self._seen += 1
         if not take:
             return None
-        if self.samples == self.cfg.samples:  # read_last_later: the last one is read now
-            return self._finish()
         if self._pending is not None:
             self._read(self._pending)
         self._pending = fit(self.bodies, frame, q.detach())
         self.samples += 1
         if interim_limit is not None and fold is not None and not fold <= interim_limit:
             self._folded = True
-        if self.samples < self.cfg.samples or self.cfg.read_last_later:
+        if self.samples < self.cfg.samples:
             read = len(self.curves)  # samples whose overlaps are in the score
             first = self.cfg.interim_after
             if first is None or read < first or self._folded:
                 return None
             self.interim = self._factor(peak_of(self.factors, self._score / read))
             return self.interim
-        return self._finish()  # the last sample: the size is wanted now
-
-    def _finish(self) -> float:
-        """Read the last sample and return the final factor (also :attr:`scale`)."""
-        self._read(self._pending)
+        self._read(self._pending)  # the last sample: the size is wanted now
         self._pending = None
         self.peak = peak_of(self.factors, self._score / self.samples)
         self.scale = self._factor(self.peak)

@@ -189,18 +189,9 @@ class ArmSearchConfig:
         "after a search of an arm found no refit to take, that arm is not searched again for "
         "this many frames (0: every suspect frame is searched)",
     )
-    keep: int | None = field_doc(
-        None,
-        "after ``keep_after`` iterations only this many of an arm's refits go on, those with "
-        "the smallest badness then (runtime.tracker.start_pruning); None: all",
-    )
-    keep_after: int = field_doc(2, "iterations every arm refit runs before that (>= 1)")
 
     def __post_init__(self) -> None:
         _check(not math.isnan(self.badness), "arm_search.badness must be a number", self.badness)
-        _check(self.keep is None or self.keep >= 1, "arm_search.keep must be >= 1 or None",
-               self.keep)  # fmt: skip
-        _check(self.keep_after >= 1, "arm_search.keep_after must be >= 1", self.keep_after)
         _check(self.cooldown_frames >= 0, "arm_search.cooldown_frames must be >= 0",
                self.cooldown_frames)  # fmt: skip
         _check(self.other_arm_margin_m >= 0, "arm_search.other_arm_margin_m must be >= 0",

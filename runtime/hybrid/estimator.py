@@ -32,7 +32,6 @@ import torch
 from depthmocap.runtime.detector import DetectionResult, Detector
 from depthmocap.runtime.estimator import PoseEstimate, lost, observed_of
 from depthmocap.runtime.frame import Frame, LabelSource
-from depthmocap.runtime.tracker.start_pruning import StartPruning
 from depthmocap.runtime.tracker.tracker import Tracker, TrackResult
 from depthmocap.shared.joint_offsets import JointOffsets, apply_offsets
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
@@ -74,16 +73,6 @@ def _lower_priority() -> None:
         pass
 
 
-def _arm_pruning(cfg: HybridConfig) -> StartPruning | None:
-    """The arm search's cut (``arm_search.keep``), ranking the refits by the badness they are
-    picked by (:meth:`~runtime.hybrid.config.FailureThresholds.badness` times epsilon1)."""
-    a, f = cfg.arm_search, cfg.failure
-    if a is None or a.keep is None:
-        return None
-    surface = 0.0 if f.epsilon3_mm is None else f.epsilon1_cm / f.epsilon3_mm
-    return StartPruning(a.keep_after, a.keep, f.epsilon1_cm / max(1.0 - f.epsilon2, 1e-6), surface)
-
-
 def overlaps_of(sizes: Tracker, obs, starts: torch.Tensor, iterations: int) -> np.ndarray:
     """(S,) silhouette overlaps of ``obs`` refitted by ``sizes`` (a tracker of S bodies)
     from the (S, 34) ``starts``, start k with body k (in inference mode, as the estimate:
@@ -122,7 +111,6 @@ class HybridEstimator:
         self.arm_search = (
             None if cfg.arm_search is None else ArmSearch(cfg.arm_search, tracker.body)
         )
-        self._arm_prune = _arm_pruning(cfg)
         self.state = TrackState()
         self.scale_search = (
             None if cfg.body_scale is None else BodyScaleSearch(cfg.body_scale, tracker.body)
@@ -178,12 +166,12 @@ class HybridEstimator:
         obs = frame.observation(self.tracker, self._tracker_labels(frame))
         return self.tracker.fit(obs, start, before, iterations)
 
-    def _fit_starts(self, frame: Frame, starts: torch.Tensor, iterations: int | None = None,
-                    prune: StartPruning | None = None) -> list[TrackResult]:  # fmt: skip
+    def _fit_starts(self, frame: Frame, starts: torch.Tensor,
+                    iterations: int | None = None) -> list[TrackResult]:  # fmt: skip
         """Refits of ``frame`` from each of the (K, 34) ``starts``, batched (split over two
-        threads on the CPU); with ``prune`` those of the starts that go on after the cut."""
+        threads on the CPU)."""
         obs = frame.observation(self.tracker, self._tracker_labels(frame))
-        return self._refits.fit_starts(self.tracker, obs, starts, iterations, prune)
+        return self._refits.fit_starts(self.tracker, obs, starts, iterations)
 
     def _joints(self, q: torch.Tensor) -> np.ndarray:
         """(J, 3) output joints of pose ``q`` (34,): the model's, moved by the offsets."""
@@ -208,12 +196,8 @@ class HybridEstimator:
         """The detector on ``frame``, refined on the shared tracker; changes no state."""
         labels = frame.labels(self.label_source)
         hint = self.state.q_prev  # one more IK start, used only if it fits the centroids best
-        dcfg = self.detector.cfg
-        k = dcfg.refine_iterations
-        prune = None
-        if dcfg.refine_keep is not None:  # the detector picks by depth error: rank by it
-            prune = StartPruning(dcfg.refine_keep_after, dcfg.refine_keep)
-        refine = None if k <= 0 else (lambda starts: self._fit_starts(frame, starts, k, prune))
+        k = self.detector.cfg.refine_iterations
+        refine = None if k <= 0 else (lambda starts: self._fit_starts(frame, starts, k))
         return self.detector.detect(frame.depth_m, labels, frame.mask, q_hint=hint, refine=refine)
 
     # ---- estimates, each updating the track ----
@@ -326,7 +310,7 @@ class HybridEstimator:
                 frame.labels(self.label_source),
                 res,
                 badness,
-                lambda starts: self._fit_starts(frame, starts, None, self._arm_prune),
+                lambda starts: self._fit_starts(frame, starts),
                 cfg.failure.badness,
             )
             if found.best is not None:

@@ -20,7 +20,6 @@ from concurrent.futures import ThreadPoolExecutor
 
 import torch
 from depthmocap.runtime.tracker.observation import Observation
-from depthmocap.runtime.tracker.start_pruning import StartPruning
 from depthmocap.runtime.tracker.tracker import Tracker, TrackResult
 
 __all__ = ["MIN_SPLIT_STARTS", "SplitRefits"]
@@ -66,15 +65,12 @@ class SplitRefits:
         obs: Observation,
         starts: torch.Tensor,
         iterations: int | None = None,
-        prune: StartPruning | None = None,
     ) -> list[TrackResult]:
-        """``tracker.fit_starts(obs, starts, iterations, prune)``: the (K, 34) ``starts``
-        split in two on the CPU when K >= :data:`MIN_SPLIT_STARTS` (a GPU fits a batch at
-        once); a pruned fit in one piece (its cut ranks all starts together)."""
+        """``tracker.fit_starts(obs, starts, iterations)``: the (K, 34) ``starts`` split in two
+        on the CPU when K >= :data:`MIN_SPLIT_STARTS` (a GPU fits a batch at once)."""
         K = starts.shape[0]
-        one_piece = prune is not None or K < MIN_SPLIT_STARTS or starts.device.type != "cpu"
-        if self._pool is None or one_piece:
-            return tracker.fit_starts(obs, starts, iterations, prune)
+        if self._pool is None or K < MIN_SPLIT_STARTS or starts.device.type != "cpu":
+            return tracker.fit_starts(obs, starts, iterations)
         half = K // 2
         rest = self._pool.submit(
             _fit_half, tracker, obs, starts[half:], iterations, torch.is_inference_mode_enabled()

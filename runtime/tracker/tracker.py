@@ -42,13 +42,6 @@ from .regions import classify
 from .shoulder_branch import align_branch, move_to_roomier_branch
 from .signals import FitSignals, FrameSignals, frame_signals
 from .silhouette_term import silhouette_rows
-from .start_pruning import (
-    StartPruning,
-    pruning_scores,
-    starts_to_keep,
-    subset_candidates,
-    subset_observation,
-)
 
 __all__ = [
     "TrackerError",
@@ -137,9 +130,7 @@ class FrameFit:
     Attributes:
         q: (B, 34); signals: per-pose signals at q; iterations: iterations the batch ran;
         converged: (B,) bool; steps: (B,) int64 Gauss-Newton steps each pose took (a pose
-        that has converged stops moving while the others iterate on); kept: (B,) int64 the
-        input poses these are, after a :class:`~runtime.tracker.start_pruning.StartPruning`
-        cut (None: all of them, in order).
+        that has converged stops moving while the others iterate on).
     """
 
     q: torch.Tensor
@@ -147,7 +138,6 @@ class FrameFit:
     iterations: int
     converged: torch.Tensor
     steps: torch.Tensor
-    kept: torch.Tensor | None = None
 
 
 def _small(dq: torch.Tensor) -> torch.Tensor:
@@ -163,7 +153,6 @@ def fit_frames(
     body: BodyShape,
     cfg: TrackerConfig,
     geom: SegmentGeometry | None = None,
-    prune: StartPruning | None = None,
 ) -> FrameFit:
     """Gauss-Newton fit of B poses to B observed frames.
 
@@ -181,12 +170,8 @@ def fit_frames(
             prior then predicts no motion).
         geom: ``segment_geometry(body, q_prev)``, when the caller keeps it (it depends only
             on the body; a tracker computes it once); None: computed here.
-        prune: stop fitting all but the best starts after a few iterations (one body for
-            all poses only); the result then holds the kept poses (``FrameFit.kept``).
     """
     B = q_prev.shape[0]
-    if prune is not None and body.lengths.dim() != 1:
-        raise TrackerError("start pruning needs one body for all poses")
     if SHOULDER_BRANCH_TURN_RAD > 0:
         q_prev = move_to_roomier_branch(q_prev, SHOULDER_BRANCH_TURN_RAD)
         q_prev2 = None if q_prev2 is None else align_branch(q_prev2, q_prev)
@@ -200,28 +185,10 @@ def fit_frames(
     iterations = 0
     last = None
     q_cast = q  # the poses rendered: q, but a converged pose's last step's start
-    kept = None
     for _ in range(cfg.iterations):
         render = render_body(q_cast, body, obs.intr, geom=geom, details=False)
         regions = classify(render, obs, cfg.depth_gate_m, cfg.occlusion_handling)
         extra = extra_rows(render, obs, regions, observed, cfg, B) if observed is not None else None
-        if prune is not None and iterations == prune.after and prune.keep < B:
-            cands = observed if observed is not None else observed_candidates(obs, MAX_CANDIDATES)
-            if extra is None:
-                extra = extra_rows(render, obs, regions, cands, cfg, B)
-            scores = pruning_scores(render, obs, regions, extra, body, cfg.depth_gate_m, prune)
-            idx = starts_to_keep(scores, prune.keep)
-            kept = idx if kept is None else kept[idx]
-            q, q_cast, q_pred = q[idx], q_cast[idx], q_pred[idx]
-            converged, steps = converged[idx], steps[idx]
-            obs, B = subset_observation(obs, idx), idx.shape[0]
-            observed = None if observed is None else subset_candidates(observed, idx)
-            # The kept poses' rendering again, alone: cheaper than cutting every part of it.
-            render = render_body(q_cast, body, obs.intr, geom=geom, details=False)
-            regions = classify(render, obs, cfg.depth_gate_m, cfg.occlusion_handling)
-            extra = (
-                extra_rows(render, obs, regions, observed, cfg, B) if observed is not None else None
-            )
         rows = []
         if cfg.use_depth:
             rows.append(depth_rows(render, obs, regions, cfg))
@@ -267,7 +234,7 @@ def fit_frames(
         cands = observed if observed is not None else observed_candidates(obs, MAX_CANDIDATES)
         extra = extra_rows(render, obs, regions, cands, cfg, B)
     signals = frame_signals(render, obs, regions, extra, body, cfg)
-    return FrameFit(q, signals, iterations, converged, steps, kept)
+    return FrameFit(q, signals, iterations, converged, steps)
 
 
 def expand_observation(obs: Observation, size: int) -> Observation:
@@ -392,21 +359,13 @@ class Tracker:
         return self._result(fit, 0, _host_scalars(fit))
 
     def fit_starts(
-        self,
-        obs: Observation,
-        starts: torch.Tensor,
-        iterations: int | None = None,
-        prune: StartPruning | None = None,
+        self, obs: Observation, starts: torch.Tensor, iterations: int | None = None
     ) -> list[TrackResult]:
         """Fit one frame's observation (batch 1) from each of the K ``starts`` (K, 34), with
         no motion predicted (as :meth:`fit` without ``q_prev2``), in one batched fit: the
         same results as K calls of :meth:`fit` at a fraction of their cost (the refits of
         the arm search and the detector's refinement). A tracker of a batch of K bodies
-        fits start k with body k (the size search's candidates).
-
-        ``prune``: only the best starts after a few iterations go on
-        (:mod:`~runtime.tracker.start_pruning`); the results are then those of the kept
-        starts, in the starts' order."""
+        fits start k with body k (the size search's candidates)."""
         if starts.dim() != 2 or starts.shape[1] != sk.NUM_DOFS:
             raise TrackerError(f"starts must be (K, {sk.NUM_DOFS}), got {tuple(starts.shape)}")
         K = starts.shape[0]
@@ -416,9 +375,9 @@ class Tracker:
             self.cfg if iterations is None else dataclasses.replace(self.cfg, iterations=iterations)
         )
         q0 = starts.to(device=self.device, dtype=self.dtype)
-        fit = fit_frames(expand_observation(obs, K), q0, None, self.body, cfg, self.geometry, prune)
+        fit = fit_frames(expand_observation(obs, K), q0, None, self.body, cfg, self.geometry)
         host = _host_scalars(fit)
-        return [self._result(fit, k, host) for k in range(fit.q.shape[0])]
+        return [self._result(fit, k, host) for k in range(K)]
 
     def _result(self, fit: FrameFit, k: int, host: torch.Tensor) -> TrackResult:
         """The result of start ``k``; ``host``: :func:`_host_scalars` of ``fit``."""

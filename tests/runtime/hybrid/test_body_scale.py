@@ -132,37 +132,6 @@ def test_interim_sizes_from_the_samples_read_so_far():
         BodyScaleConfig(samples=4, interim_after=0)
 
 
-def test_last_sample_read_a_period_later():
-    """``read_last_later``: the last sample's refits are read at the next sampling slot, as
-    the others: the same final size, ``every`` frames later, the interim size meanwhile; a
-    Future of them is not waited for on the frame that takes the last sample."""
-    from concurrent.futures import Future
-
-    body = BodyShape.default()
-    stature = float(body.stature())
-    peaks = [1.10, 1.02, 0.98, 1.06]
-
-    def fit(bodies, frame, q):
-        return -((bodies.stature().numpy() / stature - peaks[frame // 2]) ** 2)
-
-    def run(**kw):
-        search = BodyScaleSearch(BodyScaleConfig(samples=4, every=2, **kw), body)
-        return search, [search.offer(i, torch.zeros(34), fit) for i in range(12)]
-
-    now, found_now = run()
-    later, found = run(read_last_later=True)
-    assert found[:6] == found_now[:6]  # samples at 0, 2, 4, 6
-    assert found[6] == pytest.approx(1.03, abs=0.01)  # interim: the first three samples
-    assert found[7] is None and found[8] == found_now[6] == later.scale
-    assert found[9:] == [None] * 3 and later.samples == 4 and len(later.curves) == 4
-
-    pending = Future()  # never done: the frame of the last sample must not wait for it
-    lazy = BodyScaleSearch(BodyScaleConfig(samples=1, every=1, read_last_later=True), body)
-    assert lazy.offer(0, torch.zeros(34), lambda *a: pending) is None
-    pending.set_result(fit(lazy.bodies, 0, None))
-    assert lazy.offer(1, torch.zeros(34), fit) == pytest.approx(1.10, abs=1e-6)
-
-
 def test_no_interim_size_after_a_folded_sample():
     """A sample of a folded body (seated, crouched) stops the interim sizes: the body stays
     until the final size, which still counts every sample."""

@@ -10,7 +10,6 @@ from depthmocap.runtime.hybrid.split_refits import MIN_SPLIT_STARTS, SplitRefits
 from depthmocap.runtime.raycast import render_body
 from depthmocap.runtime.tracker import Tracker, TrackerConfig
 from depthmocap.runtime.tracker.observation import observe
-from depthmocap.runtime.tracker.start_pruning import StartPruning
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.camera import Intrinsics
 from depthmocap.shared.kinematics import rest_pose
@@ -28,7 +27,7 @@ class RecordingTracker:
         self.caller = threading.get_ident()
         self.lock = threading.Lock()
 
-    def fit_starts(self, obs, starts, iterations=None, prune=None):
+    def fit_starts(self, obs, starts, iterations=None):
         with self.lock:
             self.calls.append(
                 (threading.get_ident(), starts.shape[0], torch.is_inference_mode_enabled())
@@ -83,18 +82,11 @@ def test_small_batches_switched_off_and_other_devices_stay_whole(count, enabled,
     """Too few starts to pay two fits' fixed cost, the helper off, or starts not on the CPU
     (a GPU fits a batch at once): one call on the caller's thread."""
     tracker = RecordingTracker()
-    tracker.fit_starts = lambda obs, starts, iterations=None, prune=None: (
+    tracker.fit_starts = lambda obs, starts, iterations=None: (
         tracker.calls.append((threading.get_ident(), starts.shape[0], False)) or []
     )
     SplitRefits(enabled).fit_starts(tracker, None, torch.zeros(count, 34, device=device))
     assert tracker.calls == [(tracker.caller, count, False)]
-
-
-def test_a_pruned_fit_stays_whole():
-    """A cut ranks all starts together: a pruned batch is fitted in one piece."""
-    tracker = RecordingTracker()
-    SplitRefits().fit_starts(tracker, None, torch.zeros(8, 34), 3, StartPruning(1, 3))
-    assert [c[:2] for c in tracker.calls] == [(tracker.caller, 8)]
 
 
 def test_an_error_goes_up_after_the_helper_is_done():
