@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .hybrid import benchmark_hybrid, recordings_in
+from .hybrid import benchmark_hybrid, selected_recordings
 
 __all__ = ["PHASES", "main", "phase_rows", "phase_timer", "run_phases"]
 
@@ -172,13 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     p.add_argument("--threads", type=int, default=1, help="torch threads (bench-broad: 1)")
     args = p.parse_args(argv)
-    if args.every < 1 or args.start < 0:
-        p.error(f"--every must be >= 1 and --start >= 0, got {args.every} and {args.start}")
-    if not args.recordings.is_dir():
-        p.error(f"--recordings {args.recordings}: no such folder")
-    recs = recordings_in(args.recordings)[args.start :: args.every]
-    if not recs:
-        p.error(f"no recordings in {args.recordings}")
+    recs = selected_recordings(p, args.recordings, args.every, args.start)
     torch.set_num_threads(args.threads)
     r = run_phases(recs, args.device)
     ms = r["ms"]

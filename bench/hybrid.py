@@ -36,6 +36,7 @@ __all__ = [
     "paced_latency",
     "recordings_in",
     "recordings_rows",
+    "selected_recordings",
     "spread_rows",
     "work_rows",
 ]
@@ -189,6 +190,19 @@ def recordings_in(folder: Path) -> list[Path]:
     if is_recording(folder):
         return [folder]
     return sorted(p for p in folder.iterdir() if p.is_dir() and is_recording(p))
+
+
+def selected_recordings(parser, folder: Path, every: int, start: int) -> list[Path]:
+    """Every ``every``-th recording in ``folder`` from the ``start``-th, for a command line
+    (``--recordings``, ``--every``, ``--start``): a wrong value is the parser's error."""
+    if every < 1 or start < 0:
+        parser.error(f"--every must be >= 1 and --start >= 0, got {every} and {start}")
+    if not folder.is_dir():
+        parser.error(f"--recordings {folder}: no such folder")
+    recs = recordings_in(folder)[start::every]
+    if not recs:
+        parser.error(f"no recordings in {folder}")
+    return recs
 
 
 def spread_rows(ms: np.ndarray, label: str, note: str) -> list[tuple[str, float, str]]:

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .hybrid import benchmark_hybrid, recordings_in, spread_rows, work_rows
+from .hybrid import benchmark_hybrid, selected_recordings, spread_rows, work_rows
 
 __all__ = ["ab_rows", "benchmark_settings", "main", "parse_setting"]
 
@@ -114,13 +114,7 @@ def main(argv: list[str] | None = None) -> int:
     missing = [str(f) for f in settings.values() if f is not None and not f.is_file()]
     if missing:
         p.error(f"no such settings file: {', '.join(missing)}")
-    if args.every < 1 or args.start < 0:
-        p.error(f"--every must be >= 1 and --start >= 0, got {args.every} and {args.start}")
-    if not args.recordings.is_dir():
-        p.error(f"--recordings {args.recordings}: no such folder")
-    recs = recordings_in(args.recordings)[args.start :: args.every]
-    if not recs:
-        p.error(f"no recordings in {args.recordings}")
+    recs = selected_recordings(p, args.recordings, args.every, args.start)
     torch.set_num_threads(args.threads)
     results = benchmark_settings(recs, settings, args.device)
     print(f"== {len(recs)} recordings, each setting in turn, order alternated ==")

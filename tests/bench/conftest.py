@@ -24,3 +24,11 @@ def write_demo_recordings():
     """``write(root, names, frames=2)``: recordings ``root/NAME`` of the demo person's first
     frames."""
     return _write_demo_recordings
+
+
+@pytest.fixture(scope="module")
+def two_demo_recordings(tmp_path_factory, write_demo_recordings) -> Path:
+    """A folder of two 2-frame recordings of the demo person, ``a`` and ``b``."""
+    root = tmp_path_factory.mktemp("recs")
+    write_demo_recordings(root, ("a", "b"))
+    return root

@@ -9,12 +9,9 @@ from depthmocap.bench.frame_phases import PHASES, main, phase_rows, phase_timer,
 from depthmocap.runtime.hybrid.estimator import HybridEstimator
 
 
-@pytest.fixture(scope="module")
-def recordings(tmp_path_factory, write_demo_recordings):
-    """Two 2-frame recordings of the demo person."""
-    root = tmp_path_factory.mktemp("recs")
-    write_demo_recordings(root, ("a", "b"))
-    return root
+@pytest.fixture
+def recordings(two_demo_recordings):
+    return two_demo_recordings
 
 
 def test_phases_of_every_timed_frame(recordings, one_thread):

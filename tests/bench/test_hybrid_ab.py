@@ -7,12 +7,9 @@ import pytest
 from depthmocap.bench.hybrid_ab import ab_rows, benchmark_settings, main, parse_setting
 
 
-@pytest.fixture(scope="module")
-def recordings(tmp_path_factory, write_demo_recordings):
-    """Two 2-frame recordings of the demo person."""
-    root = tmp_path_factory.mktemp("recs")
-    write_demo_recordings(root, ("a", "b"))
-    return root
+@pytest.fixture
+def recordings(two_demo_recordings):
+    return two_demo_recordings
 
 
 def test_settings_alternate_per_recording_and_are_compared_to_the_first(recordings, one_thread):
