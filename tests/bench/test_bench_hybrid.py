@@ -80,3 +80,17 @@ def test_recordings_rows_time_every_recording(tmp_path, one_thread, write_demo_r
     assert any(r[0].strip() == "detector" for r in rows)  # the first frames are detected
     assert all(r[1] > 0 for r in rows)
     assert recordings_rows(tmp_path / "notes", "cpu") == []
+    assert not any("first second" in r[0] for r in rows)  # 2-frame recordings: no such frames
+    later = recordings_rows(tmp_path, "cpu", startup=1)
+    names = [r[0] for r in later]
+    assert "95th-percentile frame after the first second" in names
+
+
+def test_after_startup_rows_pool_the_later_frames():
+    from depthmocap.bench.hybrid import after_startup_rows
+
+    runs = [np.array([90.0, 10.0, 20.0]), np.array([80.0, 30.0]), np.array([70.0])]
+    (median, p95) = after_startup_rows(runs, 1)
+    assert median[1] == 20.0 and p95[1] == pytest.approx(np.percentile([10, 20, 30], 95))
+    assert "3 frames after each recording's first 1" in median[2]
+    assert after_startup_rows(runs, 3) == [] and after_startup_rows([], 1) == []
