@@ -143,21 +143,21 @@ def phase_rows(ms: np.ndarray, work: np.ndarray, phases: np.ndarray) -> list[str
         f"{n[:11]:>11s}" for n in names
     )
     lines = [head]
+
+    def line(label: str, count: int, frame: float, each: np.ndarray) -> str:
+        return f"{label:<36s} {count:6d} {frame:8.1f} " + " ".join(f"{v:11.1f}" for v in each)
+
     kinds = sorted(set(work.tolist()), key=lambda k: -int((work == k).sum()))
     for kind in kinds:
         mine = work == kind
-        cells = [np.median(ms[mine])] + list(np.median(phases[mine], axis=0))
         lines.append(
-            f"{kind:<36s} {int(mine.sum()):6d} " + " ".join(f"{v:8.1f}" for v in cells[:1])
-            + " " + " ".join(f"{v:11.1f}" for v in cells[1:])
-        )  # fmt: skip
+            line(kind, int(mine.sum()), np.median(ms[mine]), np.median(phases[mine], axis=0))
+        )
         slow = mine & (ms > 50.0)
         if slow.any():
-            cells = [ms[slow].mean()] + list(phases[slow].mean(axis=0))
             lines.append(
-                f"{'  over 50 ms (means)':<36s} {int(slow.sum()):6d} "
-                + " ".join(f"{v:8.1f}" for v in cells[:1])
-                + " " + " ".join(f"{v:11.1f}" for v in cells[1:])
+                line("  over 50 ms (means)", int(slow.sum()), ms[slow].mean(),
+                     phases[slow].mean(axis=0))
             )  # fmt: skip
     return lines
 

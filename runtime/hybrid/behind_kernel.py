@@ -27,24 +27,27 @@ def _update(
     drop = np.zeros((h, w), np.bool_)
     if not has_prev:
         return new, drop
+    # The axes depend on the pose alone: once per frame, not per pixel.
+    axis = end - start
+    length2 = np.empty(s_count)
+    for s in range(s_count):
+        a = axis[s]
+        length2[s] = max(a[0] * a[0] + a[1] * a[1] + a[2] * a[2], 1e-12)
     for v in range(h):
         for u in range(w):
             if not mask[v, u]:
                 continue
             z = np.float64(depth[v, u])
-            if abs(np.float64(depth[v, u]) - np.float64(prev[v, u])) > tol:
+            if abs(z - np.float64(prev[v, u])) > tol:
                 continue
             x = (u - cx) / fx * z  # shared.camera.masked_points' order
             y = (v - cy) / fy * z
             best = np.inf
             best_z = 0.0
             for s in range(s_count):
-                ax = end[s, 0] - start[s, 0]
-                ay = end[s, 1] - start[s, 1]
-                az = end[s, 2] - start[s, 2]
-                length2 = max(ax * ax + ay * ay + az * az, 1e-12)
+                ax, ay, az = axis[s, 0], axis[s, 1], axis[s, 2]
                 t = (x - start[s, 0]) * ax + (y - start[s, 1]) * ay + (z - start[s, 2]) * az
-                t = min(max(t / length2, 0.0), 1.0)
+                t = min(max(t / length2[s], 0.0), 1.0)
                 px = start[s, 0] + t * ax
                 py = start[s, 1] + t * ay
                 pz = start[s, 2] + t * az
