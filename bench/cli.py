@@ -43,6 +43,16 @@ def _print_forest(threads: int) -> None:
     _print_rows(forest_rows(fr))
 
 
+def _print_forest_on(device: str, name: str) -> None:
+    from .forest import benchmark_forest_on, forest_device_rows
+
+    fr = benchmark_forest_on(device)
+    if not fr:
+        return
+    print(f"\n== forest inference on {name} (torch), {fr['pixels']:.0f} person pixels ==")
+    _print_rows(forest_device_rows(fr, name))
+
+
 def _print_tracker(device: str, name: str) -> None:
     from .tracker import tracker_rows
     from .tracker_terms import collision_cost, joint_support_cost
@@ -108,6 +118,8 @@ def main(argv: list[str] | None = None) -> None:
         if dev == "cpu":
             _print_segmentation()
             _print_forest(args.threads)
+        else:
+            _print_forest_on(dev, name)
         _print_tracker(dev, name)
         if args.hybrid_frames:
             from .hybrid import hybrid_rows

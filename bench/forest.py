@@ -20,7 +20,7 @@ from depthmocap.shared.forest_format import load_forest
 from .scenes import person_frame
 from .timing import alternating_median_ms, median_ms
 
-__all__ = ["DEFAULT_MODEL", "benchmark_forest"]
+__all__ = ["DEFAULT_MODEL", "benchmark_forest", "benchmark_forest_on", "forest_device_rows"]
 
 
 def benchmark_forest(
@@ -73,6 +73,66 @@ def benchmark_forest(
         return out
     finally:
         torch.set_num_threads(previous)
+
+
+def benchmark_forest_on(
+    device: str | torch.device,
+    model_path: str | Path | None = None,
+    repeats: int = 20,
+    frame: tuple[np.ndarray, np.ndarray] | None = None,
+) -> dict[str, float]:
+    """Milliseconds per frame of the torch backend on ``device`` (a GPU: what the whole hybrid
+    runs there), synchronized: every person pixel (``all_ms``), every 2nd (``stride2_ms``),
+    5x5 smoothed (``smoothed_ms``), timed in turns; and how its output compares with the
+    torch walk on the CPU on the same frame: ``same_labels`` (share of the person's pixels
+    given the same label) and ``posterior_diff`` (largest absolute posterior difference).
+    Empty dict when there is no model file."""
+    path = Path(model_path) if model_path is not None else DEFAULT_MODEL
+    if not path.is_file():
+        return {}
+    forest = load_forest(path)
+    depth, mask = frame if frame is not None else person_frame()
+    d, m = torch.from_numpy(depth), torch.from_numpy(mask)
+    clf = ForestClassifier(forest, device, backend="torch")
+    smoothed = ForestClassifier(forest, device, backend="torch", smooth_window=5)
+    dd, mm = d.to(clf.device), m.to(clf.device)  # the frame on the device, as the hybrid has it
+    out = alternating_median_ms(
+        {
+            "all_ms": lambda: clf.labels(dd, mm),
+            "stride2_ms": lambda: clf.labels(dd, mm, stride=2),
+            "smoothed_ms": lambda: smoothed.labels(dd, mm),
+        },
+        repeats,
+        device=clf.device,
+    )
+    reference = ForestClassifier(forest, "cpu", backend="torch")
+    pix, post = clf.pixel_posteriors(dd, mm)
+    ref_pix, ref_post = reference.pixel_posteriors(d, m)
+    if pix.shape != ref_pix.shape or not torch.equal(pix.cpu(), ref_pix):
+        raise RuntimeError(f"the forest on {device} classified other pixels than on the CPU")
+    n = max(len(ref_pix), 1)
+    out["same_labels"] = float((post.cpu().argmax(1) == ref_post.argmax(1)).sum()) / n
+    diff = (post.cpu() - ref_post).abs()
+    out["posterior_diff"] = float(diff.max()) if diff.numel() else 0.0
+    out["pixels"] = float(len(ref_pix))
+    return out
+
+
+def forest_device_rows(fr: dict[str, float], name: str) -> list[tuple[str, float, str]]:
+    """(what, ms, note) rows of :func:`benchmark_forest_on`'s figures on the device ``name``."""
+    same = (
+        f"labels as on the CPU on {100 * fr['same_labels']:.2f}% of pixels, posteriors within "
+        f"{fr['posterior_diff']:.1e}; target <= 10 ms"
+    )
+    return [
+        (f"torch {name}, every person pixel", fr["all_ms"], same),
+        (f"torch {name}, every 2nd pixel (detector)", fr["stride2_ms"], ""),
+        (
+            f"torch {name}, 5x5 smoothed (detector, hybrid)",
+            fr["smoothed_ms"],
+            f"{fr['smoothed_ms'] / fr['all_ms']:.2f} of the raw forest's",
+        ),
+    ]
 
 
 def forest_rows(fr: dict[str, float]) -> list[tuple[str, float, str]]:

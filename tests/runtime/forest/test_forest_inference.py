@@ -9,7 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from depthmocap.bench.forest import benchmark_forest, forest_rows
+from depthmocap.bench.forest import (
+    benchmark_forest,
+    benchmark_forest_on,
+    forest_device_rows,
+    forest_rows,
+)
 from depthmocap.bench.scenes import person_frame
 from depthmocap.runtime.forest import inference
 from depthmocap.runtime.forest.inference import (
@@ -183,6 +188,31 @@ def test_benchmark_reports_milliseconds(forest, tmp_path):
     assert benchmark_forest(tmp_path / "missing.npz") == {}
     depth, mask = person_frame()
     assert depth.shape == (240, 320) and (depth[mask] > 2).all() and (depth[~mask] == 0).all()
+
+
+def test_benchmark_on_a_device_times_the_torch_walk_and_compares_it_with_the_cpu(
+    forest, tmp_path, device
+):
+    """The GPU figure of ``runtime-bench --device cuda`` (here on every available device): the
+    torch walk's times, and its labels against the CPU's on the same frame."""
+    save_forest(tmp_path / "f.npz", forest)
+    depth, labels = frames(1, seed=3)
+    frame = ((depth[0] / 1000.0).astype(np.float32), labels[0] > 0)
+    res = benchmark_forest_on(device, tmp_path / "f.npz", repeats=2, frame=frame)
+    assert res["pixels"] == float(((labels[0] > 0) & (depth[0] > 0)).sum()) > 500
+    assert all(res[k] > 0 for k in ("all_ms", "stride2_ms", "smoothed_ms"))
+    if device.type == "cpu":  # the same walk on the same device: the same posteriors
+        assert res["same_labels"] == 1.0 and res["posterior_diff"] == 0.0
+    else:
+        assert res["same_labels"] > 0.99 and res["posterior_diff"] < 1e-3
+    rows = forest_device_rows(res, "GPU")
+    assert [r[0] for r in rows] == [
+        "torch GPU, every person pixel",
+        "torch GPU, every 2nd pixel (detector)",
+        "torch GPU, 5x5 smoothed (detector, hybrid)",
+    ]
+    assert "100.00% of pixels" in rows[0][2] or device.type != "cpu"
+    assert benchmark_forest_on(device, tmp_path / "missing.npz") == {}
 
 
 def test_default_model_path_points_into_models():
