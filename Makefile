@@ -67,8 +67,8 @@ train-forest-calib: $(SETUP_STAMP) ## the calibration forest from data/synth_cal
 train-forest-eval: $(SETUP_STAMP) ## accuracy of models/forest.npz on the dev recordings
 	$(PY) -m depthmocap.train.forest.eval_cli --model models/forest.npz --data data/dev --out out/forest_eval
 
-bench: $(SETUP_STAMP) ## speed figures, then the accuracy table on data/dev (printed, never asserted)
-	$(PY) -m depthmocap.bench $(if $(wildcard data/dev),--recordings data/dev --hybrid-recordings data/dev,)
+bench: $(SETUP_STAMP) ## speed figures (CPU, and CUDA when torch sees a GPU), then the accuracy table on data/dev (printed, never asserted)
+	$(PY) -m depthmocap.bench --device all $(if $(wildcard data/dev),--recordings data/dev --hybrid-recordings data/dev,)
 	@if [ -d data/dev ]; then $(PY) -m depthmocap.train.evaluation.dev_benchmark --recordings data/dev; \
 	else echo "accuracy table skipped: no data/dev (run make dev-recordings)"; fi
 

@@ -104,6 +104,8 @@ def main(argv: list[str] | None = None) -> None:
                          ("--hybrid-recordings", args.hybrid_recordings)):  # fmt: skip
         if folder is not None and not folder.is_dir():
             parser.error(f"{flag} {folder}: no such folder")
+    if args.device == "cuda" and not torch.cuda.is_available():
+        parser.error("--device cuda: torch sees no CUDA device (--device all: CUDA when present)")
     torch.set_num_threads(args.threads)
     devices = ["cpu", "cuda"] if args.device == "all" else [args.device]
     devices = [d for d in devices if d == "cpu" or torch.cuda.is_available()]
