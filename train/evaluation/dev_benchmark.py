@@ -135,15 +135,18 @@ def run_config(
     mode_config: Path | None,
     tracker: dict | None = None,
     reuse: bool = False,
+    realtime: bool = False,
 ) -> dict:
     """Track ``rec`` with configuration ``name`` and evaluate; returns the report.
 
     ``tracker``: settings merged into the hybrid's tracker settings (e.g. ``max_step_rad``).
     ``reuse``: evaluate a complete result already in ``out`` instead of tracking again (to
     resume an interrupted run of the same code and settings).
+    ``realtime``: track as a live camera delivers the recording (``runtime-track
+    --realtime``: paced, the newest frame wins), each skipped frame scored with the last pose.
     """
     if reuse and _complete_result(out / "result"):
-        return evaluate(rec, out / "result").report
+        return evaluate(rec, out / "result", hold_skipped=realtime).report
     import yaml
 
     mode, body, overrides = CONFIGS[name]
@@ -154,7 +157,7 @@ def run_config(
     out.mkdir(parents=True, exist_ok=True)
     cmd = [sys.executable, "-m", "depthmocap.runtime.track_cli", "--input", str(rec), "-q",
            "--output", str(out / "result"), "--mode", mode, "--model", model,
-           "--device", device]  # fmt: skip
+           "--device", device] + (["--realtime"] if realtime else [])  # fmt: skip
     if body != "default":
         cmd += ["--body", str(body_file(body, rec, out.parent.parent / "bodies", model))]
     cfg_path = mode_config if mode == "hybrid" else None  # the hybrid's thresholds preset
@@ -165,7 +168,7 @@ def run_config(
     if cfg_path is not None:
         cmd += ["--config", str(cfg_path)]
     _run(cmd)
-    return evaluate(rec, out / "result").report
+    return evaluate(rec, out / "result", hold_skipped=realtime).report
 
 
 def _complete_result(result: Path) -> bool:
@@ -416,6 +419,14 @@ def main(argv: list[str] | None = None) -> int:
         help="evaluate the complete results already under --out instead of tracking those "
         "recordings again: resumes an interrupted run (same code and settings only)",
     )
+    p.add_argument(
+        "--realtime",
+        action="store_true",
+        help="track each recording as a live camera delivers it (runtime-track --realtime: "
+        "paced at its frame rate, the newest frame wins, so slow frames make it skip some); "
+        "a skipped frame is scored with the last pose written, as motion.bvh repeats it. Run "
+        "one benchmark at a time: a second process on the same cores makes it skip more",
+    )
     args = p.parse_args(argv)
     if args.trust_regions and not all(v > 0 and math.isfinite(v) for v in args.trust_regions):
         p.error(f"--trust-regions must be positive radians, got {args.trust_regions}")
@@ -448,10 +459,14 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{len(recs)} dev recordings from {args.recordings}{extent}\n")
     print(HEADER)
     results = {}
+    live = ", live" if args.realtime else ""
     for name in configs:
-        runs = [(label(name), None)]
+        runs = [(label(name) + live, None)]
         if CONFIGS[name][0] == "hybrid" and args.trust_regions:
-            runs = [(f"{label(name)} @ {v:g} rad", {"max_step_rad": v}) for v in args.trust_regions]
+            runs = [
+                (f"{label(name)}{live} @ {v:g} rad", {"max_step_rad": v})
+                for v in args.trust_regions
+            ]
         for row, tracker in runs:
             t0 = time.perf_counter()
             reports = []
@@ -460,7 +475,8 @@ def main(argv: list[str] | None = None) -> int:
                 for rec in recs:
                     reports.append(
                         run_config(name, rec, Path(args.out) / slug / rec.name, args.model,
-                                   args.device, args.mode_config, tracker, args.reuse_results)
+                                   args.device, args.mode_config, tracker, args.reuse_results,
+                                   args.realtime)
                     )  # fmt: skip
             except RuntimeError as err:
                 print(f"| {row} | failed: {str(err).splitlines()[-1][:80]} |||||||")
@@ -470,6 +486,13 @@ def main(argv: list[str] | None = None) -> int:
             results[row] = {"mean": agg, "per_recording": per_rec, "config": name}
             print(format_row(row, agg, CONFIGS[name][0]), flush=True)
             results[row]["seconds"] = time.perf_counter() - t0
+            if args.realtime:
+                held = sum(r.get("frames_held", 0) for r in reports)
+                total = sum(r.get("frames") or 0 for r in reports)
+                results[row]["frames_held"] = held
+                share = 100 * held / max(total, 1)
+                print(f"|   live: {held} of {total} frames skipped ({share:.1f}%), each "
+                      "scored with the last pose |")  # fmt: skip
         done = [results[row]["mean"] for row, _ in runs if row in results]
         if len(runs) > 1 and len(done) == len(runs):
             row = f"{label(name)}, mean of {len(done)}"

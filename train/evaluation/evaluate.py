@@ -32,6 +32,7 @@ __all__ = [
     "EvalConfig",
     "Evaluation",
     "evaluate",
+    "held_frames",
     "format_failed_frames",
     "EvaluationError",
     "ResultFileError",
@@ -204,11 +205,32 @@ def _timing(summary: dict) -> dict[str, float | None]:
     }
 
 
+def held_frames(written: np.ndarray) -> np.ndarray:
+    """For each frame, the last written frame at or before it (-1 before the first).
+
+    Args:
+        written: (F,) bool, the frames the result has.
+
+    Returns:
+        (F,) int64 frame indices.
+    """
+    index = np.where(written, np.arange(len(written)), -1)
+    return np.maximum.accumulate(index) if len(index) else index.astype(np.int64)
+
+
 def evaluate(
-    recording: str | Path, result_dir: str | Path, cfg: EvalConfig | None = None
+    recording: str | Path,
+    result_dir: str | Path,
+    cfg: EvalConfig | None = None,
+    hold_skipped: bool = False,
 ) -> Evaluation:
     """Compare ``result_dir`` (runtime-track output) with ``recording``'s ground truth, or
     with its reference skeleton when it has no ground truth (``report["truth"]`` says which).
+
+    ``hold_skipped``: score a frame the result skipped (``runtime-track --realtime``: the
+    camera's newest frame wins) with the last pose written before it, as ``motion.bvh``
+    repeats it and a consumer reading poses at the camera's rate sees it; otherwise it is a
+    frame without a pose (a system failure). ``report["frames_held"]`` counts them.
 
     Raises:
         RecordingError, ResultFileError, EvaluationError: with the file and the problem.
@@ -234,6 +256,19 @@ def evaluate(
     pred_q = np.full((n_eval, sk.NUM_DOFS), np.nan)
     pred_q[result.frame] = result.q
 
+    observed = np.full(pred.shape[:2], np.nan)
+    res_observed = result.observed[:, res_idx]
+    observed[result.frame] = res_observed
+    frames_held = 0
+    if hold_skipped:
+        source = held_frames(status != "missing")
+        held = (status == "missing") & (source >= 0)
+        pred[held], pred_q[held], observed[held] = (
+            pred[source[held]], pred_q[source[held]], observed[source[held]]
+        )  # fmt: skip
+        frames_held = int(held.sum())
+        if frames_held:
+            notes.append(f"{frames_held} skipped frames scored with the last pose written")
     errors = m.joint_errors(pred, gt_joints)
     rotations, offset_frame = None, "camera"
     if truth.q is not None and np.isfinite(truth.q[:n_eval]).all():
@@ -261,8 +296,6 @@ def evaluate(
     failures_seen = (
         m.system_failures(errors, cfg.failure_threshold_m, visible) if visible is not None else None
     )
-    observed = np.full(errors.shape, np.nan)
-    observed[result.frame] = result.observed[:, res_idx]
     said = bool(np.isfinite(observed).any())
     # A joint the result says nothing about (a frame written without flags) counts: only a
     # joint it calls inferred may be left out.
@@ -287,6 +320,7 @@ def evaluate(
         "frames": n_eval,
         "frames_with_pose": int(np.isfinite(errors).any(1).sum()),
         "frames_missing": int((status == "missing").sum()),
+        "frames_held": frames_held,
         "frames_unprocessed": len(rec) - n_eval,
         "mean_joint_error_mm": _finite(m.mean_error_mm(errors)),
         "mean_joint_error_offset_normalized_mm": _finite(m.mean_error_mm(norm_errors)),

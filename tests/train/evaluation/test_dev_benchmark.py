@@ -74,7 +74,9 @@ def test_the_ground_truth_labels_row_reads_each_recording_s_own_labels(tmp_path,
 
     commands = []
     monkeypatch.setattr(bench, "_run", commands.append)
-    monkeypatch.setattr(bench, "evaluate", lambda rec, result: type("E", (), {"report": {}})())
+    monkeypatch.setattr(
+        bench, "evaluate", lambda rec, result, **kw: type("E", (), {"report": {}})()
+    )
     rec, out = tmp_path / "HDM_a", tmp_path / "out" / "hybrid" / "HDM_a"
     cfg = tmp_path / "hybrid.yaml"
     cfg.write_text("epsilon1_cm: 3.0\ntracker:\n  use_labels: true\n")
@@ -271,7 +273,9 @@ def test_reuse_results_evaluates_complete_results_and_tracks_the_rest(tmp_path, 
 
     commands = []
     monkeypatch.setattr(bench, "_run", commands.append)
-    monkeypatch.setattr(bench, "evaluate", lambda rec, result: type("E", (), {"report": {}})())
+    monkeypatch.setattr(
+        bench, "evaluate", lambda rec, result, **kw: type("E", (), {"report": {}})()
+    )
     done, partial = tmp_path / "out" / "a", tmp_path / "out" / "b"
     for out, complete in ((done, True), (partial, False)):
         (out / "result").mkdir(parents=True)
@@ -284,3 +288,24 @@ def test_reuse_results_evaluates_complete_results_and_tracks_the_rest(tmp_path, 
     assert len(commands) == 1 and str(partial / "result") in commands[0]
     bench.run_config("hybrid, default body", tmp_path / "a", done, "f.npz", "cpu", cfg)
     assert len(commands) == 2  # without reuse, tracked again
+
+
+def test_realtime_tracks_paced_and_holds_the_skipped_frames(tmp_path, monkeypatch):
+    """``--realtime``: runtime-track paces the recording (the newest frame wins), and the
+    evaluation scores each skipped frame with the last pose written."""
+    import depthmocap.train.evaluation.dev_benchmark as bench
+
+    commands, held = [], []
+    monkeypatch.setattr(bench, "_run", commands.append)
+
+    def fake_evaluate(rec, result, hold_skipped=False):
+        held.append(hold_skipped)
+        return type("E", (), {"report": {"frames_held": 2}})()
+
+    monkeypatch.setattr(bench, "evaluate", fake_evaluate)
+    rec, out = tmp_path / "HDM_a", tmp_path / "out" / "HDM_a"
+    assert bench.run_config("hybrid, default body", rec, out, "f.npz", "cpu", None,
+                            realtime=True) == {"frames_held": 2}  # fmt: skip
+    bench.run_config("hybrid, default body", rec, out, "f.npz", "cpu", None)
+    assert "--realtime" in commands[0] and "--realtime" not in commands[1]
+    assert held == [True, False]

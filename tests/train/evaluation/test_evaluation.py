@@ -17,7 +17,7 @@ from depthmocap.shared.recording import RecordingWriter
 from depthmocap.shared.so3 import rotvec_to_matrix
 from depthmocap.train.evaluation import metrics as m
 from depthmocap.train.evaluation.cli import main
-from depthmocap.train.evaluation.evaluate import format_failed_frames
+from depthmocap.train.evaluation.evaluate import evaluate, format_failed_frames, held_frames
 from depthmocap.train.evaluation.plot import render_plot
 
 
@@ -140,6 +140,31 @@ def _result(path, q, body, frames, status, shift=None):
                 None if lost else q[i],
                 {"surface_error_q97_mm": 10.0 * i},
             )
+
+
+def test_held_frames_point_back_to_the_last_written_one():
+    written = np.array([False, True, False, False, True, False])
+    np.testing.assert_array_equal(held_frames(written), [-1, 1, 1, 1, 4, 4])
+    assert held_frames(np.zeros(0, bool)).shape == (0,)
+
+
+def test_a_skipped_frame_is_scored_with_the_last_pose_when_held(recording, tmp_path):
+    """``runtime-track --realtime`` skips frames; held, frame 3 is scored with frame 2's pose
+    (what motion.bvh shows there), otherwise it is a frame without a pose."""
+    rec, q, body = recording
+    status = ["detected"] + ["tracked"] * 9
+    _result(tmp_path / "res", q, body, [0, 1, 2, 4, 5, 6, 7, 8, 9], status)
+    plain = evaluate(rec, tmp_path / "res").report
+    held = evaluate(rec, tmp_path / "res", hold_skipped=True).report
+    assert plain["frames_held"] == 0 and held["frames_held"] == 1
+    assert plain["frames_missing"] == held["frames_missing"] == 1
+    assert plain["mean_joint_error_mm"] == pytest.approx(0.0, abs=1e-2)  # written rounded
+    assert plain["system_failure_pct"] == pytest.approx(10.0)  # frame 3: no pose
+    joints = _joints(q, body)
+    step = np.linalg.norm(joints[2] - joints[3], axis=-1)  # (J,) how far each joint moved
+    assert held["mean_joint_error_mm"] == pytest.approx(1000 * step.sum() / (10 * 16), abs=1e-2)
+    assert held["system_failure_pct"] == 0.0 and step.max() < 0.2
+    assert any("skipped frames scored" in n for n in held["notes"])
 
 
 def test_cli_end_to_end(recording, tmp_path, capsys):
