@@ -301,6 +301,8 @@ def _set_up(args: argparse.Namespace):
         )  # fmt: skip
         if live is not None:
             writer = live.wrap(writer)
+        if args.realtime or stream.is_live:
+            writer.extra.update(_warm_up(args, body, stream, mode_cfg, seg_cfg, device))
     except BaseException as err:
         if stream is not None:
             stream.close()  # a camera must be released whatever went wrong
@@ -308,6 +310,29 @@ def _set_up(args: argparse.Namespace):
             return report_error(err)
         raise
     return stream, estimator, writer, view, seg_cfg, device
+
+
+def _warm_up(args, body, stream, mode_cfg, seg_cfg, device) -> dict:
+    """A live stream keeps only the newest frame: warm the process up first
+    (:mod:`runtime.warm_up`), so that its first frames are not dropped while numba's kernels
+    and torch load. Returns what ``summary.json`` records of it; a warm-up that fails is
+    reported and the run goes on (the stream's own frames warm it up then)."""
+    from .segmentation import PersonSegmenter
+    from .warm_up import warm_up
+
+    def throwaway():
+        return make_estimator(
+            args.mode, args.model, body, stream.intrinsics, device=device, config=mode_cfg
+        )
+
+    try:
+        seconds = warm_up(throwaway, stream.intrinsics, PersonSegmenter(seg_cfg), device)
+    except Exception as err:  # an optimization only: never the reason a capture fails
+        print(f"warning: warm-up failed ({err}); the first frames may be dropped", file=sys.stderr)
+        return {"warm_up_error": str(err)}
+    if not args.quiet:
+        print(f"warmed up in {seconds:.1f} s", file=sys.stderr)
+    return {"warm_up_s": round(seconds, 3)}
 
 
 def _run(args, stream, estimator, writer, view, seg_cfg, device) -> int:

@@ -147,6 +147,13 @@ class HybridEstimator:
         if self._behind is not None:
             self._behind.reset()
 
+    def close(self) -> None:
+        """Wait for the size search's refits in flight and release its worker thread (the
+        estimator goes on without one: later samples are refitted inline)."""
+        if self._worker is not None:
+            self._worker.shutdown(wait=True)
+            self._worker = None
+
     def prefetch(self, frame: Frame) -> None:
         """Compute what every frame needs before the estimate (the forest's labels, when the
         tracker's label term reads them), so a caller can do it on another thread while the

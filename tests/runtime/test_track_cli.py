@@ -462,6 +462,7 @@ def test_subprocess_stop_signals_leave_valid_outputs(tmp_path, signum, said):
     assert records[0]["frame"] == 0
     assert bvh_frames == records[-1]["frame"] + 1
     assert summary["extra"]["stopped"] == said
+    assert summary["extra"]["warm_up_s"] > 0  # a live stream is warmed up before it starts
 
 
 def test_subprocess_openni_dummy_device(tmp_path):
