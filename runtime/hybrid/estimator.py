@@ -44,7 +44,7 @@ from .policy import Detection, choose, judge_track
 from .split_refits import SplitRefits
 from .unseen_limbs import held_dofs, hold_unseen
 
-__all__ = ["HybridEstimator", "TrackState", "overlaps_of"]
+__all__ = ["MAX_VELOCITY_SCALE", "HybridEstimator", "TrackState", "overlaps_of", "velocity_scale"]
 
 
 @dataclass
@@ -53,6 +53,8 @@ class TrackState:
 
     Attributes:
         q_prev, q_prev2: (34,) the last two poses (None: no track).
+        index_prev, index_prev2: the stream indices of the frames they are of: a live stream
+            skips frames, and the prior's velocity is per frame of the stream, not per pose.
         refused_at: the frame whose detection was last refused (None: none since the reset).
         held: (34,) bool angles of the limbs the last tracked pose did not see
             (``cfg.hold_unseen_limbs``; None: none held).
@@ -60,8 +62,27 @@ class TrackState:
 
     q_prev: torch.Tensor | None = None
     q_prev2: torch.Tensor | None = None
+    index_prev: int | None = None
+    index_prev2: int | None = None
     refused_at: int | None = None
     held: torch.Tensor | None = None
+
+
+# The prior extrapolates at most this many inter-pose intervals ahead: after a long stall the
+# last velocity says little about where the person is now.
+MAX_VELOCITY_SCALE = 4.0
+
+
+def velocity_scale(index: int, index_prev: int | None, index_prev2: int | None) -> float:
+    """How far ahead the constant-velocity prior should predict, in units of the last two
+    poses' interval: ``(index - index_prev) / (index_prev - index_prev2)``, at most
+    :data:`MAX_VELOCITY_SCALE`; 1 when either index is unknown or the interval is not
+    positive. A file keeps every frame (1 always: Wei's prior, bit for bit); a live stream
+    keeps the newest, so after two frames skipped the motion since the last pose is three
+    frames' worth, not one."""
+    if index_prev is None or index_prev2 is None or index_prev <= index_prev2:
+        return 1.0
+    return min(max(index - index_prev, 0) / (index_prev - index_prev2), MAX_VELOCITY_SCALE)
 
 
 def _lower_priority() -> None:
@@ -171,7 +192,16 @@ class HybridEstimator:
     def _fit(self, frame: Frame, start: torch.Tensor, before: torch.Tensor | None = None,
              iterations: int | None = None) -> TrackResult:  # fmt: skip
         obs = frame.observation(self.tracker, self._tracker_labels(frame))
-        return self.tracker.fit(obs, start, before, iterations)
+        return self.tracker.fit(
+            obs, start, before, iterations, velocity_scale=self._velocity_scale(frame.index)
+        )
+
+    def _velocity_scale(self, index: int) -> float:
+        """The frames from the last pose to ``index`` over those between the last two poses:
+        1 on every frame of a file; after a live stream skipped frames, the prior predicts
+        the motion over the frames that passed (:func:`velocity_scale`)."""
+        s = self.state
+        return velocity_scale(index, s.index_prev, s.index_prev2)
 
     def _fit_starts(self, frame: Frame, starts: torch.Tensor,
                     iterations: int | None = None) -> list[TrackResult]:  # fmt: skip
@@ -212,6 +242,7 @@ class HybridEstimator:
     def _tracked(self, res: TrackResult, errors: dict, frame: Frame) -> PoseEstimate:
         q = res.q.detach()
         self.state.q_prev, self.state.q_prev2 = q, self.state.q_prev
+        self.state.index_prev, self.state.index_prev2 = frame.index, self.state.index_prev
         estimate = PoseEstimate(
             q.cpu().double().numpy(), self._joints(q), "tracked", errors, observed=observed_of(res)
         )
@@ -279,7 +310,7 @@ class HybridEstimator:
             return self._lose({**errors, "unsupported": 1.0})
         return self._tracked(res, {**errors, **flags}, frame)
 
-    def _detected(self, det: DetectionResult, errors: dict) -> PoseEstimate:
+    def _detected(self, det: DetectionResult, errors: dict, frame: Frame) -> PoseEstimate:
         errors["labelled_pixels"] = float(det.labelled_pixels)
         if not det.found:
             self.reset()
@@ -291,6 +322,7 @@ class HybridEstimator:
                 return self._lose({**errors, "unsupported": 1.0})
         q = det.q.detach()
         self.state.q_prev, self.state.q_prev2 = q, None
+        self.state.index_prev, self.state.index_prev2 = frame.index, None
         self.state.held = None
         return PoseEstimate(
             q.cpu().double().numpy(),
@@ -307,7 +339,7 @@ class HybridEstimator:
         if self._behind is not None:
             self._drop_behind(frame)
         if state.q_prev is None:
-            return self._detected(self._run_detector(frame), {})
+            return self._detected(self._run_detector(frame), {}, frame)
         res = self._fit(frame, state.q_prev, hold_unseen(state.q_prev, state.q_prev2, state.held))
         errors = res.signals.as_errors()
         badness = cfg.failure.badness(res.signals)
@@ -335,7 +367,7 @@ class HybridEstimator:
         failed = {f"tracker_{k}": v for k, v in errors.items()}
         det = self._run_detector(frame)
         if cfg.keep_better is None:
-            return self._detected(det, failed)
+            return self._detected(det, failed, frame)
         detection = Detection(det.found, det.refined.signals if det.refined else None)
         decision = choose(res.signals, detection, cfg.failure, cfg.keep_better)
         if decision.forget and self.arm_search is not None:
@@ -344,4 +376,4 @@ class HybridEstimator:
             state.refused_at = frame.index
             kept = {"kept_over_detector": 1.0} if verdict.failed else {"rechecked": 1.0}
             return self._keep(res, errors, kept, frame)
-        return self._detected(det, failed)
+        return self._detected(det, failed, frame)

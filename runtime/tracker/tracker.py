@@ -153,6 +153,7 @@ def fit_frames(
     body: BodyShape,
     cfg: TrackerConfig,
     geom: SegmentGeometry | None = None,
+    velocity_scale: float = 1.0,
 ) -> FrameFit:
     """Gauss-Newton fit of B poses to B observed frames.
 
@@ -170,12 +171,15 @@ def fit_frames(
             prior then predicts no motion).
         geom: ``segment_geometry(body, q_prev)``, when the caller keeps it (it depends only
             on the body; a tracker computes it once); None: computed here.
+        velocity_scale: the prior predicts ``q_prev`` plus this times the last step's
+            motion (``q_prev - q_prev2``): the frames since ``q_prev`` over those between
+            the two (1: consecutive frames, Wei's prior).
     """
     B = q_prev.shape[0]
     if SHOULDER_BRANCH_TURN_RAD > 0:
         q_prev = move_to_roomier_branch(q_prev, SHOULDER_BRANCH_TURN_RAD)
         q_prev2 = None if q_prev2 is None else align_branch(q_prev2, q_prev)
-    q_pred = predict_pose(q_prev, q_prev2, PRIOR_VELOCITY_GAIN)
+    q_pred = predict_pose(q_prev, q_prev2, PRIOR_VELOCITY_GAIN * velocity_scale)
     q = q_prev.clone()  # Wei starts each frame from the previous pose
     observed = observed_candidates(obs, MAX_CANDIDATES) if cfg.use_extra_depth else None
     converged = torch.zeros(B, dtype=torch.bool, device=q.device)
@@ -343,10 +347,13 @@ class Tracker:
         q_prev: torch.Tensor,
         q_prev2: torch.Tensor | None = None,
         iterations: int | None = None,
+        velocity_scale: float = 1.0,
     ) -> TrackResult:
         """Fit one frame's observation (from :meth:`observe`, batch 1) from ``q_prev`` (34,)
         and ``q_prev2`` (34,) or None, with at most ``iterations`` Gauss-Newton steps
-        (default: the config's). The frame's refits share one observation this way."""
+        (default: the config's), the prior predicting ``velocity_scale`` times the last
+        step's motion ahead (:func:`fit_frames`). The frame's refits share one observation
+        this way."""
         for name, q in (("q_prev", q_prev), ("q_prev2", q_prev2)):
             if q is not None and tuple(q.shape) != (sk.NUM_DOFS,):
                 raise TrackerError(f"{name} must have shape ({sk.NUM_DOFS},), got {q.shape}")
@@ -355,7 +362,7 @@ class Tracker:
         )
         qp = q_prev.to(device=self.device, dtype=self.dtype)[None]
         qp2 = None if q_prev2 is None else q_prev2.to(device=self.device, dtype=self.dtype)[None]
-        fit = fit_frames(obs, qp, qp2, self.body, cfg, self.geometry)
+        fit = fit_frames(obs, qp, qp2, self.body, cfg, self.geometry, velocity_scale)
         return self._result(fit, 0, _host_scalars(fit))
 
     def fit_starts(

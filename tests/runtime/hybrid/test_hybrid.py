@@ -25,6 +25,7 @@ from depthmocap.runtime.hybrid import arm_search as arm_search_module
 from depthmocap.runtime.hybrid import hybrid_config as config_from_mapping
 from depthmocap.runtime.hybrid import policy as policy_module
 from depthmocap.runtime.hybrid.behind_model import BehindModelConfig
+from depthmocap.runtime.hybrid.estimator import MAX_VELOCITY_SCALE, velocity_scale
 from depthmocap.runtime.raycast import part_labels, render_body
 from depthmocap.runtime.streams.base import DepthFrame
 from depthmocap.runtime.tracker import Tracker, TrackerConfig
@@ -132,13 +133,15 @@ class ScriptedTracker:
 
     def __init__(self) -> None:
         self.real = Tracker(BODY, INTR)
+        self.velocity_scales: list[float] = []  # of the frame's own fits
 
     def observe(self, depth, mask, labels=None):
         return self.real.observe(depth, mask, labels), (labels if self.cfg.use_labels else None)
 
-    def fit(self, obs, q_prev, q_prev2=None, iterations=None):
+    def fit(self, obs, q_prev, q_prev2=None, iterations=None, velocity_scale=1.0):
         if iterations is not None:
-            return self.real.fit(obs[0], q_prev, q_prev2, iterations)
+            return self.real.fit(obs[0], q_prev, q_prev2, iterations, velocity_scale)
+        self.velocity_scales.append(velocity_scale)
         return self.step(None, None, q_prev, q_prev2, labels=obs[1])
 
     def fit_starts(self, obs, starts, iterations=None):
@@ -197,6 +200,28 @@ def test_status_sequence_with_failures_and_empty_frames(scene):
     assert len(labeler_calls) == 4  # the forest runs only when the detector does
     # The prior sees two previous poses except right after a detection.
     assert tracker.seen_prev2 == [False, True, False, True, False, False]
+
+
+def test_the_prior_predicts_over_the_frames_a_live_stream_skipped(scene):
+    """Frames 0, 1, 2, 5, 6, 10 of a stream (a live one keeps the newest): each fit's prior
+    extrapolates the last step by the frames that passed over the last two poses' interval."""
+    q, depth, labels, mask = scene
+    tracker = FakeTracker()
+    est, _ = make_hybrid(scene, tracker)
+    statuses = [estimate_frame(est, frame_of(depth, i, mask)).status for i in (0, 1, 2, 5, 6, 10)]
+    assert statuses == ["detected"] + ["tracked"] * 5
+    # frame 1 right after the detection has no velocity (scale unused, 1); 2: 1/1; 5: 3/1;
+    # 6: 1/3; 10: 4/1.
+    assert tracker.velocity_scales == pytest.approx([1.0, 1.0, 3.0, 1 / 3, 4.0])
+    assert est.state.index_prev == 10 and est.state.index_prev2 == 6
+
+
+def test_velocity_scale_table():
+    assert velocity_scale(5, 4, 3) == 1.0  # every frame: Wei's prior
+    assert velocity_scale(7, 4, 3) == 3.0 and velocity_scale(5, 4, 2) == 0.5
+    assert velocity_scale(40, 4, 3) == MAX_VELOCITY_SCALE  # a long stall: capped
+    assert velocity_scale(5, 4, None) == velocity_scale(5, None, None) == 1.0
+    assert velocity_scale(5, 4, 4) == 1.0  # no interval: nothing to scale by
 
 
 def test_errors_and_joints_are_reported(scene):

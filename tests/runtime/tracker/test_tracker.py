@@ -192,3 +192,28 @@ class TestTrackerStep:
             tracker.step(
                 torch.zeros(240, 320), torch.zeros(240, 320, dtype=torch.bool), rest_pose(1)
             )
+
+
+def test_velocity_scale_extrapolates_the_prior_as_a_farther_previous_pose_would():
+    """``velocity_scale`` s predicts q1 + s (q1 - q2): for joint angles (linear) the same fit
+    as the previous pose q2' = q1 - s (q1 - q2) with no scale; 1 is Wei's prior exactly."""
+    from depthmocap.shared import skeleton as sk
+
+    elbow = sk.DOF_NAMES.index("l_radius_flex")
+    body = BodyShape.default()
+    q_true = rest_pose(1, root_position=(0.0, 0.1, 2.5))[0]
+    q_true[elbow] = 0.5
+    depth = render_body(q_true[None], body, INTR).depth[0]
+    tracker = Tracker(body, INTR)
+    obs = tracker.observe(depth, depth > 0)
+    q1 = q_true.clone()
+    q1[elbow] = 0.4
+    q2 = q1.clone()
+    q2[elbow] = 0.37
+    q2_far = q1 - 2.5 * (q1 - q2)
+    scaled = tracker.fit(obs, q1, q2, velocity_scale=2.5)
+    farther = tracker.fit(obs, q1, q2_far)
+    torch.testing.assert_close(scaled.q, farther.q, atol=1e-4, rtol=0)
+    plain = tracker.fit(obs, q1, q2)
+    assert torch.equal(tracker.fit(obs, q1, q2, velocity_scale=1.0).q, plain.q)
+    assert not torch.allclose(scaled.q, plain.q, atol=1e-6)  # the prior moved the fit
