@@ -87,6 +87,7 @@ class Tracker:
         self._intrinsics: Intrinsics | None = None
         self._next_index = 0
         self.skipped = 0  # frames track_stream skipped on a live camera (newest wins)
+        self.warm_up_s: float | None = None  # the warm-up before the first live stream
 
     def track(
         self,
@@ -121,7 +122,9 @@ class Tracker:
         frames gives the same poses, more slowly).
 
         A file keeps every frame, in order. A live camera's newest frame wins: frames that
-        arrived while the estimator was busy are skipped and counted in :attr:`skipped`.
+        arrived while the estimator was busy are skipped and counted in :attr:`skipped`; so
+        before a live stream's first frame the process is warmed up once
+        (:mod:`runtime.warm_up`, about a second; :attr:`warm_up_s`).
         Closing the iteration early (``break``) stops the reader; the stream stays open for
         its ``with`` block. Do not call :meth:`reset` or :meth:`track` meanwhile.
 
@@ -135,6 +138,14 @@ class Tracker:
         from .streams.latest_frame import LatestFrameReader
 
         estimator = self._estimator_for(stream.intrinsics)
+        if stream.is_live and self.warm_up_s is None:
+            from .warm_up import warm_up
+
+            self.warm_up_s = warm_up(
+                lambda: make_estimator(self.mode, self.model, self._body, stream.intrinsics,
+                                       self.device, self.settings),
+                stream.intrinsics, PersonSegmenter(self.segmentation), self.device,
+            )  # fmt: skip
 
         def prepare(frame: DepthFrame) -> Frame:
             return prepare_frame(estimator, frame, self._segmenter, self.device)

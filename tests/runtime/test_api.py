@@ -224,6 +224,28 @@ def test_track_stream_reports_stream_errors_after_the_frames_before(one_thread, 
     assert [i for i, _ in got] == [0, 1]
 
 
+def test_a_live_stream_is_warmed_up_once_before_its_first_frame(one_thread, demo_frames):
+    """A camera's newest frame wins, so the process is warmed up before its first frame (a
+    file is not: it keeps every frame); the warm-up's estimator is not the one tracking."""
+    from depthmocap.runtime.streams import DepthStream
+
+    class Live(DepthStream):
+        source, is_live = "test:live", True
+        intrinsics, fps, frame_count = demo_frames[0].intrinsics, 30.0, None
+
+        def __iter__(self):
+            yield from demo_frames[:2]
+
+    tracker = Tracker()
+    got = [pose.status for _, pose in tracker.track_stream(Live())]
+    assert tracker.warm_up_s is not None and tracker.warm_up_s > 0
+    assert got[0] == "detected"  # the real estimator starts afresh on the camera's frame 0
+    warmed = tracker.warm_up_s
+    list(tracker.track_stream(Live()))
+    assert tracker.warm_up_s == warmed  # once per tracker
+    assert Tracker().warm_up_s is None
+
+
 def test_auto_device_is_the_measured_faster_cpu_even_with_a_gpu(monkeypatch):
     # "auto" must not follow torch.cuda.is_available(): the GPU path is measured slower.
     from depthmocap.runtime.estimator_setup import AUTO_DEVICE, pick_device
