@@ -18,6 +18,8 @@ from the internals, so that what a script runs is what ``runtime-track`` runs.
 
 from __future__ import annotations
 
+import math
+import warnings
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
@@ -87,7 +89,8 @@ class Tracker:
         self._intrinsics: Intrinsics | None = None
         self._next_index = 0
         self.skipped = 0  # frames track_stream skipped on a live camera (newest wins)
-        self.warm_up_s: float | None = None  # the warm-up before the first live stream
+        # Seconds of the warm-up before the first live stream (NaN: it failed, and was skipped).
+        self.warm_up_s: float | None = None
 
     def track(
         self,
@@ -139,13 +142,18 @@ class Tracker:
 
         estimator = self._estimator_for(stream.intrinsics)
         if stream.is_live and self.warm_up_s is None:
-            from .warm_up import warm_up
+            from .warm_up import try_warm_up
 
-            self.warm_up_s = warm_up(
+            seconds, error = try_warm_up(
                 lambda: make_estimator(self.mode, self.model, self._body, stream.intrinsics,
                                        self.device, self.settings),
                 stream.intrinsics, PersonSegmenter(self.segmentation), self.device,
             )  # fmt: skip
+            if error is not None:  # an optimization only: the stream is tracked all the same
+                warnings.warn(
+                    f"warm-up failed ({error}); the first frames may be dropped", stacklevel=2
+                )
+            self.warm_up_s = math.nan if seconds is None else seconds
 
         def prepare(frame: DepthFrame) -> Frame:
             return prepare_frame(estimator, frame, self._segmenter, self.device)

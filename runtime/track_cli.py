@@ -316,20 +316,21 @@ def _warm_up(args, body, stream, mode_cfg, seg_cfg, device) -> dict:
     """A live stream keeps only the newest frame: warm the process up first
     (:mod:`runtime.warm_up`), so that its first frames are not dropped while numba's kernels
     and torch load. Returns what ``summary.json`` records of it; a warm-up that fails is
-    reported and the run goes on (the stream's own frames warm it up then)."""
+    reported and the run goes on."""
     from .segmentation import PersonSegmenter
-    from .warm_up import warm_up
+    from .warm_up import try_warm_up
 
     def throwaway():
         return make_estimator(
             args.mode, args.model, body, stream.intrinsics, device=device, config=mode_cfg
         )
 
-    try:
-        seconds = warm_up(throwaway, stream.intrinsics, PersonSegmenter(seg_cfg), device)
-    except Exception as err:  # an optimization only: never the reason a capture fails
-        print(f"warning: warm-up failed ({err}); the first frames may be dropped", file=sys.stderr)
-        return {"warm_up_error": str(err)}
+    seconds, error = try_warm_up(throwaway, stream.intrinsics, PersonSegmenter(seg_cfg), device)
+    if error is not None:
+        print(
+            f"warning: warm-up failed ({error}); the first frames may be dropped", file=sys.stderr
+        )
+        return {"warm_up_error": error}
     if not args.quiet:
         print(f"warmed up in {seconds:.1f} s", file=sys.stderr)
     return {"warm_up_s": round(seconds, 3)}

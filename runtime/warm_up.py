@@ -20,7 +20,7 @@ from depthmocap.shared.camera import Intrinsics
 
 from .estimator import PoseEstimator, estimate_frame, prepare_frame
 
-__all__ = ["WARM_UP_FRAMES", "warm_up"]
+__all__ = ["WARM_UP_FRAMES", "try_warm_up", "warm_up"]
 
 # The demo's first frames: a detection, then tracked frames, the first of which takes a size
 # sample (the batched refits) when no body is given: each kind of work a stream starts with.
@@ -50,3 +50,18 @@ def warm_up(
     if callable(close):
         close()
     return time.perf_counter() - start
+
+
+def try_warm_up(
+    make_estimator: Callable[[], PoseEstimator],
+    intrinsics: Intrinsics,
+    segment: Callable,
+    device: str = "cpu",
+) -> tuple[float | None, str | None]:
+    """:func:`warm_up`, which is an optimization only: ``(seconds, None)``, or ``(None, the
+    error)`` when it failed, so that a capture never fails because of it (the stream's own
+    first frames then warm the process up, and some are dropped)."""
+    try:
+        return warm_up(make_estimator, intrinsics, segment, device), None
+    except Exception as err:
+        return None, str(err)

@@ -32,6 +32,7 @@ import torch
 from depthmocap.runtime.detector import DetectionResult, Detector
 from depthmocap.runtime.estimator import PoseEstimate, lost, observed_of
 from depthmocap.runtime.frame import Frame, LabelSource
+from depthmocap.runtime.tracker.prior_term import velocity_scale
 from depthmocap.runtime.tracker.tracker import Tracker, TrackResult
 from depthmocap.shared.joint_offsets import JointOffsets, apply_offsets
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
@@ -44,7 +45,7 @@ from .policy import Detection, choose, judge_track
 from .split_refits import SplitRefits
 from .unseen_limbs import held_dofs, hold_unseen
 
-__all__ = ["MAX_VELOCITY_SCALE", "HybridEstimator", "TrackState", "overlaps_of", "velocity_scale"]
+__all__ = ["HybridEstimator", "TrackState", "overlaps_of"]
 
 
 @dataclass
@@ -66,23 +67,6 @@ class TrackState:
     index_prev2: int | None = None
     refused_at: int | None = None
     held: torch.Tensor | None = None
-
-
-# The prior extrapolates at most this many inter-pose intervals ahead: after a long stall the
-# last velocity says little about where the person is now.
-MAX_VELOCITY_SCALE = 4.0
-
-
-def velocity_scale(index: int, index_prev: int | None, index_prev2: int | None) -> float:
-    """How far ahead the constant-velocity prior should predict, in units of the last two
-    poses' interval: ``(index - index_prev) / (index_prev - index_prev2)``, at most
-    :data:`MAX_VELOCITY_SCALE`; 1 when either index is unknown or the interval is not
-    positive. A file keeps every frame (1 always: Wei's prior, bit for bit); a live stream
-    keeps the newest, so after two frames skipped the motion since the last pose is three
-    frames' worth, not one."""
-    if index_prev is None or index_prev2 is None or index_prev <= index_prev2:
-        return 1.0
-    return min(max(index - index_prev, 0) / (index_prev - index_prev2), MAX_VELOCITY_SCALE)
 
 
 def _lower_priority() -> None:
@@ -191,17 +175,11 @@ class HybridEstimator:
 
     def _fit(self, frame: Frame, start: torch.Tensor, before: torch.Tensor | None = None,
              iterations: int | None = None) -> TrackResult:  # fmt: skip
+        """The frame's own fit; its prior predicts over the stream frames since the last pose
+        (a live stream skips some: :func:`~runtime.tracker.prior_term.velocity_scale`)."""
         obs = frame.observation(self.tracker, self._tracker_labels(frame))
-        return self.tracker.fit(
-            obs, start, before, iterations, velocity_scale=self._velocity_scale(frame.index)
-        )
-
-    def _velocity_scale(self, index: int) -> float:
-        """The frames from the last pose to ``index`` over those between the last two poses:
-        1 on every frame of a file; after a live stream skipped frames, the prior predicts
-        the motion over the frames that passed (:func:`velocity_scale`)."""
-        s = self.state
-        return velocity_scale(index, s.index_prev, s.index_prev2)
+        ahead = velocity_scale(frame.index, self.state.index_prev, self.state.index_prev2)
+        return self.tracker.fit(obs, start, before, iterations, velocity_scale=ahead)
 
     def _fit_starts(self, frame: Frame, starts: torch.Tensor,
                     iterations: int | None = None) -> list[TrackResult]:  # fmt: skip

@@ -16,7 +16,14 @@ from depthmocap.shared.so3 import (
     rotvec_to_quaternion,
 )
 
-__all__ = ["predict_pose", "prior_residual", "prior_weights", "prior_system"]
+__all__ = [
+    "MAX_VELOCITY_SCALE",
+    "predict_pose",
+    "prior_residual",
+    "prior_system",
+    "prior_weights",
+    "velocity_scale",
+]
 
 
 def predict_pose(
@@ -76,3 +83,20 @@ def prior_system(
     res = prior_residual(q, q_pred)
     w2 = w * w
     return w2, w2 * res, (w2 * res * res).sum(-1)
+
+
+# The prior extrapolates at most this many inter-pose intervals ahead: after a long stall the
+# last velocity says little about where the person is now.
+MAX_VELOCITY_SCALE = 4.0
+
+
+def velocity_scale(index: int, index_prev: int | None, index_prev2: int | None) -> float:
+    """How far ahead the constant-velocity prior should predict, in units of the last two
+    poses' interval: ``(index - index_prev) / (index_prev - index_prev2)``, at most
+    :data:`MAX_VELOCITY_SCALE`; 1 when either index is unknown or the interval is not
+    positive. A file keeps every frame (1 always: Wei's prior, bit for bit); a live stream
+    keeps the newest, so after two frames skipped the motion since the last pose is three
+    frames' worth, not one."""
+    if index_prev is None or index_prev2 is None or index_prev <= index_prev2:
+        return 1.0
+    return min(max(index - index_prev, 0) / (index_prev - index_prev2), MAX_VELOCITY_SCALE)

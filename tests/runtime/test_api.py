@@ -246,6 +246,32 @@ def test_a_live_stream_is_warmed_up_once_before_its_first_frame(one_thread, demo
     assert Tracker().warm_up_s is None
 
 
+def test_a_failed_warm_up_warns_and_the_live_stream_is_tracked(
+    one_thread, demo_frames, monkeypatch
+):
+    import math
+
+    import depthmocap.runtime.warm_up as warm_up_module
+    from depthmocap.runtime.streams import DepthStream
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("cannot render the demo")
+
+    monkeypatch.setattr(warm_up_module, "warm_up", broken)
+
+    class Live(DepthStream):
+        source, is_live = "test:live", True
+        intrinsics, fps, frame_count = demo_frames[0].intrinsics, 30.0, None
+
+        def __iter__(self):
+            yield from demo_frames[:2]
+
+    tracker = Tracker()
+    with pytest.warns(UserWarning, match="warm-up failed"):
+        got = [pose.status for _, pose in tracker.track_stream(Live())]
+    assert got[0] == "detected" and len(got) == 2 and math.isnan(tracker.warm_up_s)
+
+
 def test_auto_device_is_the_measured_faster_cpu_even_with_a_gpu(monkeypatch):
     # "auto" must not follow torch.cuda.is_available(): the GPU path is measured slower.
     from depthmocap.runtime.estimator_setup import AUTO_DEVICE, pick_device

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from depthmocap.runtime.estimator import lost
 from depthmocap.runtime.segmentation import PersonSegmenter, SegmentationConfig
-from depthmocap.runtime.warm_up import WARM_UP_FRAMES, warm_up
+from depthmocap.runtime.warm_up import WARM_UP_FRAMES, try_warm_up, warm_up
 from depthmocap.shared.camera import Intrinsics
 
 
@@ -41,6 +41,19 @@ def test_warm_up_runs_a_throwaway_estimator_over_the_demo_at_the_stream_s_size()
     est = made[0]
     assert est.shapes == [(intr.height, intr.width)] * WARM_UP_FRAMES  # a person in every one
     assert est.closed  # its threads are released before the stream starts
+
+
+def test_a_failed_warm_up_is_reported_not_raised():
+    """The warm-up is an optimization: its failure is returned, never the capture's end."""
+
+    def broken():
+        raise RuntimeError("no forest here")
+
+    intr = Intrinsics.kinect_v1(160)
+    seconds, error = try_warm_up(broken, intr, PersonSegmenter(SegmentationConfig()))
+    assert seconds is None and error == "no forest here"
+    seconds, error = try_warm_up(CountingEstimator, intr, PersonSegmenter(SegmentationConfig()))
+    assert error is None and seconds > 0
 
 
 def test_the_hybrid_s_close_waits_for_the_size_search_then_goes_on_inline(one_thread):

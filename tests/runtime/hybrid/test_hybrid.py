@@ -25,10 +25,10 @@ from depthmocap.runtime.hybrid import arm_search as arm_search_module
 from depthmocap.runtime.hybrid import hybrid_config as config_from_mapping
 from depthmocap.runtime.hybrid import policy as policy_module
 from depthmocap.runtime.hybrid.behind_model import BehindModelConfig
-from depthmocap.runtime.hybrid.estimator import MAX_VELOCITY_SCALE, velocity_scale
 from depthmocap.runtime.raycast import part_labels, render_body
 from depthmocap.runtime.streams.base import DepthFrame
 from depthmocap.runtime.tracker import Tracker, TrackerConfig
+from depthmocap.runtime.tracker.prior_term import MAX_VELOCITY_SCALE, velocity_scale
 from depthmocap.runtime.tracker.signals import FitSignals
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.body import BodyShape
