@@ -224,24 +224,29 @@ def test_track_stream_reports_stream_errors_after_the_frames_before(one_thread, 
     assert [i for i, _ in got] == [0, 1]
 
 
-def test_a_live_stream_is_warmed_up_once_before_its_first_frame(one_thread, demo_frames):
-    """A camera's newest frame wins, so the process is warmed up before its first frame (a
-    file is not: it keeps every frame); the warm-up's estimator is not the one tracking."""
+def _live(frames):
+    """A camera-like stream (``is_live``: the newest frame wins) of ``frames``."""
     from depthmocap.runtime.streams import DepthStream
 
     class Live(DepthStream):
         source, is_live = "test:live", True
-        intrinsics, fps, frame_count = demo_frames[0].intrinsics, 30.0, None
+        intrinsics, fps, frame_count = frames[0].intrinsics, 30.0, None
 
         def __iter__(self):
-            yield from demo_frames[:2]
+            yield from frames
 
+    return Live()
+
+
+def test_a_live_stream_is_warmed_up_once_before_its_first_frame(one_thread, demo_frames):
+    """A camera's newest frame wins, so the process is warmed up before its first frame (a
+    file is not: it keeps every frame); the warm-up's estimator is not the one tracking."""
     tracker = Tracker()
-    got = [pose.status for _, pose in tracker.track_stream(Live())]
+    got = [pose.status for _, pose in tracker.track_stream(_live(demo_frames[:2]))]
     assert tracker.warm_up_s is not None and tracker.warm_up_s > 0
     assert got[0] == "detected"  # the real estimator starts afresh on the camera's frame 0
     warmed = tracker.warm_up_s
-    list(tracker.track_stream(Live()))
+    list(tracker.track_stream(_live(demo_frames[:2])))
     assert tracker.warm_up_s == warmed  # once per tracker
     assert Tracker().warm_up_s is None
 
@@ -252,23 +257,15 @@ def test_a_failed_warm_up_warns_and_the_live_stream_is_tracked(
     import math
 
     import depthmocap.runtime.warm_up as warm_up_module
-    from depthmocap.runtime.streams import DepthStream
 
     def broken(*args, **kwargs):
         raise RuntimeError("cannot render the demo")
 
     monkeypatch.setattr(warm_up_module, "warm_up", broken)
 
-    class Live(DepthStream):
-        source, is_live = "test:live", True
-        intrinsics, fps, frame_count = demo_frames[0].intrinsics, 30.0, None
-
-        def __iter__(self):
-            yield from demo_frames[:2]
-
     tracker = Tracker()
     with pytest.warns(UserWarning, match="warm-up failed"):
-        got = [pose.status for _, pose in tracker.track_stream(Live())]
+        got = [pose.status for _, pose in tracker.track_stream(_live(demo_frames[:2]))]
     assert got[0] == "detected" and len(got) == 2 and math.isnan(tracker.warm_up_s)
 
 
