@@ -269,6 +269,13 @@ class HybridConfig:
         "(runtime.hybrid.unseen_limbs; not in Wei). Tuning set, mean of trust regions 0.18, "
         "0.2, 0.22 rad: 48.20 -> 47.44 mm, better in each (docs/experiments.md)",
     )
+    catch_up: bool = field_doc(
+        False,
+        "when frames were skipped since the last pose (a live stream that fell behind), a "
+        "frame that passed its tests gets no second opinion: no recheck by the detector, no "
+        "arm search; a failed frame still recovers. A file keeps every frame, so it never "
+        "applies there (runtime.hybrid.estimator)",
+    )
     detector: DetectorConfig = field_doc(help="detector settings", default_factory=DetectorConfig)
     tracker: TrackerConfig = field_doc(
         help="tracker settings (shipped: the label and collision terms on)",

@@ -14,6 +14,10 @@ Per frame (a :class:`~runtime.frame.Frame` with a person in it):
    frame starts afresh. So does a frame whose chosen fit explains almost none of the
    silhouette (overlap below ``failure.lost_overlap``): it is not the person's pose.
 
+With ``catch_up``, a live stream that skipped frames since the last pose gives a frame that
+passed its tests no second opinion (steps 2 and 4's arm search and recheck; flagged
+``hurried``), so recovery work goes to failed frames until the estimates keep up again.
+
 One tracker serves the tracking, every refit and the detector's refinement, all on the frame's
 one observation. The forest's labels are computed once per frame, when first needed (every
 frame when the tracker's label term is on).
@@ -41,7 +45,7 @@ from .arm_search import ArmSearch
 from .behind_model import StaticBehindMask
 from .body_scale import BodyScaleSearch
 from .config import HybridConfig
-from .policy import Detection, choose, judge_track
+from .policy import Detection, behind, choose, judge_track
 from .split_refits import SplitRefits
 from .unseen_limbs import held_dofs, hold_unseen
 
@@ -321,7 +325,16 @@ class HybridEstimator:
         res = self._fit(frame, state.q_prev, hold_unseen(state.q_prev, state.q_prev2, state.held))
         errors = res.signals.as_errors()
         badness = cfg.failure.badness(res.signals)
-        if self.arm_search is not None and self.arm_search.wanted(badness):
+        # Behind a live stream, a second opinion on a frame that passed costs more frames
+        # skipped, which make the next frames harder to track than the opinion is worth.
+        hurry = (
+            cfg.catch_up
+            and behind(frame.index, state.index_prev)
+            and not cfg.failure.failed(res.signals)
+        )
+        if hurry:
+            errors["hurried"] = 1.0
+        elif self.arm_search is not None and self.arm_search.wanted(badness):
             found = self.arm_search.search(
                 frame,
                 frame.labels(self.label_source),
@@ -336,7 +349,7 @@ class HybridEstimator:
             if found.arms_searched:  # refits tried, taken or not: what the search costs
                 errors["arms_searched"] = float(found.arms_searched)
         verdict = judge_track(res.signals, badness, cfg.failure, cfg.keep_better)
-        if not verdict.run_detector:
+        if not verdict.run_detector or (hurry and not verdict.failed):
             return self._tracked(res, errors, frame)
         wait = 0 if cfg.keep_better is None else cfg.keep_better.wait_frames
         if state.refused_at is not None and frame.index - state.refused_at <= wait:

@@ -19,7 +19,7 @@ from depthmocap.runtime.tracker.signals import FitSignals
 
 from .config import FailureThresholds, KeepBetterConfig
 
-__all__ = ["Decision", "Detection", "TrackVerdict", "choose", "judge_track"]
+__all__ = ["Decision", "Detection", "TrackVerdict", "behind", "choose", "judge_track"]
 
 
 @dataclass(frozen=True)
@@ -55,6 +55,13 @@ class Decision:
 
     keep_track: bool
     forget: bool = False
+
+
+def behind(index: int, index_prev: int | None) -> bool:
+    """Whether the stream skipped frames between the last pose (frame ``index_prev``, None:
+    no pose yet) and frame ``index``: a live stream whose newest frame wins fell behind. A
+    file keeps every frame, so it never is."""
+    return index_prev is not None and index - index_prev > 1
 
 
 def judge_track(

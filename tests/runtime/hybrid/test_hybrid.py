@@ -336,6 +336,40 @@ def test_recheck_badness_questions_suspect_fits(scene, threshold, rechecked):
     assert ("rechecked" in got[1].errors) == rechecked
 
 
+def test_catch_up_gives_passed_frames_behind_the_stream_no_second_opinion(scene):
+    """Frames 0, 1, 2, 4, 7, 8, 10 of a live stream; every fit passes but is suspect (a
+    recheck each), frame 7's fails. With catch_up, the frames after a skip (4, 10) are not
+    rechecked, the failed frame 7 still asks the detector, and consecutive frames as before."""
+    q, depth, labels, mask = scene
+    indices = (0, 1, 2, 4, 7, 8, 10)
+
+    def run(catch_up):
+        tracker = FakeTracker(fail_calls={4}, surface_mm=0.0)  # the 4th fit: frame 7
+        est, calls = make_hybrid(
+            scene, tracker, refine_iterations=1, keep_better=True, recheck_badness=0.5,
+            catch_up=catch_up,
+        )  # fmt: skip
+        got = [estimate_frame(est, frame_of(depth, i, mask)) for i in indices]
+        return got, len(calls)
+
+    plain, asked_plain = run(False)
+    hurried, asked = run(True)
+    assert asked_plain == 7  # the first detection and every later frame
+    assert asked == 5  # not frames 4 and 10
+    flags = [("hurried" in g.errors, "rechecked" in g.errors) for g in hurried]
+    assert flags == [(False, False), (False, True), (False, True), (True, False),
+                     (False, False), (False, True), (True, False)]  # fmt: skip
+    assert "rechecked" not in hurried[4].errors and "hurried" not in hurried[4].errors
+    assert [g.status for g in hurried] == [g.status for g in plain]
+    assert not any("hurried" in g.errors for g in plain)
+
+
+def test_behind_table():
+    assert not policy_module.behind(5, None)  # no pose yet
+    assert not policy_module.behind(5, 4)  # every frame: a file
+    assert policy_module.behind(6, 4)
+
+
 @pytest.mark.parametrize("wait, asked", [(0, [1, 2, 3, 4, 5, 6]), (2, [1, 4])])
 def test_a_refused_detection_makes_the_detector_wait(scene, wait, asked):
     """Every tracked frame is suspect and the track always fits better: the detector is asked
