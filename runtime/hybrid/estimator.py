@@ -349,7 +349,7 @@ class HybridEstimator:
             if found.arms_searched:  # refits tried, taken or not: what the search costs
                 errors["arms_searched"] = float(found.arms_searched)
         verdict = judge_track(res.signals, badness, cfg.failure, cfg.keep_better)
-        if not verdict.run_detector or (hurry and not verdict.failed):
+        if not verdict.run_detector or hurry:  # a hurried fit passed: res is unchanged
             return self._tracked(res, errors, frame)
         wait = 0 if cfg.keep_better is None else cfg.keep_better.wait_frames
         if state.refused_at is not None and frame.index - state.refused_at <= wait:

@@ -171,6 +171,17 @@ def run_config(
     return evaluate(rec, out / "result", hold_skipped=realtime).report
 
 
+def run_row(label: str, live: bool = False, trust_region: float | None = None) -> str:
+    """A run's row name: the configuration's ``label``, ", live" with ``--realtime``, and
+    " @ X rad" for one of ``--trust-regions``."""
+    return label + (", live" if live else "") + (f" @ {trust_region:g} rad" if trust_region else "")
+
+
+def run_folder(row: str) -> str:
+    """The folder under ``--out`` that a run's results go to, from its row name."""
+    return row.replace(", ", "_").replace(" @ ", "_").replace(" ", "_")
+
+
 def _complete_result(result: Path) -> bool:
     """Whether ``result`` holds a finished runtime-track result (summary.json complete)."""
     try:
@@ -459,18 +470,17 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{len(recs)} dev recordings from {args.recordings}{extent}\n")
     print(HEADER)
     results = {}
-    live = ", live" if args.realtime else ""
     for name in configs:
-        runs = [(label(name) + live, None)]
+        runs = [(run_row(label(name), args.realtime), None)]
         if CONFIGS[name][0] == "hybrid" and args.trust_regions:
             runs = [
-                (f"{label(name)}{live} @ {v:g} rad", {"max_step_rad": v})
+                (run_row(label(name), args.realtime, v), {"max_step_rad": v})
                 for v in args.trust_regions
             ]
         for row, tracker in runs:
             t0 = time.perf_counter()
             reports = []
-            slug = row.replace(", ", "_").replace(" @ ", "_").replace(" ", "_")
+            slug = run_folder(row)
             try:
                 for rec in recs:
                     reports.append(

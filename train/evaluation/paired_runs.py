@@ -23,7 +23,15 @@ import json
 import sys
 from pathlib import Path
 
-from .dev_benchmark import HEADLINE, _protocol_recordings, aggregate, row_label, run_config
+from .dev_benchmark import (
+    HEADLINE,
+    _protocol_recordings,
+    aggregate,
+    row_label,
+    run_config,
+    run_folder,
+    run_row,
+)
 
 __all__ = ["parse_setting", "run_paired", "setting_order"]
 
@@ -54,9 +62,8 @@ def run_paired(
     """Track every recording with every setting, alternated; write and return each
     setting's report (``{row: {"mean", "per_recording", "config"}}``, as ``dev_benchmark``
     writes it) by setting name."""
-    live = ", live" if realtime else ""
-    row = row_label(HEADLINE) + live + (f" @ {trust_region:g} rad" if trust_region else "")
-    slug = row.replace(", ", "_").replace(" @ ", "_").replace(" ", "_")
+    row = run_row(row_label(HEADLINE), realtime, trust_region)
+    slug = run_folder(row)
     tracker = {"max_step_rad": trust_region} if trust_region else None
     paths = dict(settings)
     per_rec: dict[str, dict[str, dict]] = {name: {} for name in paths}

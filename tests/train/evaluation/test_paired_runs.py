@@ -38,8 +38,8 @@ def test_settings_alternate_per_recording_and_reports_compare(tmp_path, monkeypa
     ]  # fmt: skip
     assert all(t == {"max_step_rad": 0.2} and live for _, _, t, live, _ in calls)
     row = "hybrid, default body, live @ 0.2 rad"
-    assert calls[0][4] == tmp_path / "out" / "a" / row.replace(", ", "_").replace(
-        " @ ", "_").replace(" ", "_") / "HDM_0"  # fmt: skip
+    folder = "hybrid_default_body_live_0.2_rad"  # dev_benchmark's folder for that row
+    assert calls[0][4] == tmp_path / "out" / "a" / folder / "HDM_0"
     assert set(reports) == {"a", "b"} and row in reports["a"]
     base = load_runs([tmp_path / "out" / "a"], row)
     new = load_runs([tmp_path / "out" / "b"], row)
