@@ -71,8 +71,12 @@ ARM_STARTS = 2
 # Start poses (K, 34) -> the tracker's few-iteration refinement of the frame from each, in
 # order (one batched fit: ``Tracker.fit_starts``).
 Refine = Callable[[torch.Tensor], "list[TrackResult]"]
+# The IK pose (34,) -> whether it agrees with what the caller already has (the hybrid's track):
+# then the refinement is not run (``DetectionResult.confirmed``).
+Confirm = Callable[[torch.Tensor], bool]
 
 __all__ = [
+    "Confirm",
     "DetectionResult",
     "DetectorError",
     "Refine",
@@ -104,6 +108,8 @@ class DetectionResult:
         labels: (H, W) uint8 part labels after outlier removal (rejected pixels set to 0).
         labelled_pixels: body pixels with a label before outlier removal.
         refined: the tracker's result of the refinement, or None.
+        confirmed: the IK pose agreed with the caller's pose (``confirm``), so the
+            refinement was not run: q is the IK pose, refined None.
     """
 
     found: bool
@@ -117,6 +123,7 @@ class DetectionResult:
     labels: torch.Tensor
     labelled_pixels: int
     refined: TrackResult | None = None
+    confirmed: bool = False
 
 
 def labels_from(labels_or_posteriors: torch.Tensor | np.ndarray) -> torch.Tensor:
@@ -202,6 +209,7 @@ def detect_pose(
     mask: torch.Tensor | None = None,
     refine: Refine | None = None,
     generator: torch.Generator | None = None,
+    confirm: Confirm | None = None,
 ) -> DetectionResult:
     """Pose from one depth frame and its part labels (module docstring).
 
@@ -217,6 +225,8 @@ def detect_pose(
             iterations), applied to the IK pose and its limb swaps at once when given; the
             caller binds it to the frame (its observation, labels and iteration count).
         generator: random source of the RANSAC (default: seeded from ``cfg.seed``).
+        confirm: asked with the IK pose before the refinement; True skips the refinement
+            (the caller's own pose stands: ``DetectionResult.confirmed``).
     Returns:
         :class:`DetectionResult`.
     """
@@ -283,7 +293,8 @@ def detect_pose(
     best = int(torch.argmin(ik.rms))
     q_ik = ik.q[best]
     q, refined = q_ik, None
-    if refine is not None:
+    confirmed = refine is not None and confirm is not None and bool(confirm(q_ik))
+    if refine is not None and not confirmed:
         # The forest confuses left and right limbs (about a fifth of forearm and shank pixels),
         # which IK turns into crossed legs or arms; refine the pose with each pair of limbs
         # swapped too and keep the one that explains the depth best. It also labels other
@@ -300,7 +311,7 @@ def detect_pose(
     joints = named_joint_positions(forward_kinematics(q[None], body))[0]
     return DetectionResult(
         True, q, q_ik, joints, cen.targets, cen.weights, cen.counts, float(ik.rms[best]),
-        kept, n_lab, refined,
+        kept, n_lab, refined, confirmed,
     )  # fmt: skip
 
 
@@ -369,6 +380,7 @@ class Detector:
         mask: torch.Tensor | None = None,
         q_hint: torch.Tensor | None = None,
         refine: Refine | None = None,
+        confirm: Confirm | None = None,
     ) -> DetectionResult:
         """:func:`detect_pose` on one frame with this detector's settings."""
         return detect_pose(
@@ -376,5 +388,5 @@ class Detector:
             torch.as_tensor(labels).to(self.device),
             self.intr, self.body, self.cfg, q_hint,
             None if mask is None else torch.as_tensor(mask).to(self.device),
-            refine, self.generator,
+            refine, self.generator, confirm,
         )  # fmt: skip

@@ -123,9 +123,19 @@ class KeepBetterConfig:
         "to two fifths on the tuning and broad sets but not the error, and jog lost 2-5 mm "
         "(docs/experiments.md, twenty-sixth session)",
     )
+    confirm_within_m: float | None = field_doc(
+        None,
+        "when the detector's IK pose puts every joint within this distance (m) of the track's, "
+        "it confirms the track: the track is kept (tracked, flagged confirmed_by_detector) and "
+        "the detector's refinement is not run (None: the detection is always refined and "
+        "weighed)",
+    )
 
     def __post_init__(self) -> None:
         _check(self.wait_frames >= 0, "keep_better.wait_frames must be >= 0", self.wait_frames)
+        c = self.confirm_within_m
+        _check(c is None or (c > 0 and math.isfinite(c)),
+               "keep_better.confirm_within_m must be > 0 or None", c)  # fmt: skip
         m = self.take_margin
         _check(m >= 0 and math.isfinite(m), "keep_better.take_margin must be >= 0", m)
         # The margin is in badness units; the surface-only comparison would ignore it.

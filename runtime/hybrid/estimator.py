@@ -211,13 +211,27 @@ class HybridEstimator:
         if bool(drop.any()):
             frame.drop_pixels(drop)
 
-    def _run_detector(self, frame: Frame) -> DetectionResult:
-        """The detector on ``frame``, refined on the shared tracker; changes no state."""
+    def _run_detector(self, frame: Frame, track: torch.Tensor | None = None) -> DetectionResult:
+        """The detector on ``frame``, refined on the shared tracker; changes no state.
+        ``track`` (34,): the frame's track, which an IK pose close to it confirms
+        (``keep_better.confirm_within_m``; the refinement is then skipped)."""
         labels = frame.labels(self.label_source)
         hint = self.state.q_prev  # one more IK start, used only if it fits the centroids best
         k = self.detector.cfg.refine_iterations
         refine = None if k <= 0 else (lambda starts: self._fit_starts(frame, starts, k))
-        return self.detector.detect(frame.depth_m, labels, frame.mask, q_hint=hint, refine=refine)
+        keep = self.cfg.keep_better
+        within = None if keep is None or track is None else keep.confirm_within_m
+        confirm = None if within is None else functools.partial(self._agrees, track, within)
+        return self.detector.detect(
+            frame.depth_m, labels, frame.mask, q_hint=hint, refine=refine, confirm=confirm
+        )
+
+    def _agrees(self, track: torch.Tensor, within_m: float, q: torch.Tensor) -> bool:
+        """Whether pose ``q`` (34,) puts every model joint within ``within_m`` of ``track``'s."""
+        body = self.tracker.body
+        kin = forward_kinematics(torch.stack([track, q.to(track)]).to(body.lengths), body)
+        joints = named_joint_positions(kin)  # (2, J, 3)
+        return bool((joints[0] - joints[1]).norm(dim=-1).max() <= within_m)
 
     # ---- estimates, each updating the track ----
 
@@ -356,9 +370,11 @@ class HybridEstimator:
             # The detector was just refused: the track is kept without asking it again.
             return self._keep(res, errors, {"detector_waited": 1.0}, frame)
         failed = {f"tracker_{k}": v for k, v in errors.items()}
-        det = self._run_detector(frame)
+        det = self._run_detector(frame, res.q.detach())
         if cfg.keep_better is None:
             return self._detected(det, failed, frame)
+        if det.confirmed:  # the detector found the track's own pose: nothing to weigh
+            return self._keep(res, errors, {"confirmed_by_detector": 1.0}, frame)
         detection = Detection(det.found, det.refined.signals if det.refined else None)
         decision = choose(res.signals, detection, cfg.failure, cfg.keep_better)
         if decision.forget and self.arm_search is not None:

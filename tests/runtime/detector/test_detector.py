@@ -325,6 +325,34 @@ def test_refinement_gets_the_labels_for_the_label_term(use_labels):
     assert float((res.joints - true_joints(q)).norm(dim=-1).mean()) < 0.05
 
 
+@pytest.mark.parametrize("agrees", [False, True])
+def test_an_ik_pose_the_caller_confirms_is_not_refined(agrees):
+    """``confirm`` is asked with the IK pose before the refinement; True skips it."""
+    q = make_pose("walk")
+    depth, labels, mask = render_labels(q, BODY)
+    asked, refined = [], []
+
+    def confirm(q_ik):
+        asked.append(q_ik)
+        return agrees
+
+    def refine(starts):
+        refined.append(starts)
+        return Tracker(BODY, INTR, TrackerConfig(iterations=1)).fit_starts(
+            Tracker(BODY, INTR).observe(depth, mask), starts
+        )
+
+    res = detect_pose(depth, labels, INTR, BODY, DetectorConfig(), mask=mask, refine=refine,
+                      confirm=confirm)  # fmt: skip
+    assert len(asked) == 1 and torch.equal(asked[0], res.q_ik)
+    assert res.confirmed == agrees and len(refined) == (0 if agrees else 1)
+    assert (res.refined is None) == agrees
+    if agrees:
+        assert torch.equal(res.q, res.q_ik)
+    unasked = detect_pose(depth, labels, INTR, BODY, DetectorConfig(), mask=mask, confirm=confirm)
+    assert len(asked) == 1 and not unasked.confirmed  # without a refinement nothing is asked
+
+
 @pytest.mark.parametrize("reset_limbs", ["none", "legs", "limbs"])
 def test_a_limb_drawn_to_mislabelled_pixels_is_set_back(refiner, reset_limbs):
     """The forest labels a forearm as the left lower shank and misses the real one (as in a

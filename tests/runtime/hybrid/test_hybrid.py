@@ -67,7 +67,7 @@ def cfg_of(**flat) -> HybridConfig:
     if "epsilon3_mm" in failure:
         failure["epsilon3_mm"] = _off(failure["epsilon3_mm"])
     keep = {k: flat.pop(k) for k in ("compare_all_tests", "recheck_badness",
-                                     "wait_frames") if k in flat}  # fmt: skip
+                                     "wait_frames", "confirm_within_m") if k in flat}  # fmt: skip
     for k in ("recheck_badness",):
         if k in keep:
             keep[k] = _off(keep[k])
@@ -320,6 +320,30 @@ def test_keep_better_takes_the_pose_with_the_smaller_surface_error(
     else:
         assert failed.errors["tracker_surface_error_q97_mm"] == 1e4
         assert est.state.q_prev2 is None
+
+
+@pytest.mark.parametrize("within_m, status", [(None, "detected"), (1e-4, "detected"),
+                                              (1.0, "tracked")])  # fmt: skip
+def test_a_detection_that_finds_the_track_confirms_it_unrefined(scene, within_m, status):
+    """The track fails (depth) and fits worse than any detection (surface 10 m): the detection
+    is taken, unless its IK pose puts every joint within ``confirm_within_m`` of the track's.
+    Then the track is kept with its history, flagged, and the refinement is not run."""
+    q, depth, labels, mask = scene
+    tracker = FakeTracker(fail_calls={2}, surface_mm=1e4)
+    est, _ = make_hybrid(scene, tracker, refine_iterations=1, keep_better=True,
+                         confirm_within_m=within_m)  # fmt: skip
+    for i in range(2):
+        estimate_frame(est, frame_of(depth, i, mask))
+    refits = []
+    real_fit_starts = tracker.real.fit_starts
+    tracker.real.fit_starts = lambda *a, **k: refits.append(1) or real_fit_starts(*a, **k)
+    got = estimate_frame(est, frame_of(depth, 2, mask))
+    assert got.status == status
+    assert ("confirmed_by_detector" in got.errors) == (status == "tracked")
+    assert (not refits) == (status == "tracked")  # the 8 starts may come in two halves
+    assert (est.state.q_prev2 is not None) == (status == "tracked")
+    with pytest.raises(ValueError, match="confirm_within_m"):
+        KeepBetterConfig(confirm_within_m=0.0)
 
 
 @pytest.mark.parametrize("threshold, rechecked", [(0.5, True), (1.0, False)])
