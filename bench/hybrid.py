@@ -127,8 +127,11 @@ def frame_work(status: str, errors: dict, sized: bool) -> str:
     if sized:
         ran.append("size search")
     # Keys only the detector's path writes: its labelled pixels (a detection, found or not),
-    # a track kept over it, a fit too poor to report after it.
-    asked = ("labelled_pixels", "kept_over_detector", "rechecked", "unsupported")
+    # a track kept over it or confirmed by it, a fit too poor to report after it.
+    asked = (
+        "labelled_pixels", "kept_over_detector", "rechecked", "confirmed_by_detector",
+        "unsupported",
+    )  # fmt: skip
     if (
         status == "detected"
         or any(k in errors for k in asked)

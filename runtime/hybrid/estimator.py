@@ -10,7 +10,10 @@ Per frame (a :class:`~runtime.frame.Frame` with a person in it):
    optional surface error). A passed fit is the frame's pose ("tracked").
 4. A failed (or rechecked) fit goes to the detector; :func:`~runtime.hybrid.policy.choose`
    keeps the track ("tracked", flagged ``kept_over_detector`` or ``rechecked``) or takes the
-   detection ("detected"). A detection that finds nobody leaves the frame "lost" and the next
+   detection ("detected"). With ``keep_better.confirm_within_m``, a detection whose IK pose
+   puts every joint that close to the track's confirms the track before any refinement: the
+   track is kept ("tracked", flagged ``confirmed_by_detector``), its history goes on, and the
+   refinement's cost is saved. A detection that finds nobody leaves the frame "lost" and the next
    frame starts afresh. So does a frame whose chosen fit explains almost none of the
    silhouette (overlap below ``failure.lost_overlap``): it is not the person's pose.
 
