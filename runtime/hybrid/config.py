@@ -215,7 +215,7 @@ def _shipped_failure() -> FailureThresholds:
 
 
 def _shipped_keep_better() -> KeepBetterConfig:
-    return KeepBetterConfig(compare_all_tests=True, recheck_badness=2.4, confirm_within_m=0.1)
+    return KeepBetterConfig(compare_all_tests=True, recheck_badness=2.4)
 
 
 def _shipped_arm_search() -> ArmSearchConfig:

@@ -84,6 +84,10 @@ RUNS = {
         {"failure": {"epsilon1_cm": 0.001}, "keep_better": {"compare_all_tests": False}},
     ),
     "hybrid-recheck": ("hybrid", {"keep_better": {"recheck_badness": 0.001}}),
+    "hybrid-confirm": (
+        "hybrid",
+        {"keep_better": {"recheck_badness": 0.001, "confirm_within_m": 1.0}},
+    ),
     "hybrid-unsupported": ("hybrid", {"failure": {"lost_overlap": 0.9}}),
     "hybrid-recording-labels": (
         "hybrid",
