@@ -2,7 +2,9 @@
 
 Pipeline per frame: depth (uint16 mm) -> metres -> :func:`runtime.segmentation.segment_person`
 -> the pose estimator of ``--mode`` -> :class:`runtime.export.results.ResultWriter`
-(``poses.jsonl`` flushed every frame, ``motion.bvh``, ``summary.json``). A frame without a
+(``poses.jsonl`` flushed every frame, ``motion.bvh``, ``summary.json``), a file's frames
+smoothed over a centred window and so written two frames late (``--fixed-lag``,
+:mod:`runtime.export.fixed_lag`). A frame without a
 person (empty mask, all-zero or NaN depth) is written as ``lost`` and the estimator is reset;
 the run goes on.
 
@@ -49,6 +51,7 @@ from .estimator_setup import (
     pick_device,
     settings_for_body,
 )
+from .export.fixed_lag import FILE_FIXED_LAG, MAX_FIXED_LAG, FixedLagSmoother
 from .export.live import add_live_args, live_output_from_args
 from .forest.inference import DEFAULT_MODEL
 from .presets import DEFAULT_PRESET, PRESETS
@@ -179,6 +182,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     o.add_argument("--quiet", "-q", action="store_true", help="no progress line")
     o.add_argument(
+        "--fixed-lag",
+        type=int,
+        metavar="N",
+        help="write each frame N frames late as the binomial mean of the frames N either side "
+        "(runtime/export/fixed_lag.py; 0: each pose as fitted, at once). Default: "
+        f"{FILE_FIXED_LAG} for a file read as fast as possible, 0 live and with --realtime",
+    )
+    o.add_argument(
         "--view",
         nargs="?",
         const="",
@@ -234,10 +245,20 @@ def initial_pose(stream, start: int) -> np.ndarray | None:
 # Entry point
 
 
+def fixed_lag_frames(args: argparse.Namespace, stream) -> int:
+    """``--fixed-lag``, or its default for this source: a file tracked as fast as possible
+    is smoothed over a centred window; a live stream (or ``--realtime``) is not delayed."""
+    if args.fixed_lag is not None:
+        return args.fixed_lag
+    return 0 if args.realtime or stream.is_live else FILE_FIXED_LAG
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.threads < 1:
         return report_error(f"--threads must be >= 1, got {args.threads}")
+    if args.fixed_lag is not None and not 0 <= args.fixed_lag <= MAX_FIXED_LAG:
+        return report_error(f"--fixed-lag must be 0-{MAX_FIXED_LAG} frames, got {args.fixed_lag}")
     torch.set_num_threads(args.threads)
     stop = StopRequest()
     try:
@@ -301,6 +322,7 @@ def _set_up(args: argparse.Namespace):
         )  # fmt: skip
         if live is not None:
             writer = live.wrap(writer)
+        writer = FixedLagSmoother(writer, fixed_lag_frames(args, stream))
         if args.realtime or stream.is_live:
             writer.extra.update(_warm_up(args, body, stream, mode_cfg, seg_cfg, device))
     except BaseException as err:
@@ -365,7 +387,7 @@ def _run(args, stream, estimator, writer, view, seg_cfg, device) -> int:
                         seg_cfg,
                         device,
                         realtime=args.realtime,
-                        overlay_dir=args.output / "overlays" if args.save_overlays else None,
+                        save_overlays=args.save_overlays,
                         progress=progress,
                         stop=stop,
                         stats=stats,

@@ -133,7 +133,7 @@ def track(
     device: str = "cpu",
     *,
     realtime: bool = False,
-    overlay_dir: Path | None = None,
+    save_overlays: bool = False,
     progress: Progress | None = None,
     stop: threading.Event | None = None,
     stats: TrackStats | None = None,
@@ -145,6 +145,8 @@ def track(
     Args:
         writer: a ResultWriter (``write_frame(index, time, status, joints, q, errors,
             observed=...)``).
+        save_overlays: write each frame's overlay PNG into ``overlays/`` of the writer's
+            directory.
         realtime: pace a file source to its frame rate, as a camera delivers it. A live
             camera, and a paced file, are read on their own thread and the newest frame wins
             (:class:`~runtime.streams.latest_frame.LatestFrameReader`); frames it replaced
@@ -196,13 +198,15 @@ def track(
             stats.last_index = prepared.index
             if view is not None:
                 view.log_frame(prepared, est)
-            if overlay_dir is not None:
+            if save_overlays:
                 import cv2
 
                 from .export.overlay import draw_overlay
 
-                # Made now, not before the loop: the result directory appears at its first
-                # frame (runtime.export.results), and a new one holds no stale overlays.
+                # In the writer's directory as it is now: a result is staged beside its
+                # output until its first frame is written (runtime.export.results), which a
+                # fixed lag delays, and a new one holds no stale overlays.
+                overlay_dir = Path(writer.directory) / "overlays"
                 overlay_dir.mkdir(parents=True, exist_ok=True)
                 cv2.imwrite(
                     str(overlay_dir / f"{prepared.index:06d}.png"), draw_overlay(prepared, est)

@@ -37,15 +37,58 @@ def cli_result(tmp_path_factory):
     return out
 
 
+@pytest.fixture(scope="module")
+def cli_unsmoothed(tmp_path_factory):
+    """The same with ``--fixed-lag 0``: every pose as fitted."""
+    out = tmp_path_factory.mktemp("api") / "result"
+    before = torch.get_num_threads()
+    argv = ["-i", "demo", "-o", str(out), "--stop", str(FRAMES), "-q", "--fixed-lag", "0"]
+    assert cli.main(argv) == 0
+    torch.set_num_threads(before)
+    return out
+
+
 def _track_all(tracker, frames, raw=False):
     if raw:
         return [tracker.track(f.depth_mm, intrinsics=f.intrinsics, time=f.time) for f in frames]
     return [tracker.track(f) for f in frames]
 
 
+class _Collect:
+    """A writer that keeps what it is given."""
+
+    def __init__(self):
+        self.extra, self.rows = {}, []
+
+    def write_frame(self, index, time, status, joints, q, errors, observed=None):
+        self.rows.append((status, joints, q))
+
+    def close(self):
+        return {}
+
+
 @pytest.mark.slow
-def test_the_same_poses_as_runtime_track(one_thread, demo_frames, cli_result):
+def test_runtime_track_smooths_a_file_as_the_fixed_lag_smoother_does(
+    one_thread, demo_frames, cli_result
+):
+    from depthmocap.runtime.export.fixed_lag import FILE_FIXED_LAG, FixedLagSmoother
+
     poses = read_poses(cli_result)
+    sink = _Collect()
+    smoother = FixedLagSmoother(sink, FILE_FIXED_LAG)
+    for f, e in zip(demo_frames, _track_all(Tracker(), demo_frames)):
+        smoother.write_frame(f.index, f.time, e.status, e.joints, e.q, e.errors, e.observed)
+    smoother.close()
+    assert list(poses.status) == [s for s, _, _ in sink.rows]
+    np.testing.assert_allclose(poses.joints, np.stack([j for _, j, _ in sink.rows]), atol=1e-6)
+    np.testing.assert_allclose(poses.q, np.stack([q for _, _, q in sink.rows]), atol=1e-6)
+    summary = json.loads((cli_result / "summary.json").read_text())
+    assert summary["extra"]["fixed_lag_frames"] == FILE_FIXED_LAG
+
+
+@pytest.mark.slow
+def test_the_same_poses_as_runtime_track(one_thread, demo_frames, cli_unsmoothed):
+    poses = read_poses(cli_unsmoothed)
     estimates = _track_all(Tracker(), demo_frames)
     assert list(poses.status) == [e.status for e in estimates]
     joints = np.stack([e.joints for e in estimates])
