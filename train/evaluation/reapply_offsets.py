@@ -118,6 +118,11 @@ def reapply_result(
     """
     from depthmocap.shared.poses_format import JOINT_NAMES
 
+    if _fixed_lag(result) > 0:
+        raise ReapplyError(
+            f"{result}: its joints were smoothed over a fixed lag (runtime-track --fixed-lag), "
+            "so they are not its poses' joints; track again with --fixed-lag 0"
+        )
     lines = _read_lines(result / "poses.jsonl")
     posed = [i for i, r in enumerate(lines) if r.get("q") is not None and r.get("joints")]
     if posed:
@@ -161,6 +166,15 @@ def reapply_result(
         if (result / name).is_file():
             shutil.copyfile(result / name, out / name)
     return len(posed)
+
+
+def _fixed_lag(result: Path) -> int:
+    """The run's ``extra.fixed_lag_frames`` (0 for runs made before it existed)."""
+    try:
+        summary = json.loads((result / "summary.json").read_text())
+    except (OSError, ValueError):
+        return 0
+    return int((summary.get("extra") or {}).get("fixed_lag_frames") or 0)
 
 
 def _read_lines(path: Path) -> list[dict]:

@@ -83,6 +83,18 @@ def test_a_run_made_with_other_offsets_is_refused(tmp_path, capsys):
               "--out", str(tmp_path / "o")])  # fmt: skip
 
 
+def test_a_smoothed_run_is_refused(tmp_path, capsys):
+    old = JointOffsets(np.full((J, 3), 0.01), 1.78)
+    save_joint_offsets(tmp_path / "old.json", old)
+    run, *_ = _run(tmp_path, old)
+    (run / "summary.json").write_text(json.dumps({"extra": {"fixed_lag_frames": 2}}))
+    args = ["--results", str(tmp_path / "runs"), "--old-offsets", str(tmp_path / "old.json")]
+    assert main([*args, "--offsets", "none", "--out", str(tmp_path / "o")]) == 2
+    assert "--fixed-lag 0" in capsys.readouterr().err
+    (run / "summary.json").write_text(json.dumps({"extra": {"fixed_lag_frames": 0}}))
+    assert main([*args, "--offsets", "none", "--out", str(tmp_path / "o")]) == 0
+
+
 def test_no_offsets_gives_the_model_joints():
     body = BodyShape.default(torch.float64)
     q = np.zeros((1, sk.NUM_DOFS))
