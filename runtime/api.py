@@ -118,11 +118,20 @@ class Tracker:
         prepared = Frame.from_depth(frame, device=self.device, segment=self._segmenter)
         return estimate_frame(estimator, prepared)
 
-    def track_stream(self, stream: DepthStream) -> Iterator[tuple[Frame, PoseEstimate]]:
+    def track_stream(
+        self, stream: DepthStream, fixed_lag: int | None = None
+    ) -> Iterator[tuple[Frame, PoseEstimate]]:
         """Every frame of ``stream`` tracked, as ``runtime-track`` runs it: each frame is read,
         its person cut out and its forest labels made on a reader thread while the previous
-        frame is estimated, so the two cores share the work (:meth:`track` on a file's
-        frames gives the same poses, more slowly).
+        frame is estimated, so the two cores share the work, and a file's poses smoothed
+        over a centred window (``fixed_lag``; :meth:`track` on a file's frames gives the
+        poses of ``fixed_lag=0``, more slowly).
+
+        Args:
+            fixed_lag: each pose yielded this many frames late, its joints and q the binomial
+                mean of the frames as many either side (:mod:`runtime.export.fixed_lag`); 0:
+                each pose as fitted, at once. None: as ``runtime-track``, 2 for a file and 0
+                for a live camera.
 
         A file keeps every frame, in order. A live camera's newest frame wins: frames that
         arrived while the estimator was busy are skipped and counted in :attr:`skipped`; so
@@ -138,6 +147,17 @@ class Tracker:
             whatever the stream raises (a disconnected camera, a corrupt file), after the
             poses of the frames read before it.
         """
+        from .export.fixed_lag import FILE_FIXED_LAG, MAX_FIXED_LAG, smoothed_estimates
+
+        if fixed_lag is None:
+            fixed_lag = 0 if stream.is_live else FILE_FIXED_LAG
+        if not 0 <= fixed_lag <= MAX_FIXED_LAG:
+            raise TrackError(f"fixed_lag must be 0-{MAX_FIXED_LAG} frames, got {fixed_lag}")
+        pairs = self._track_stream(stream)
+        return pairs if fixed_lag == 0 else smoothed_estimates(pairs, fixed_lag)
+
+    def _track_stream(self, stream: DepthStream) -> Iterator[tuple[Frame, PoseEstimate]]:
+        """:meth:`track_stream` with ``fixed_lag=0``."""
         from .streams.latest_frame import LatestFrameReader
 
         estimator = self._estimator_for(stream.intrinsics)

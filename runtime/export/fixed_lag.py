@@ -43,6 +43,7 @@ __all__ = [
     "smooth_joints",
     "smooth_pose",
     "FixedLagSmoother",
+    "smoothed_estimates",
 ]
 
 FILE_FIXED_LAG = 2
@@ -209,3 +210,55 @@ class FixedLagSmoother:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class _Released:
+    """A writer that keeps what the smoother releases, for :func:`smoothed_estimates`."""
+
+    def __init__(self):
+        self.extra: dict = {}
+        self.frames = 0
+        self.rows: list[tuple[int, np.ndarray | None, np.ndarray | None]] = []
+
+    def write_frame(self, index, time, status, joints, q, errors, observed=None) -> None:
+        self.rows.append((index, joints, q))
+        self.frames += 1
+
+    def close(self) -> dict:
+        return {}
+
+
+def smoothed_estimates(pairs, radius: int):
+    """``(frame, pose)`` pairs (a :meth:`runtime.api.Tracker.track_stream` iteration: ``frame``
+    with an ``index``, ``pose`` a :class:`~runtime.estimator.PoseEstimate`) with each pose's
+    joints and q smoothed as :class:`FixedLagSmoother` writes them, each pair yielded
+    ``radius`` pairs late. If ``pairs`` raises, the pairs held are yielded first."""
+    import dataclasses
+
+    sink = _Released()
+    smoother = FixedLagSmoother(sink, radius)
+    held: dict[int, tuple] = {}
+
+    def released():
+        for index, joints, q in sink.rows:
+            frame, pose = held.pop(index)
+            if pose.joints is not None:
+                pose = dataclasses.replace(pose, joints=joints, q=q)
+            yield frame, pose
+        sink.rows.clear()
+
+    try:
+        for frame, pose in pairs:
+            held[frame.index] = (frame, pose)
+            smoother.write_frame(frame.index, 0.0, pose.status, pose.joints, pose.q, {})
+            yield from released()
+    except Exception:
+        smoother.close()
+        yield from released()
+        raise
+    finally:  # a break in the caller's loop ends the source's iteration (its reader) now
+        close = getattr(pairs, "close", None)
+        if close is not None:
+            close()
+    smoother.close()
+    yield from released()

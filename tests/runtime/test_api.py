@@ -235,7 +235,7 @@ def test_track_stream_gives_the_poses_of_track(one_thread, demo_frames):
     one_by_one = _track_all(Tracker(), demo_frames)
     tracker = Tracker()
     with open_stream("demo", frame_range=FrameRange(0, FRAMES)) as stream:
-        got = list(tracker.track_stream(stream))
+        got = list(tracker.track_stream(stream, fixed_lag=0))
     assert [f.index for f, _ in got] == [f.index for f in demo_frames] and tracker.skipped == 0
     for (_, a), b in zip(got, one_by_one, strict=True):
         assert a.status == b.status
@@ -247,6 +247,20 @@ def test_track_stream_gives_the_poses_of_track(one_thread, demo_frames):
         first = next(iter(Tracker().track_stream(stream)))
     assert first[0].index == 0
     assert not any(t.name == "depth-reader" and t.is_alive() for t in threading.enumerate())
+
+
+@pytest.mark.slow
+def test_track_stream_smooths_a_file_as_runtime_track_does(one_thread, cli_result):
+    """By default a file's poses come smoothed and late, as runtime-track writes them; the
+    frames held are yielded when the stream ends."""
+    poses = read_poses(cli_result)
+    with open_stream("demo", frame_range=FrameRange(0, FRAMES)) as stream:
+        got = list(Tracker().track_stream(stream))
+    assert [f.index for f, _ in got] == list(range(FRAMES))
+    np.testing.assert_allclose(np.stack([p.joints for _, p in got]), poses.joints, atol=1e-6)
+    np.testing.assert_allclose(np.stack([p.q for _, p in got]), poses.q, atol=1e-6)
+    with pytest.raises(TrackError, match="fixed_lag"):
+        Tracker().track_stream(stream, fixed_lag=-1)
 
 
 def test_track_stream_reports_stream_errors_after_the_frames_before(one_thread, demo_frames):
