@@ -16,6 +16,8 @@ Gaussian of variance N / 2 frames). It runs over consecutive written frames with
 frame without one (``lost``) ends the run, and a frame near a run's ends is averaged over as
 many frames on each side as it has there (its first and last frames are kept as fitted), so
 that no window leans to one side: half a frame of lead or lag costs more than smoothing buys.
+Neighbours are written frames, not stream indices: live with ``--fixed-lag`` set, frames
+the tracker had no time for are not in the window, so its frames may lie unevenly in time.
 Detections are averaged with their neighbours like any frame: a re-initialized pose is a
 fresh, noisier fit, and keeping the run whole measured better than breaking it there.
 
