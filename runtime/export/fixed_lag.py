@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .rotations import matrix_to_quat, quat_to_rotvec, rotvec_to_matrix
+from .writer_stage import WriterStage
 
 __all__ = [
     "FILE_FIXED_LAG",
@@ -100,7 +101,7 @@ class _Frame:
     observed: np.ndarray | None
 
 
-class FixedLagSmoother:
+class FixedLagSmoother(WriterStage):
     """Wraps a result writer (:class:`~runtime.export.results.ResultWriter` or
     :class:`~runtime.export.live.LiveOutput`) with the same calls; each frame reaches it
     ``radius`` frames late, smoothed (module docstring). :meth:`close` writes the frames
@@ -119,32 +120,10 @@ class FixedLagSmoother:
         self._held = 0  # how many of them, the newest, are not written yet
         writer.extra["fixed_lag_frames"] = self.radius
 
-    @property
-    def extra(self) -> dict:
-        return self.writer.extra
-
-    @property
-    def directory(self):
-        return self.writer.directory
-
-    @property
-    def frames(self) -> int:
-        """Frames written so far (the held ones not counted)."""
-        return self.writer.frames
-
-    def update_body(self, body) -> None:
-        self.writer.update_body(body)
-
     def write_frame(
-        self,
-        index: int,
-        time: float,
-        status: str,
-        joints: np.ndarray | None,
-        q: np.ndarray | None,
-        errors: dict[str, float],
-        observed: np.ndarray | None = None,
-    ) -> None:
+        self, index: int, time: float, status: str, joints: np.ndarray | None,
+        q: np.ndarray | None, errors: dict[str, float], observed: np.ndarray | None = None,
+    ) -> None:  # fmt: skip
         """As the wrapped writer's ``write_frame``; the frame is written once N more frames
         of its run have come (or the run ends, or the writer closes)."""
         frame = _Frame(
@@ -206,12 +185,6 @@ class FixedLagSmoother:
         finally:
             summary = self.writer.close()
         return summary
-
-    def __enter__(self) -> FixedLagSmoother:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 class _Released:

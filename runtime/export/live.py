@@ -32,6 +32,7 @@ from depthmocap.shared.body import BodyShape
 from depthmocap.shared.config import config_to_dict
 
 from .one_euro import PoseSmoother, SmoothingConfig
+from .writer_stage import WriterStage
 
 __all__ = [
     "LiveOutputError",
@@ -114,7 +115,7 @@ class UdpTarget:
             pass
 
 
-class LiveOutput:
+class LiveOutput(WriterStage):
     """The result writer plus streaming and smoothing (module docstring).
 
     Args:
@@ -154,18 +155,6 @@ class LiveOutput:
         }
         self._report()
         return self
-
-    @property
-    def extra(self) -> dict:
-        return self.writer.extra
-
-    @property
-    def directory(self):
-        return self.writer.directory
-
-    @property
-    def frames(self) -> int:
-        return self.writer.frames
 
     def update_body(self, body: BodyShape) -> None:
         """As :meth:`ResultWriter.update_body`; the VMC bones follow the new body too."""
@@ -221,12 +210,6 @@ class LiveOutput:
             t.close()
         self._report()
         return self.writer.close()
-
-    def __enter__(self) -> LiveOutput:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 # --------------------------------------------------------------------------------------------
