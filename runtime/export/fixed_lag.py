@@ -157,12 +157,10 @@ class FixedLagSmoother(WriterStage):
         centre = self._run[k]
         joints = smooth_joints(np.stack([f.joints for f in window]), w)
         q = centre.q
-        with_q = [(f.q, wi) for f, wi in zip(window, w) if f.q is not None]
-        if q is not None and len(with_q) > 1:
-            qs = np.stack([x for x, _ in with_q])
-            wq = np.array([wi for _, wi in with_q])
-            ref = next(i for i, (x, _) in enumerate(with_q) if x is q)
-            q = smooth_pose(qs, wq / wq.sum(), ref)
+        has_q = np.array([f.q is not None for f in window])
+        if q is not None and has_q.sum() > 1:  # over the frames with a pose (shotton: none)
+            qs = np.stack([f.q for f in window if f.q is not None])
+            q = smooth_pose(qs, w[has_q] / w[has_q].sum(), int(has_q[:r].sum()))
         self._held -= 1
         self._emit(
             _Frame(centre.index, centre.time, centre.status, joints, q, centre.errors,
@@ -192,12 +190,10 @@ class _Released:
 
     def __init__(self):
         self.extra: dict = {}
-        self.frames = 0
         self.rows: list[tuple[int, np.ndarray | None, np.ndarray | None]] = []
 
     def write_frame(self, index, time, status, joints, q, errors, observed=None) -> None:
         self.rows.append((index, joints, q))
-        self.frames += 1
 
     def close(self) -> dict:
         return {}
