@@ -23,22 +23,24 @@ import dataclasses
 from dataclasses import dataclass
 
 import torch
-from depthmocap.runtime.raycast import SegmentGeometry, render_body, segment_geometry
+from depthmocap.runtime.raycast import BodyRender, SegmentGeometry, render_body, segment_geometry
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.compiled import compiled_float32
+from depthmocap.shared.kinematics import forward_kinematics
 from depthmocap.shared.labels import PART_SEGMENT
 
 from .collision_term import collision_rows
 from .config import TrackerConfig
 from .depth_term import depth_rows
-from .extra_depth_term import MAX_CANDIDATES, extra_rows, observed_candidates
-from .gauss_newton import cat_rows, gauss_newton_step, normal_equations
+from .extra_depth_term import MAX_CANDIDATES, ExtraResult, extra_rows, observed_candidates
+from .gauss_newton import cat_rows, gauss_newton_step, lever_table, normal_equations
 from .joint_support import observed_joints
 from .label_term import label_rows
 from .observation import Observation, automatic_factor, observe, person_window
-from .prior_term import predict_pose
-from .regions import classify
+from .prior_term import predict_pose, prior_weights
+from .regions import Regions, classify
 from .shoulder_branch import align_branch, move_to_roomier_branch
 from .signals import FitSignals, FrameSignals, frame_signals
 from .silhouette_term import silhouette_rows
@@ -85,6 +87,10 @@ PRIOR_VELOCITY_GAIN = 1.0
 # turns the upper arm by less than this (rad; 0: never): otherwise an arm that passed the
 # gimbal lock in the wrong form stays stuck at the limits (runtime.tracker.shoulder_branch).
 SHOULDER_BRANCH_TURN_RAD = 0.7
+# On the CPU in float32 each Gauss-Newton iteration runs as one compiled call
+# (runtime.tracker.iteration_kernel): the same poses as term by term, without the calls'
+# glue. False: term by term everywhere (the reference the tests compare it with).
+FUSED_ITERATION = True
 
 
 class TrackerError(ValueError):
@@ -189,32 +195,17 @@ def fit_frames(
     iterations = 0
     last = None
     q_cast = q  # the poses rendered: q, but a converged pose's last step's start
+    fused = _fused_iteration(obs, q, body, geom)
+    arrays = None if fused is None else _fit_arrays(fused, obs, observed, cfg)
     for _ in range(cfg.iterations):
-        render = render_body(q_cast, body, obs.intr, geom=geom, details=False)
-        regions = classify(render, obs, cfg.depth_gate_m, cfg.occlusion_handling)
-        extra = extra_rows(render, obs, regions, observed, cfg, B) if observed is not None else None
-        rows = []
-        if cfg.use_depth:
-            rows.append(depth_rows(render, obs, regions, cfg))
-        if extra is not None:
-            rows.append(extra.rows)
-        if cfg.use_silhouette:
-            rows.append(silhouette_rows(render, obs, cfg))
-        if cfg.use_labels and obs.labels is not None:
-            rows.append(label_rows(render.kin, geom, obs, cfg))
-        if rows:
-            hess, grad = normal_equations(render.kin, cat_rows(rows), B)
+        if arrays is not None:  # the same iteration as below, in one compiled call
+            q_step, dq, decrease, render, regions, extra = _fused_step(
+                fused, arrays, q_cast, q_pred, body, geom, obs, cfg
+            )
         else:
-            hess = q.new_zeros(B, sk.NUM_DOFS, sk.NUM_DOFS, dtype=torch.float64)
-            grad = q.new_zeros(B, sk.NUM_DOFS, dtype=torch.float64)
-        if cfg.use_collision:
-            contact, columns = collision_rows(render.kin, geom)
-            h, g = normal_equations(render.kin, contact, B, columns)
-            hess, grad = hess + h, grad + g
-        q_step, dq, decrease = gauss_newton_step(
-            hess, grad, q_cast, q_pred if cfg.use_prior else None, cfg.damping,
-            cfg.max_step_rad, cfg.sigma_prior_rad, cfg.sigma_prior_m,
-        )  # fmt: skip
+            q_step, dq, decrease, render, regions, extra = _iteration_by_terms(
+                q_cast, q_pred, observed, body, geom, obs, cfg
+            )
         q = torch.where(converged[:, None], q, q_step)
         iterations += 1
         steps += (~converged).long()
@@ -239,6 +230,108 @@ def fit_frames(
         extra = extra_rows(render, obs, regions, cands, cfg, B)
     signals = frame_signals(render, obs, regions, extra, body, cfg)
     return FrameFit(q, signals, iterations, converged, steps)
+
+
+def _iteration_by_terms(
+    q_cast: torch.Tensor,
+    q_pred: torch.Tensor,
+    observed,
+    body: BodyShape,
+    geom: SegmentGeometry,
+    obs: Observation,
+    cfg: TrackerConfig,
+):
+    """One Gauss-Newton iteration at ``q_cast`` (B, 34), term by term (any device, dtype,
+    autograd): the new poses, the steps, their predicted decreases, and the rendering, pixel
+    classes and extra depth term it was linearized with."""
+    B = q_cast.shape[0]
+    render = render_body(q_cast, body, obs.intr, geom=geom, details=False)
+    regions = classify(render, obs, cfg.depth_gate_m, cfg.occlusion_handling)
+    extra = extra_rows(render, obs, regions, observed, cfg, B) if observed is not None else None
+    rows = []
+    if cfg.use_depth:
+        rows.append(depth_rows(render, obs, regions, cfg))
+    if extra is not None:
+        rows.append(extra.rows)
+    if cfg.use_silhouette:
+        rows.append(silhouette_rows(render, obs, cfg))
+    if cfg.use_labels and obs.labels is not None:
+        rows.append(label_rows(render.kin, geom, obs, cfg))
+    if rows:
+        hess, grad = normal_equations(render.kin, cat_rows(rows), B)
+    else:
+        hess = q_cast.new_zeros(B, sk.NUM_DOFS, sk.NUM_DOFS, dtype=torch.float64)
+        grad = q_cast.new_zeros(B, sk.NUM_DOFS, dtype=torch.float64)
+    if cfg.use_collision:
+        contact, columns = collision_rows(render.kin, geom)
+        h, g = normal_equations(render.kin, contact, B, columns)
+        hess, grad = hess + h, grad + g
+    q_step, dq, decrease = gauss_newton_step(
+        hess, grad, q_cast, q_pred if cfg.use_prior else None, cfg.damping,
+        cfg.max_step_rad, cfg.sigma_prior_rad, cfg.sigma_prior_m,
+    )  # fmt: skip
+    return q_step, dq, decrease, render, regions, extra
+
+
+def _fused_iteration(obs: Observation, q: torch.Tensor, body: BodyShape, geom: SegmentGeometry):
+    """:mod:`runtime.tracker.iteration_kernel` where it reproduces the term-by-term iteration
+    to the bit (CPU float32 without autograd, numba installed), else None."""
+    if not FUSED_ITERATION:
+        return None
+    tensors = [q, obs.depth, obs.points, obs.distance, geom.basis, geom.scale, geom.span]
+    if torch.is_grad_enabled():
+        params = (body.lengths, body.hip_half_width, body.chest_tilt, body.clavicle_rest)
+        if any(t.requires_grad for t in (*tensors, *params)):
+            return None
+    return compiled_float32("depthmocap.runtime.tracker.iteration_kernel", *tensors)
+
+
+def _fit_arrays(fused, obs: Observation, observed, cfg: TrackerConfig):
+    """The fused iteration's per-fit arrays, with the terms' constants as they are now (tests
+    patch them in their modules)."""
+    from depthmocap.runtime import capsule_pixels
+
+    from . import depth_term, extra_depth_term, label_term, silhouette_term
+
+    e = extra_depth_term
+    sampling = {
+        "extra_margin": e.EXTRA_MARGIN_PX,
+        "extra_half": max(1, e.MAX_EXTRA_POINTS // 2),
+        "max_candidates": e.MAX_CANDIDATES,
+        "max_depth_pixels": depth_term.MAX_DEPTH_PIXELS,
+        "max_silhouette_pixels": silhouette_term.MAX_SILHOUETTE_PIXELS,
+        "max_label_pixels": label_term.MAX_LABEL_PIXELS,
+        "extra_max_distance": e.EXTRA_MAX_DISTANCE_M,
+        "sigma_torso": e.SIGMA_EXTRA_TORSO_M,
+        "min_cosine": depth_term.MIN_COSINE,
+        "deadzone": silhouette_term.SILHOUETTE_DEADZONE_PX,
+        "label_gate": label_term.LABEL_GATE_M,
+        "near": capsule_pixels.NEAR,
+    }
+    labels_on = cfg.use_labels and obs.labels is not None
+    return fused.fit_arrays(obs, observed, cfg, labels_on, sampling)
+
+
+def _fused_step(fused, arrays, q_cast, q_pred, body, geom, obs, cfg):
+    """:func:`_iteration_by_terms` through the compiled iteration (the same results)."""
+    B = q_cast.shape[0]
+    kin = forward_kinematics(q_cast, body)
+    rot, origin = geom.frames(kin)
+    table = lever_table(kin).double()
+    if cfg.use_collision:
+        contact, columns = collision_rows(kin, geom)
+        collision = normal_equations(kin, contact, B, columns)
+    else:
+        collision = (table.new_zeros(B, sk.NUM_DOFS, sk.NUM_DOFS), table.new_zeros(B, sk.NUM_DOFS))
+    w = prior_weights(q_cast[:1], cfg.sigma_prior_rad, cfg.sigma_prior_m)[0]
+    q_step, dq, decrease, depth, prim, segment, masks, diff, err, count = fused.iteration_cpu(
+        arrays, rot, origin, geom, table, collision, q_cast, q_pred if cfg.use_prior else None,
+        w * w, cfg.damping, cfg.max_step_rad, obs.intr.height, obs.intr.width,
+    )  # fmt: skip
+    render = BodyRender(depth, segment >= 0, segment, None, None, kin, prim, geom, rot, origin)
+    regions = Regions(*masks, diff)
+    extra = ExtraResult(None, err, count) if arrays.flags[1] else None
+    return q_step, dq, decrease, render, regions, extra
 
 
 def expand_observation(obs: Observation, size: int) -> Observation:
