@@ -28,14 +28,14 @@ from depthmocap.shared import skeleton as sk
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.camera import Intrinsics
 from depthmocap.shared.compiled import compiled_float32
-from depthmocap.shared.kinematics import forward_kinematics
+from depthmocap.shared.kinematics import Kinematics
 from depthmocap.shared.labels import PART_SEGMENT
 
 from .collision_term import collision_rows
 from .config import TrackerConfig
 from .depth_term import depth_rows
 from .extra_depth_term import MAX_CANDIDATES, ExtraResult, extra_rows, observed_candidates
-from .gauss_newton import cat_rows, gauss_newton_step, lever_table, normal_equations
+from .gauss_newton import cat_rows, gauss_newton_step, normal_equations
 from .joint_support import observed_joints
 from .label_term import label_rows
 from .observation import Observation, automatic_factor, observe, person_window
@@ -196,7 +196,7 @@ def fit_frames(
     last = None
     q_cast = q  # the poses rendered: q, but a converged pose's last step's start
     fused = _fused_iteration(obs, q, body, geom)
-    arrays = None if fused is None else _fit_arrays(fused, obs, observed, cfg)
+    arrays = None if fused is None else _fit_arrays(fused, obs, observed, body, geom, B, cfg)
     for _ in range(cfg.iterations):
         if arrays is not None:  # the same iteration as below, in one compiled call
             q_step, dq, decrease, render, regions, extra = _fused_step(
@@ -286,12 +286,12 @@ def _fused_iteration(obs: Observation, q: torch.Tensor, body: BodyShape, geom: S
     return compiled_float32("depthmocap.runtime.tracker.iteration_kernel", *tensors)
 
 
-def _fit_arrays(fused, obs: Observation, observed, cfg: TrackerConfig):
+def _fit_arrays(fused, obs: Observation, observed, body, geom, B: int, cfg: TrackerConfig):
     """The fused iteration's per-fit arrays, with the terms' constants as they are now (tests
     patch them in their modules)."""
     from depthmocap.runtime import capsule_pixels
 
-    from . import depth_term, extra_depth_term, label_term, silhouette_term
+    from . import collision_term, depth_term, extra_depth_term, label_term, silhouette_term
 
     e = extra_depth_term
     sampling = {
@@ -307,31 +307,34 @@ def _fit_arrays(fused, obs: Observation, observed, cfg: TrackerConfig):
         "deadzone": silhouette_term.SILHOUETTE_DEADZONE_PX,
         "label_gate": label_term.LABEL_GATE_M,
         "near": capsule_pixels.NEAR,
+        "collision": (
+            collision_term.COLLISION_TOLERANCE_M,
+            collision_term.COLLISION_HAND_TOLERANCE_M,
+            collision_term.SIGMA_COLLISION_M,
+        ),
     }
     labels_on = cfg.use_labels and obs.labels is not None
-    return fused.fit_arrays(obs, observed, cfg, labels_on, sampling)
+    return fused.fit_arrays(obs, observed, body, geom, B, cfg, labels_on, sampling)
 
 
 def _fused_step(fused, arrays, q_cast, q_pred, body, geom, obs, cfg):
     """:func:`_iteration_by_terms` through the compiled iteration (the same results)."""
-    B = q_cast.shape[0]
-    kin = forward_kinematics(q_cast, body)
-    rot, origin = geom.frames(kin)
-    table = lever_table(kin).double()
-    if cfg.use_collision:
-        contact, columns = collision_rows(kin, geom)
-        collision = normal_equations(kin, contact, B, columns)
-    else:
-        collision = (table.new_zeros(B, sk.NUM_DOFS, sk.NUM_DOFS), table.new_zeros(B, sk.NUM_DOFS))
     w = prior_weights(q_cast[:1], cfg.sigma_prior_rad, cfg.sigma_prior_m)[0]
-    q_step, dq, decrease, depth, prim, segment, masks, diff, err, count = fused.iteration_cpu(
-        arrays, rot, origin, geom, table, collision, q_cast, q_pred if cfg.use_prior else None,
-        w * w, cfg.damping, cfg.max_step_rad, obs.intr.height, obs.intr.width,
+    out = fused.iteration_cpu(
+        arrays, q_cast, q_pred if cfg.use_prior else None, w * w, cfg.damping,
+        cfg.max_step_rad, obs.intr.height, obs.intr.width,
     )  # fmt: skip
-    render = BodyRender(depth, segment >= 0, segment, None, None, kin, prim, geom, rot, origin)
-    regions = Regions(*masks, diff)
-    extra = ExtraResult(None, err, count) if arrays.flags[1] else None
-    return q_step, dq, decrease, render, regions, extra
+    lengths = body.lengths.expand(q_cast.shape[0], sk.NUM_SEGMENTS)
+    kin = Kinematics(out["rotations"], out["origins"], out["dof_axes"], out["dof_origins"], lengths)
+    rot, origin = out["rot"], out["origin"]
+    geom.__dict__["_frames_of"] = (kin, (rot, origin))  # SegmentGeometry.frames' cache
+    segment = out["segment"]
+    render = BodyRender(
+        out["depth"], segment >= 0, segment, None, None, kin, out["primitive"], geom, rot, origin
+    )
+    regions = Regions(*out["classes"])
+    extra = ExtraResult(None, out["error_sum"], out["count"]) if arrays.flags[1] else None
+    return out["q"], out["dq"], out["decrease"], render, regions, extra
 
 
 def expand_observation(obs: Observation, size: int) -> Observation:
