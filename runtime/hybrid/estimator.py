@@ -90,7 +90,7 @@ def overlaps_of(sizes: Tracker, obs, starts: torch.Tensor, iterations: int) -> n
     from the (S, 34) ``starts``, start k with body k (in inference mode, as the estimate:
     it runs on the size search's worker thread too)."""
     with torch.inference_mode():
-        return np.array([r.overlap for r in sizes.fit_starts(obs, starts, iterations)])
+        return sizes.fit_overlaps(obs, starts, iterations).numpy()
 
 
 class HybridEstimator:

@@ -42,7 +42,7 @@ from .observation import Observation, automatic_factor, observe, person_window
 from .prior_term import predict_pose, prior_weights
 from .regions import Regions, classify
 from .shoulder_branch import align_branch, move_to_roomier_branch
-from .signals import FitSignals, FrameSignals, frame_signals
+from .signals import FitSignals, FrameSignals, frame_signals, overlap
 from .silhouette_term import silhouette_rows
 
 __all__ = [
@@ -134,16 +134,18 @@ class FrameFit:
     """Batched result of :func:`fit_frames`.
 
     Attributes:
-        q: (B, 34); signals: per-pose signals at q; iterations: iterations the batch ran;
-        converged: (B,) bool; steps: (B,) int64 Gauss-Newton steps each pose took (a pose
-        that has converged stops moving while the others iterate on).
+        q: (B, 34); signals: per-pose signals at q (None when not asked for); iterations:
+        iterations the batch ran; converged: (B,) bool; steps: (B,) int64 Gauss-Newton steps
+        each pose took (a pose that has converged stops moving while the others iterate
+        on); overlap: (B,) the silhouette overlap at q (the signals' own).
     """
 
     q: torch.Tensor
-    signals: FrameSignals
+    signals: FrameSignals | None
     iterations: int
     converged: torch.Tensor
     steps: torch.Tensor
+    overlap: torch.Tensor
 
 
 def _small(dq: torch.Tensor) -> torch.Tensor:
@@ -160,6 +162,7 @@ def fit_frames(
     cfg: TrackerConfig,
     geom: SegmentGeometry | None = None,
     velocity_scale: float = 1.0,
+    signals: bool = True,
 ) -> FrameFit:
     """Gauss-Newton fit of B poses to B observed frames.
 
@@ -180,6 +183,8 @@ def fit_frames(
         velocity_scale: the prior predicts ``q_prev`` plus this times the last step's
             motion (``q_prev - q_prev2``): the frames since ``q_prev`` over those between
             the two (1: consecutive frames, Wei's prior).
+        signals: compute the failure signals; False: only the overlaps (the size search
+            reads nothing else), ``FrameFit.signals`` None.
     """
     B = q_prev.shape[0]
     if SHOULDER_BRANCH_TURN_RAD > 0:
@@ -225,11 +230,14 @@ def fit_frames(
         extra = None
     else:
         render, regions, extra = last
+    if not signals:
+        iou = overlap(render.mask, obs.silhouette)
+        return FrameFit(q, None, iterations, converged, steps, iou)
     if extra is None:
         cands = observed if observed is not None else observed_candidates(obs, MAX_CANDIDATES)
         extra = extra_rows(render, obs, regions, cands, cfg, B)
-    signals = frame_signals(render, obs, regions, extra, body, cfg)
-    return FrameFit(q, signals, iterations, converged, steps)
+    found = frame_signals(render, obs, regions, extra, body, cfg)
+    return FrameFit(q, found, iterations, converged, steps, found.overlap)
 
 
 def _iteration_by_terms(
@@ -481,6 +489,24 @@ class Tracker:
         fit = fit_frames(expand_observation(obs, K), q0, None, self.body, cfg, self.geometry)
         host = _host_scalars(fit)
         return [self._result(fit, k, host) for k in range(K)]
+
+    def fit_overlaps(
+        self, obs: Observation, starts: torch.Tensor, iterations: int | None = None
+    ) -> torch.Tensor:
+        """The silhouette overlaps (K,) of :meth:`fit_starts`' results, without their other
+        signals (the size search's refits read nothing else)."""
+        if starts.dim() != 2 or starts.shape[1] != sk.NUM_DOFS:
+            raise TrackerError(f"starts must be (K, {sk.NUM_DOFS}), got {tuple(starts.shape)}")
+        K = starts.shape[0]
+        if K == 0:
+            return torch.zeros(0, dtype=torch.float64)
+        cfg = (
+            self.cfg if iterations is None else dataclasses.replace(self.cfg, iterations=iterations)
+        )
+        q0 = starts.to(device=self.device, dtype=self.dtype)
+        obs_k = expand_observation(obs, K)
+        fit = fit_frames(obs_k, q0, None, self.body, cfg, self.geometry, signals=False)
+        return fit.overlap.cpu()
 
     def _result(self, fit: FrameFit, k: int, host: torch.Tensor) -> TrackResult:
         """The result of start ``k``; ``host``: :func:`_host_scalars` of ``fit``."""

@@ -155,6 +155,20 @@ class TestFitStarts:
         with pytest.raises(TrackerError, match="starts"):
             tracker.fit_starts(obs, starts[0])
 
+    @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+    def test_overlaps_alone_are_the_fits_overlaps(self, render_sequence, dtype):
+        """The size search's refits skip the other signals, not the overlaps' value."""
+        body, truth, depth, mask = render_sequence("wave", 2, dtype)
+        tracker = Tracker(body, INTR, TrackerConfig(iterations=3), dtype=dtype)
+        obs = tracker.observe(depth[1], mask[1])
+        starts = self._starts(truth, 4, 5)
+        overlaps = tracker.fit_overlaps(obs, starts)
+        assert overlaps.dtype == torch.float64 and overlaps.shape == (4,)
+        assert overlaps.tolist() == [r.overlap for r in tracker.fit_starts(obs, starts)]
+        assert tracker.fit_overlaps(obs, starts[:0]).shape == (0,)
+        with pytest.raises(TrackerError, match="starts"):
+            tracker.fit_overlaps(obs, starts[0])
+
 
 class TestTrackerStep:
     def test_empty_observation_neither_crashes_nor_gives_nan(self, render_sequence):
