@@ -27,7 +27,7 @@ import numba
 import numpy as np
 import torch
 
-__all__ = ["closest_of", "closest_points_cpu"]
+__all__ = ["candidate_grid", "closest_in", "closest_of", "closest_points_cpu"]
 
 
 # Candidates per cell if they filled their box evenly (a person fills about half of it): a
@@ -152,19 +152,36 @@ def closest_of(query, query_batch, cand, cand_batch, gate, max_d2):  # pragma: n
     """:func:`closest_points_cpu` on numpy arrays (also inside compiled code): index into
     ``cand`` (0 where not found) and found."""
     nq, nc = query.shape[0], cand.shape[0]
+    if nq == 0 or nc == 0:
+        return np.zeros(nq, np.int64), np.zeros(nq, np.bool_)
+    groups = 0
+    for i in range(nq):
+        groups = max(groups, query_batch[i] + 1)
+    return closest_in(query, query_batch, candidate_grid(cand, cand_batch, groups), gate, max_d2)
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def candidate_grid(cand, cand_batch, groups):  # pragma: no cover - compiled
+    """The candidates as given and in float64, and their grids (:func:`_grids`) over at
+    least ``groups`` groups, for :func:`closest_in`: made once, searched by every query set
+    of the same candidates (a fit's observed points are the same at every iteration)."""
+    c = cand.astype(np.float64)
+    for j in range(c.shape[0]):
+        groups = max(groups, cand_batch[j] + 1)
+    return cand, c, _grids(c, cand_batch, groups)
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def closest_in(query, query_batch, candidates, gate, max_d2):  # pragma: no cover - compiled
+    """:func:`closest_of` against a :func:`candidate_grid` (groups with no candidates, and
+    groups beyond the queries', change no query's search)."""
+    _, c, grid = candidates
+    nq, nc = query.shape[0], c.shape[0]
     index = np.full(nq, -1, np.int64)
     found = np.zeros(nq, np.bool_)
     if nq == 0 or nc == 0:
         return np.maximum(index, 0), found
-    q = query.astype(np.float64)
-    c = cand.astype(np.float64)
-    groups = 0
-    for i in range(nq):
-        groups = max(groups, query_batch[i] + 1)
-    for j in range(nc):
-        groups = max(groups, cand_batch[j] + 1)
-    grid = _grids(c, cand_batch, groups)
-    _closest(q, query_batch, c, grid, gate, max_d2, index, found)
+    _closest(query.astype(np.float64), query_batch, c, grid, gate, max_d2, index, found)
     return np.maximum(index, 0), found
 
 

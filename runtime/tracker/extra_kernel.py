@@ -21,7 +21,7 @@ import numba
 import numpy as np
 import torch
 
-from .closest_kernel import closest_of
+from .closest_kernel import candidate_grid, closest_in, closest_of
 from .sampling_kernel import points_at, sampled
 
 __all__ = ["extra_correspondences_cpu", "norm3_float32"]
@@ -76,6 +76,23 @@ def _correspondences(
     depth_gate, sigma_torso, sigma_limb, first_limb, batch_size,
 ):  # pragma: no cover - compiled  # fmt: skip
     """Everything :func:`extra_rows` computes, in its order (see there)."""
+    return _correspondences_in(
+        b1, front, behind, b3, good, silhouette, rendered, margin, depth, segment, centre,
+        focal, obs_points, candidate_grid(cand_points, cand_batch, batch_size), half,
+        max_candidates, gate, max_d2, depth_gate, sigma_torso, sigma_limb, first_limb,
+        batch_size,
+    )  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def _correspondences_in(
+    b1, front, behind, b3, good, silhouette, rendered, margin, depth, segment, centre,
+    focal, obs_points, candidates, half, max_candidates, gate, max_d2, depth_gate,
+    sigma_torso, sigma_limb, first_limb, batch_size,
+):  # pragma: no cover - compiled  # fmt: skip
+    """:func:`_correspondences` with the observed candidates' grid made beforehand
+    (:func:`~runtime.tracker.closest_kernel.candidate_grid`): a fit makes it once."""
+    cand_points = candidates[0]
     dt = depth.dtype
     # The constants in the depth's dtype, as torch's tensors of it hold them.
     consts = np.array([depth_gate, sigma_torso, sigma_limb, 0.0], dt)
@@ -88,7 +105,7 @@ def _correspondences(
     q_idx, _, q_ratio64 = sampled(qmask, half)
     q_pts, q_seg = points_at(depth, segment, q_idx, centre, focal)
     nq = q_idx.shape[0]
-    j, found = closest_of(q_pts, q_idx[:, 0].copy(), cand_points, cand_batch, gate, max_d2)
+    j, found = closest_in(q_pts, q_idx[:, 0].copy(), candidates, gate, max_d2)
     q_ratio = q_ratio64.astype(dt)
     off_r = np.zeros((nq, 3), dt)
     for i in range(nq):

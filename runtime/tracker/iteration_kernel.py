@@ -30,8 +30,10 @@ from depthmocap.shared import skeleton as sk
 from ..raycast_kernel import _zbuffer
 from .collision_kernel import _collision
 from .depth_kernel import _depth_rows
-from .extra_kernel import _correspondences
-from .label_kernel import _label_rows
+from .closest_kernel import candidate_grid
+from .extra_kernel import _correspondences_in
+from .label_kernel import label_rows_at
+from .sampling_kernel import sampled
 from .normal_kernel import _AFFECTS, _CHAINS, _COUNTS, _assemble, _column_rows, _moments
 from .regions_kernel import _classify
 from .silhouette_kernel import _silhouette
@@ -53,8 +55,8 @@ class FitArrays:
     capsules: tuple  # segment_of (P,), centre (B, P, 3), basis (P, 3, 3), span, scale
     arms: tuple  # the collision term's samples, torso capsules, hand flags and constants
     observed: tuple  # valid, silhouette, depth (B or 1, H, W) for the classes, then the views
-    cand_points: np.ndarray
-    cand_batch: np.ndarray
+    candidates: tuple  # the extra depth term's observed candidates and their grid
+    labelled: tuple  # the label term's sampled pixels (N, 3) and their ratios (N,)
     flags: np.ndarray  # (7,) bool: depth, extra, silhouette, labels, occlusion, prior, collision
     ints: np.ndarray  # (6,) int64: see fit_arrays
     floats: np.ndarray  # (12,) float64: see fit_arrays
@@ -83,7 +85,9 @@ def fit_arrays(obs, observed, body, geom, B: int, cfg, labels_on: bool, consts: 
     else:
         cand_points = observed.points.numpy()
         cand_batch = observed.batch.numpy().astype(np.int64, copy=False)
+    candidates = candidate_grid(cand_points, cand_batch, B)
     c = consts
+    labelled = sampled(use.numpy(), int(c["max_label_pixels"]))[::2]  # (idx, ratio)
     flags = np.array(
         [cfg.use_depth, observed is not None, cfg.use_silhouette, labels_on,
          cfg.occlusion_handling, cfg.use_prior, cfg.use_collision], np.bool_,
@@ -120,7 +124,7 @@ def fit_arrays(obs, observed, body, geom, B: int, cfg, labels_on: bool, consts: 
         obs.distance_grad.numpy(), labels.numpy(), use.numpy(),
     )  # fmt: skip
     return FitArrays(
-        body_arrays, capsules, arms, observed_arrays, cand_points, cand_batch, flags, ints,
+        body_arrays, capsules, arms, observed_arrays, candidates, labelled, flags, ints,
         floats, np.array([intr.cx, intr.cy], np.float32),
         np.array([intr.fx, intr.fy], np.float32),
         np.array([intr.fx, intr.fy, intr.cx, intr.cy], np.float64),
@@ -253,7 +257,7 @@ def _iteration(
     q, q_pred, prior_w2, damping, max_angle, lengths, hip, clavicle, tilt, segment_of, centre,
     basis, span, scale, arm_seg, arm_frac, seg_axis, torso, hand, coll_consts, valid,
     silhouette1, depth1, silhouette, points, distance, distance_grad, labels, use,
-    cand_points, cand_batch, flags, ints, floats, centre_px, focal, intr64, rotations,
+    candidates, labelled, flags, ints, floats, centre_px, focal, intr64, rotations,
     origins, dof_axes, dof_origins, rot, origin, depth, prim, segment, good, b1, front,
     behind, b3, diff, q_out, dq_out, decrease, extra_stats,
 ):  # fmt: skip  # pragma: no cover - compiled
@@ -296,10 +300,10 @@ def _iteration(
         _moments(d_p, d_g, d_r, d_w, d_b, d_s, K, stats)
         any_rows = True
     if flags[1]:
-        e_pts, e_seg, e_batch, e_off, e_w, e_err, e_cnt = _correspondences(
+        e_pts, e_seg, e_batch, e_off, e_w, e_err, e_cnt = _correspondences_in(
             b1, front, behind, b3, good, silhouette, rendered, ints[0], depth, segment,
-            centre_px, focal, points, cand_points, cand_batch, ints[1], ints[2], floats[1],
-            floats[2], floats[0], floats[3], floats[4], _FIRST_LIMB, B,
+            centre_px, focal, points, candidates, ints[1], ints[2], floats[1], floats[2],
+            floats[0], floats[3], floats[4], _FIRST_LIMB, B,
         )  # fmt: skip
         for b in range(B):
             extra_stats[b, 0] = e_err[b]
@@ -316,9 +320,9 @@ def _iteration(
         any_rows = True
     if flags[3]:
         consts = np.array([floats[9], 0.0, 0.0, 1.0, 1e-9, 1e-12], dt)
-        l_b, l_p, l_s, l_g, l_r, l_w = _label_rows(
-            use, labels, points, rot_c, origin_c, basis, span_c, scale_c, ints[5], consts,
-            floats[10],
+        l_b, l_p, l_s, l_g, l_r, l_w = label_rows_at(
+            labelled[0], labelled[1], labels, points, rot_c, origin_c, basis, span_c,
+            scale_c, consts, floats[10],
         )  # fmt: skip
         _moments(l_p, l_g, l_r, l_w, l_b, l_s, K, stats)
         any_rows = True
@@ -384,8 +388,8 @@ def iteration_cpu(
     q_np = q.numpy()
     _iteration(
         q_np, q_np if q_pred is None else q_pred.numpy(), prior_w2.numpy(), float(damping),
-        float(max_angle), *a.body, *a.capsules, *a.arms, *a.observed, a.cand_points,
-        a.cand_batch, a.flags, a.ints, a.floats, a.centre, a.focal, a.intr64, *out.values(),
+        float(max_angle), *a.body, *a.capsules, *a.arms, *a.observed, a.candidates,
+        a.labelled, a.flags, a.ints, a.floats, a.centre, a.focal, a.intr64, *out.values(),
         *classes, q_out, dq_out, decrease, extra,
     )  # fmt: skip
     t = torch.from_numpy

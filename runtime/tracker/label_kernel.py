@@ -21,7 +21,7 @@ import torch
 from .extra_kernel import norm3_float32
 from .sampling_kernel import sampled
 
-__all__ = ["capsule_offset", "label_rows_cpu"]
+__all__ = ["capsule_offset", "label_rows_at", "label_rows_cpu"]
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
@@ -61,6 +61,16 @@ def _label_rows(
 ):  # pragma: no cover - compiled
     """The rows of ``label_rows``; ``consts``: (gate, -, -, 1, 1e-9, 1e-12) in float32."""
     idx, _, ratio = sampled(use, max_pixels)
+    return label_rows_at(idx, ratio, labels, obs_points, rot, origin, basis, span, scale,
+                         consts, sigma)  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def label_rows_at(
+    idx, ratio, labels, obs_points, rot, origin, basis, span, scale, consts, sigma
+):  # pragma: no cover - compiled
+    """:func:`_label_rows` at the sampled pixels ``idx`` (N, 3) and their ratios (N,): the
+    labelled pixels of a frame are the same at every iteration, so a fit samples them once."""
     n = idx.shape[0]
     dt = obs_points.dtype
     surface = np.empty((n, 3), dt)
