@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from concurrent.futures import Future
 from dataclasses import dataclass
 
 import numpy as np
@@ -168,7 +167,8 @@ class BodyScaleSearch:
     default body scaled by each factor (a batch of S: one batched fit), so the cost is
     spread over the first tracked frames instead of stalling one.
 
-    ``fit`` may return a :class:`concurrent.futures.Future` of the overlaps: the refits then
+    ``fit`` may return a :class:`concurrent.futures.Future` of the overlaps (or anything with
+    its ``result()``, such as :class:`~runtime.hybrid.pieces.PiecesInFlight`): the refits then
     run beside the track (the hybrid runs them on a worker thread, off the frame's critical
     path), and a sample is read at the next sampled frame, a whole sampling period later.
     The last sample is read at once: the call that takes the ``cfg.samples``-th frame returns
@@ -242,9 +242,9 @@ class BodyScaleSearch:
         return float(np.clip(peak * self.cfg.correction, lo, hi))
 
     def _read(self, pending) -> None:
-        """Add one sample's overlaps (an array, or a Future of one: waited for) to the
+        """Add one sample's overlaps (an array, or a Future of one: its ``result()``) to the
         score."""
-        result = pending.result() if isinstance(pending, Future) else pending
+        result = pending.result() if callable(getattr(pending, "result", None)) else pending
         overlaps = np.asarray(result, dtype=np.float64)
         if overlaps.shape != self._score.shape:
             raise ValueError(f"fit returned {overlaps.shape} overlaps for {self._score.shape}")

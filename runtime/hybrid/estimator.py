@@ -31,7 +31,7 @@ from __future__ import annotations
 import functools
 import os
 import threading
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,6 +48,7 @@ from .arm_search import ArmSearch
 from .behind_model import StaticBehindMask
 from .body_scale import BodyScaleSearch
 from .config import HybridConfig
+from .pieces import PiecesInFlight
 from .policy import Detection, behind, choose, judge_track
 from .split_refits import SplitRefits
 from .unseen_limbs import held_dofs, hold_unseen
@@ -83,6 +84,12 @@ def _lower_priority() -> None:
         os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)
     except (AttributeError, OSError):  # no per-thread priorities here: an ordinary thread
         pass
+
+
+# The size search's refits of a sample are queued in this many pieces (batches of bodies),
+# so the frame that reads the sample runs the pieces the worker has not reached (1: one
+# batch, waited for whole). Any number gives the same sizes.
+SIZE_SEARCH_PIECES = 3
 
 
 def overlaps_of(sizes: Tracker, obs, starts: torch.Tensor, iterations: int) -> np.ndarray:
@@ -129,7 +136,8 @@ class HybridEstimator:
         )
         self._behind = None if cfg.behind_model is None else StaticBehindMask(cfg.behind_model)
         self._refits = SplitRefits(background)
-        self._sizes: Tracker | None = None  # the size search's tracker of all candidates
+        # The size search's trackers of its candidate bodies, in SIZE_SEARCH_PIECES pieces.
+        self._sizes: list[Tracker] | None = None
         self._scale_in_use = 1.0  # the factor on the search's body that is tracked with
         # The size search's refits run here, off the frame's path (``_size_overlaps``).
         self._worker = (
@@ -260,26 +268,39 @@ class HybridEstimator:
                     self._worker = None
         return estimate
 
-    def _size_overlaps(self, bodies, frame: Frame, q: torch.Tensor) -> Future | np.ndarray:
+    def _size_overlaps(
+        self, bodies, frame: Frame, q: torch.Tensor
+    ) -> PiecesInFlight | np.ndarray:
         """(S,) silhouette overlaps of ``frame`` refitted from ``q`` with each of the S
         candidate ``bodies`` of the size search, in one batched fit on the frame's
         observation (the observation does not depend on the body).
 
-        With ``background`` a Future of them, computed on the worker thread: the search reads
-        a sample a sampling period later (all but the last), so the refits (~45 ms, 9 sizes
-        of 5 iterations) run in the time the stream's reader leaves idle instead of stalling
-        the frame."""
+        With ``background`` their :class:`~runtime.hybrid.pieces.PiecesInFlight`, queued on
+        the worker thread in :data:`SIZE_SEARCH_PIECES` batches of bodies: the search reads a
+        sample a sampling period later (all but the last), so the refits (~30 ms, 9 sizes of
+        5 iterations) run in the time the stream's reader leaves idle instead of stalling the
+        frame, and what the worker has not started by then runs on the reading thread beside
+        it. Each body's fit is the same in any batch."""
         t = self.tracker
         if self._sizes is None:
-            self._sizes = Tracker(bodies, t.intr, t.cfg, device=t.device, dtype=t.dtype)
+            S = bodies.lengths.shape[0]
+            edges = np.linspace(0, S, min(SIZE_SEARCH_PIECES, S) + 1).round().astype(int)
+            self._sizes = [
+                Tracker(bodies.select(slice(a, b)), t.intr, t.cfg, device=t.device, dtype=t.dtype)
+                for a, b in zip(edges[:-1], edges[1:], strict=True)
+            ]
         obs = frame.observation(t, self._tracker_labels(frame))
-        starts = q[None].expand(bodies.lengths.shape[0], -1)
-        refit = functools.partial(
-            overlaps_of, self._sizes, obs, starts, self.cfg.body_scale.iterations
-        )
+        iterations = self.cfg.body_scale.iterations
+        refits = [
+            functools.partial(
+                overlaps_of, sizes, obs, q[None].expand(sizes.body.lengths.shape[0], -1),
+                iterations,
+            )
+            for sizes in self._sizes
+        ]  # fmt: skip
         if self._worker is None:
-            return refit()
-        return self._worker.submit(refit)
+            return np.concatenate([refit() for refit in refits])
+        return PiecesInFlight(self._worker, refits)
 
     def _use_body(self, body) -> None:
         """Track and detect with ``body`` from now on; the track goes on from its pose."""

@@ -91,3 +91,16 @@ def test_editing_a_default_body_leaves_the_defaults_alone():
     body.radii[0, 0] = 0.5
     fresh = BodyShape.default(torch.float64)
     assert float(fresh.lengths[5]) != 0.5 and float(fresh.radii[0, 0]) != 0.5
+
+
+def test_select_takes_bodies_of_a_batch():
+    body = BodyShape.default()
+    batch = body.scaled(torch.tensor([0.9, 1.0, 1.1, 1.2]))
+    part = batch.select(slice(1, 3))
+    assert part.lengths.shape == (2, body.lengths.shape[0])
+    torch.testing.assert_close(part.lengths, batch.lengths[1:3])
+    torch.testing.assert_close(part.feet, batch.feet[1:3])
+    assert torch.equal(part.chest_tilt, batch.chest_tilt)  # unbatched in a scaled batch: shared
+    torch.testing.assert_close(part.stature(), batch.stature()[1:3])
+    with pytest.raises(ValueError, match="batch of bodies"):
+        body.select(slice(0, 1))
