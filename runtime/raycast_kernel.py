@@ -9,7 +9,9 @@ Why: the torch ray-caster lists the candidate (pixel, primitive) pairs, casts th
 resolves the z-buffer with two scatters: some 300 small ops, about 2 ms per render on the
 CPU, once per Gauss-Newton iteration. Here each primitive's conservative pixel box
 (:func:`runtime.capsule_pixels.segment_boxes`' bound, per pose) is cast in place against the
-z-buffer. The intersection is the same closed form (Inigo Quilez's capsule in the
+z-buffer, each of its rows cut to the band the capsule can cover
+(:func:`~runtime.capsule_pixels.segment_row_spans`' bound, per pose: a limb running
+diagonally fills a fraction of its box; thirty-third session). The intersection is the same closed form (Inigo Quilez's capsule in the
 primitive's scaled frame) in float64; a pixel where two primitives meet at the same depth to
 rounding may go to the other one, as in the torch code's float32. The float64 z-buffer is one
 pose's, and only the union of that pose's boxes is cleared and read back: the tracker's window
@@ -29,6 +31,11 @@ import numpy as np
 import torch
 
 __all__ = ["zbuffer_cpu", "segment_distances_cpu"]
+
+# As runtime.capsule_pixels: a capsule this near the camera plane keeps its whole box rows,
+# and every row's cut gets this rounding margin (pixels).
+_SPAN_MIN_DEPTH = 0.05
+_SPAN_SLACK_PX = 1.0
 
 
 def _f64(t: torch.Tensor, *shape: int) -> np.ndarray:
@@ -77,6 +84,38 @@ def _pixel_box(
     return u0, u1, v0, v1
 
 
+@numba.njit(inline="always")
+def _row_band(rot, origin, basis, scale, span, fx, fy, cx, cy):  # pragma: no cover - compiled
+    """The band of image rows' columns a capsule can cover (:mod:`runtime.capsule_pixels`,
+    per pose): its cap centres a, b project to points of the image, the capsule into the
+    stadium of radius ``rho = f R max|c| / (z (z - R))`` around the segment between them (R
+    the largest semi-axis, z the nearer centre's depth, plus a pixel), and row v's cut of the
+    band around the segment's line is ``x_line(v) +- rho L / |dy|``. Returns (tight, u_a,
+    v_a, du/dv, half-width); not tight (the whole box row) for a capsule within
+    ``_SPAN_MIN_DEPTH`` of the camera plane or a segment along the rows."""
+    radius = max(scale[0], max(scale[1], scale[2]))
+    ends = np.empty((2, 3))
+    for e in range(2):
+        for i in range(3):
+            axis = rot[i, 0] * basis[2, 0] + rot[i, 1] * basis[2, 1] + rot[i, 2] * basis[2, 2]
+            ends[e, i] = origin[i] + span[e] * axis
+    zmin = min(ends[0, 2], ends[1, 2])
+    if not zmin - radius > _SPAN_MIN_DEPTH:
+        return False, 0.0, 0.0, 0.0, 0.0
+    ua = ends[0, 0] / ends[0, 2] * fx + cx
+    va = ends[0, 1] / ends[0, 2] * fy + cy
+    ub = ends[1, 0] / ends[1, 2] * fx + cx
+    vb = ends[1, 1] / ends[1, 2] * fy + cy
+    dx, dy = ub - ua, vb - va
+    if not abs(dy) > 1e-6:
+        return False, 0.0, 0.0, 0.0, 0.0
+    far = 0.0
+    for e in range(2):
+        far = max(far, math.sqrt(ends[e, 0] ** 2 + ends[e, 1] ** 2 + ends[e, 2] ** 2))
+    rho = max(fx, fy) * radius * far / (zmin * (zmin - radius)) + _SPAN_SLACK_PX
+    return True, ua, va, dx / dy, rho * math.sqrt(dx * dx + dy * dy) / abs(dy)
+
+
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def _zbuffer(
     rot, origin, basis, scale, span, fx, fy, cx, cy, near, prim, segment_of, segment, out
@@ -120,9 +159,17 @@ def _zbuffer(
                 cen[i] -= m[i, 2] * origin[b, p, 2]
             ox, oy, oz = cen[0], cen[1], cen[2]
             za, zb = span[b, p, 0] / scale[b, p, 2], span[b, p, 1] / scale[b, p, 2]
+            tight, ua, va, slope, half = _row_band(
+                rot[b, p], origin[b, p], basis[p], scale[b, p], span[b, p], fx, fy, cx, cy
+            )
             for v in range(v0, v1):
                 ry = (v - cy) / fy
-                for u in range(u0, u1):
+                r0, r1 = u0, u1
+                if tight:  # the row's cut of the band around the projected axis
+                    x_line = ua + (v - va) * slope
+                    r0 = max(u0, int(max(math.ceil(x_line - half), -1.0)))
+                    r1 = min(u1, int(min(math.floor(x_line + half), W)) + 1)
+                for u in range(r0, r1):
                     rx = (u - cx) / fx
                     dx = m[0, 0] * rx + m[0, 1] * ry + m[0, 2]
                     dy = m[1, 0] * rx + m[1, 1] * ry + m[1, 2]
