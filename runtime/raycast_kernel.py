@@ -11,9 +11,10 @@ CPU, once per Gauss-Newton iteration. Here each primitive's conservative pixel b
 (:func:`runtime.capsule_pixels.segment_boxes`' bound, per pose) is cast in place against the
 z-buffer, each of its rows cut to the band the capsule can cover
 (:func:`~runtime.capsule_pixels.segment_row_spans`' bound, per pose: a limb running
-diagonally fills a fraction of its box; thirty-third session). The intersection is the same closed form (Inigo Quilez's capsule in the
-primitive's scaled frame) in float64; a pixel where two primitives meet at the same depth to
-rounding may go to the other one, as in the torch code's float32. The float64 z-buffer is one
+diagonally fills a fraction of its box; thirty-third session). The intersection is the same
+closed form (Inigo Quilez's capsule in the primitive's scaled frame) in float64; a pixel
+where two primitives meet at the same depth to rounding may go to the other one, as in the
+torch code's float32. The float64 z-buffer is one
 pose's, and only the union of that pose's boxes is cleared and read back: the tracker's window
 is several times the person, and whole-image passes were a quarter of a render.
 

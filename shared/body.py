@@ -208,11 +208,11 @@ class BodyShape:
         """The bodies at ``index`` of a batch of bodies (fields without the batch dimension,
         such as a scaled batch's chest tilt, are shared and kept as they are)."""
         if self.lengths.dim() != 2:
-            raise ValueError(f"select needs a batch of bodies, lengths are {tuple(self.lengths.shape)}")
+            shape = tuple(self.lengths.shape)
+            raise ValueError(f"select needs a batch of bodies, lengths are {shape}")
         unbatched = (1, 2, 2, 0, 2, 2, 0, 1)  # each field's dimensions for one body
-        return BodyShape(
-            *(x[index] if x.dim() > d else x for x, d in zip(self._fields(), unbatched, strict=True))
-        )
+        fields = zip(self._fields(), unbatched, strict=True)
+        return BodyShape(*(x[index] if x.dim() > d else x for x, d in fields))
 
     def stature(self) -> torch.Tensor:
         """Standing height (...,): sole to top of head with all joint angles zero."""

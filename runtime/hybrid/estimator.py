@@ -268,9 +268,7 @@ class HybridEstimator:
                     self._worker = None
         return estimate
 
-    def _size_overlaps(
-        self, bodies, frame: Frame, q: torch.Tensor
-    ) -> PiecesInFlight | np.ndarray:
+    def _size_overlaps(self, bodies, frame: Frame, q: torch.Tensor) -> PiecesInFlight | np.ndarray:
         """(S,) silhouette overlaps of ``frame`` refitted from ``q`` with each of the S
         candidate ``bodies`` of the size search, in one batched fit on the frame's
         observation (the observation does not depend on the body).

@@ -28,14 +28,14 @@ from depthmocap.shared import kinematics_kernel as kk
 from depthmocap.shared import skeleton as sk
 
 from ..raycast_kernel import _zbuffer
+from .closest_kernel import candidate_grid
 from .collision_kernel import _collision
 from .depth_kernel import _depth_rows
-from .closest_kernel import candidate_grid
 from .extra_kernel import _correspondences_in
 from .label_kernel import label_rows_at
-from .sampling_kernel import sampled
 from .normal_kernel import _AFFECTS, _CHAINS, _COUNTS, _assemble, _column_rows, _moments
 from .regions_kernel import _classify
+from .sampling_kernel import sampled
 from .silhouette_kernel import _silhouette
 from .step_kernel import _LIMITS, _step
 
@@ -270,7 +270,7 @@ def _iteration(
         hand, basis, span, scale, coll_consts, flags[6], rotations, origins, dof_axes,
         dof_origins, rot, origin, table, hess_c, grad_c,
     )  # fmt: skip
-    B, P = origin.shape[0], origin.shape[1]
+    B = origin.shape[0]
     K = _COUNTS.shape[0]
     fx, fy = focal[0], focal[1]
     near = floats[11]
@@ -395,7 +395,11 @@ def iteration_cpu(
     t = torch.from_numpy
     result = {name: t(value) for name, value in out.items()}
     result.update(
-        q=t(q_out), dq=t(dq_out), decrease=t(decrease), classes=tuple(t(c) for c in classes),
-        error_sum=t(extra[:, 0].copy()), count=t(extra[:, 1].copy()),
+        q=t(q_out),
+        dq=t(dq_out),
+        decrease=t(decrease),
+        classes=tuple(t(c) for c in classes),
+        error_sum=t(extra[:, 0].copy()),
+        count=t(extra[:, 1].copy()),
     )
     return result

@@ -120,7 +120,12 @@ def test_a_batch_of_bodies(monkeypatch, make_pose, render_frame):
         {"use_prior": False},
         {"use_collision": False},
         {"occlusion_handling": False},
-        {"use_depth": False, "use_extra_depth": False, "use_silhouette": False, "use_labels": False},
+        {
+            "use_depth": False,
+            "use_extra_depth": False,
+            "use_silhouette": False,
+            "use_labels": False,
+        },
     ],
     ids=lambda f: "+".join(f),
 )
