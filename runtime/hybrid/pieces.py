@@ -31,6 +31,11 @@ class PiecesInFlight:
         self._jobs = [(pool.submit(piece), piece) for piece in pieces]
         self.stolen = 0  # pieces the reader ran itself
 
+    def done(self) -> bool:
+        """Whether the worker has nothing of it left to run (every piece finished, or taken
+        over by :meth:`result`)."""
+        return all(future.done() for future, _ in self._jobs)
+
     def result(self) -> np.ndarray:
         """Every piece's result in order: the pieces not yet started run here, last first
         (the worker takes them first first), then the rest are waited for."""

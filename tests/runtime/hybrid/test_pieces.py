@@ -26,7 +26,9 @@ def test_the_reader_runs_what_the_worker_has_not_started():
     pool.submit(gate.wait)  # the worker is busy until the reader has taken the pieces
     ran, where = [], []
     work = PiecesInFlight(pool, [_piece(k, ran, where) for k in range(3)])
+    assert not work.done()
     result = work.result()
+    assert work.done()  # taken over: the worker has nothing of it left
     gate.set()
     pool.shutdown(wait=True)
     assert result.tolist() == [0, 0, 1, 10, 2, 20]  # in the pieces' order
@@ -39,6 +41,7 @@ def test_a_free_worker_does_the_work():
     ran, where = [], []
     work = PiecesInFlight(pool, [_piece(k, ran, where) for k in range(3)])
     pool.shutdown(wait=True)  # every piece done before the read
+    assert work.done()
     assert work.result().tolist() == [0, 0, 1, 10, 2, 20]
     assert work.stolen == 0 and sorted(ran) == [0, 1, 2]
 
