@@ -38,6 +38,7 @@ __all__ = [
     "MAX_SURFACE_POINTS",
     "FitSignals",
     "FrameSignals",
+    "depth_error_cm",
     "frame_signals",
     "limb_visibility",
     "overlap",
@@ -130,23 +131,24 @@ def frame_signals(
     cfg: TrackerConfig,
 ) -> FrameSignals:
     """The three signals for the poses ``render`` was cast at."""
-    err, n = depth_error_sum(regions)
-    total = err.double() + extra.error_sum.double()
-    count = n.double() + extra.count.double()
-    depth_cm = (
-        torch.where(
-            count > 0, total / count.clamp_min(1e-9), torch.full_like(total, cfg.depth_gate_m)
-        )
-        * 100.0
-    )
-    iou = overlap(render.mask, obs.silhouette)
     return FrameSignals(
-        depth_cm,
-        iou,
+        depth_error_cm(regions, extra, cfg),
+        overlap(render.mask, obs.silhouette),
         surface_error_quantile(obs, render, body, MAX_SURFACE_POINTS),
         limb_visibility(render, obs.intr, body),
         joint_support_cm2(render, regions, obs.intr, obs.labels),
     )
+
+
+def depth_error_cm(regions: Regions, extra: ExtraResult, cfg: TrackerConfig) -> torch.Tensor:
+    """Wei's epsilon1 signal (module docstring), (B,) float64 centimetres."""
+    err, n = depth_error_sum(regions)
+    total = err.double() + extra.error_sum.double()
+    count = n.double() + extra.count.double()
+    mean = torch.where(
+        count > 0, total / count.clamp_min(1e-9), torch.full_like(total, cfg.depth_gate_m)
+    )
+    return mean * 100.0
 
 
 def limb_visibility(render: BodyRender, intr: Intrinsics, body: BodyShape) -> torch.Tensor:

@@ -42,7 +42,7 @@ from .observation import Observation, automatic_factor, observe, person_window
 from .prior_term import predict_pose, prior_weights
 from .regions import Regions, classify
 from .shoulder_branch import align_branch, move_to_roomier_branch
-from .signals import FitSignals, FrameSignals, frame_signals, overlap
+from .signals import FitSignals, FrameSignals, depth_error_cm, frame_signals, overlap
 from .silhouette_term import silhouette_rows
 
 __all__ = [
@@ -236,7 +236,10 @@ def fit_frames(
     if extra is None:
         cands = observed if observed is not None else observed_candidates(obs, MAX_CANDIDATES)
         extra = extra_rows(render, obs, regions, cands, cfg, B)
-    found = frame_signals(render, obs, regions, extra, body, cfg)
+    if arrays is not None and (B == 1 or obs.valid.stride(0) == 0):  # one observed frame
+        found = _fused_signals(render, obs, regions, extra, body, cfg)
+    else:
+        found = frame_signals(render, obs, regions, extra, body, cfg)
     return FrameFit(q, found, iterations, converged, steps, found.overlap)
 
 
@@ -343,6 +346,27 @@ def _fused_step(fused, arrays, q_cast, q_pred, body, geom, obs, cfg):
     regions = Regions(*out["classes"])
     extra = ExtraResult(None, out["error_sum"], out["count"]) if arrays.flags[1] else None
     return out["q"], out["dq"], out["decrease"], render, regions, extra
+
+
+def _fused_signals(render, obs, regions, extra, body, cfg) -> FrameSignals:
+    """:func:`~runtime.tracker.signals.frame_signals` with the surface error, limb visibility
+    and joint support in one compiled call (:mod:`runtime.tracker.signals_kernel`; the same
+    values)."""
+    from . import joint_support, signals, signals_kernel
+
+    B = render.depth.shape[0]
+    radii = body.radii.to(render.depth).expand(B, sk.NUM_SEGMENTS, 2)
+    tables = (joint_support._GROUP, joint_support._SEGMENT_JOINTS, joint_support._RADIUS)
+    surface, visibility, support = signals_kernel.fit_signals(
+        render, regions, obs, radii, signals.MAX_SURFACE_POINTS, 0.97, tables
+    )
+    return FrameSignals(
+        depth_error_cm(regions, extra, cfg),
+        overlap(render.mask, obs.silhouette),
+        surface,
+        visibility,
+        support,
+    )
 
 
 def expand_observation(obs: Observation, size: int) -> Observation:
