@@ -102,8 +102,10 @@ def _limb_visibility(segment, rotations, origins, lengths, radii, fx, fy, out): 
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
-def _joint_support(depth, segment, good, labels, has_labels, group, rotations, origins,
-                   lengths, slots, radius, centre, focal, fxfy, area):  # fmt: skip  # pragma: no cover
+def _joint_support(
+    depth, segment, good, labels, has_labels, group, rotations, origins, lengths, slots,
+    radius, centre, focal, fxfy, area,
+):  # fmt: skip  # pragma: no cover - compiled
     """``joint_support_cm2`` (with the padding column) into ``area`` (B, J + 1)."""
     B, H, W = good.shape
     J = _JOINT_SEGMENT.shape[0]
