@@ -261,6 +261,10 @@ def _iteration(
     origins, dof_axes, dof_origins, rot, origin, depth, prim, segment, good, b1, front,
     behind, b3, diff, q_out, dq_out, decrease, extra_stats,
 ):  # fmt: skip  # pragma: no cover - compiled
+    """One iteration of ``fit_frames`` at poses ``q`` (B, 34) float32 into ``q_out``,
+    ``dq_out`` and ``decrease``; the kinematics, frames, rendering, classes and the extra
+    term's (error sum, count) it was linearized with into the other output arrays
+    (:func:`iteration_cpu` names them all)."""
     D = q.shape[1]
     table = np.empty((q.shape[0], 6, D))
     hess_c = np.zeros((q.shape[0], D, D))
@@ -288,13 +292,12 @@ def _iteration(
     stats = np.zeros((B * K, 6, 7), np.float64)
     any_rows = False
     dt = depth.dtype
-    rot_c, origin_c, span_c, scale_c = rot, origin, span, scale
     # The rows, term by term in fit_frames' order (depth, extra, silhouette, labels): the
     # moments add each row in turn, so term by term is the concatenation's order.
     if flags[0]:
         consts = np.array([floats[5], 1e-9, 1e-12, 0.0], dt)
         d_b, d_p, d_s, d_g, d_r, d_w = _depth_rows(
-            good, depth, segment, prim, rot_c, origin_c, basis, span_c, scale_c, diff,
+            good, depth, segment, prim, rot, origin, basis, span, scale, diff,
             centre_px, focal, ints[3], consts, floats[6],
         )  # fmt: skip
         _moments(d_p, d_g, d_r, d_w, d_b, d_s, K, stats)
@@ -321,8 +324,8 @@ def _iteration(
     if flags[3]:
         consts = np.array([floats[9], 0.0, 0.0, 1.0, 1e-9, 1e-12], dt)
         l_b, l_p, l_s, l_g, l_r, l_w = label_rows_at(
-            labelled[0], labelled[1], labels, points, rot_c, origin_c, basis, span_c,
-            scale_c, consts, floats[10],
+            labelled[0], labelled[1], labels, points, rot, origin, basis, span, scale, consts,
+            floats[10],
         )  # fmt: skip
         _moments(l_p, l_g, l_r, l_w, l_b, l_s, K, stats)
         any_rows = True
