@@ -148,6 +148,16 @@ def _rotate_f32(r, x0, x1, x2, i):  # pragma: no cover - compiled
     return (r[i, 0] * x0 + r[i, 1] * x1) + r[i, 2] * x2
 
 
+@numba.njit(inline="always")
+def axis_point_f32(rotation, origin, f, axis, out):  # pragma: no cover - compiled
+    """A point ``f`` along a segment's ``axis`` (3,) in camera frame into ``out`` (3,), as
+    ``shared.kinematics.segment_axis_points`` makes it in float32: ``f`` times the axis,
+    rotated by the segment's ``rotation``, plus its ``origin``."""
+    x0, x1, x2 = f * axis[0], f * axis[1], f * axis[2]
+    for i in range(3):
+        out[i] = _rotate_f32(rotation, x0, x1, x2, i) + origin[i]
+
+
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def _pose_terms(
     q, lengths, hip, clavicle, tilt, segment_of, centre, arm_seg, arm_frac, seg_axis, torso,
@@ -205,11 +215,8 @@ def _pose_terms(
     for b in range(B):
         for m in range(M):
             k = arm_seg[m]
-            r = rotations[b, k]
             f = arm_frac[m] * np.float32(lengths[b, k])
-            x0, x1, x2 = f * seg_axis[k, 0], f * seg_axis[k, 1], f * seg_axis[k, 2]
-            for i in range(3):
-                points[b, m, i] = _rotate_f32(r, x0, x1, x2, i) + origins[b, k, i]
+            axis_point_f32(rotations[b, k], origins[b, k], f, seg_axis[k], points[b, m])
     affects = _AFFECTS.astype(np.float32)
     c_b, c_p, c_s, c_g, c_r, c_w, c_col = _collision(
         points, arm_seg, torso, hand, rot, origin, basis, span, scale, affects, coll_consts

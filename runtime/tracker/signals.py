@@ -36,6 +36,7 @@ from .regions import Regions, batch_slots, sample_pixels
 __all__ = [
     "LIMB_SEGMENTS",
     "MAX_SURFACE_POINTS",
+    "SURFACE_LEVEL",
     "FitSignals",
     "FrameSignals",
     "depth_error_cm",
@@ -48,6 +49,8 @@ __all__ = [
 # The surface-error quantile is taken over at most this many observed points (a strided
 # subsample), for speed: each point costs a distance to every capsule of every pose.
 MAX_SURFACE_POINTS = 600
+# The surface error is this quantile of those points' distances (Wei's epsilon3 reads the 97%).
+SURFACE_LEVEL = 0.97
 
 # The segments of each limb, in the order of ``limb_visibility``: left arm, right arm (upper
 # arm, forearm with hand), left leg, right leg (thigh, shank with foot).
@@ -100,7 +103,11 @@ def overlap(rendered: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
 
 
 def surface_error_quantile(
-    obs: Observation, render: BodyRender, body: BodyShape, max_points: int, level: float = 0.97
+    obs: Observation,
+    render: BodyRender,
+    body: BodyShape,
+    max_points: int,
+    level: float = SURFACE_LEVEL,
 ) -> torch.Tensor:
     """``level`` quantile (mm) of observed points' distances to the model surface: (B,)."""
     B = obs.depth.shape[0]

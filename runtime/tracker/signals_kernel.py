@@ -23,6 +23,7 @@ import numpy as np
 from depthmocap.shared import skeleton as sk
 
 from ..raycast_kernel import _segment_distances
+from .iteration_kernel import _rotate_f32, axis_point_f32
 from .sampling_kernel import points_at, sampled
 from .support_kernel import _support
 
@@ -86,10 +87,9 @@ def _limb_visibility(segment, rotations, origins, lengths, radii, fx, fy, out): 
                 if s >= 0:
                     counts[s] += 1
         for k in range(K):
-            r = rotations[b, k]
-            a0, a1, a2 = _SEGMENT_AXIS[k, 0], _SEGMENT_AXIS[k, 1], _SEGMENT_AXIS[k, 2]
+            axis = _SEGMENT_AXIS[k]
             h = lengths[b, k] / np.float32(2.0)
-            half_z = ((r[2, 0] * a0 + r[2, 1] * a1) + r[2, 2] * a2) * h
+            half_z = _rotate_f32(rotations[b, k], axis[0], axis[1], axis[2], 2) * h
             z = max(origins[b, k, 2] + half_z, np.float32(0.1))
             rb = radii[b, k]
             radius = (rb[0] + rb[1]) / np.float32(2.0)
@@ -113,11 +113,8 @@ def _joint_support(
     for b in range(B):
         for j in range(J):
             k = _JOINT_SEGMENT[j]
-            r = rotations[b, k]
             f = _JOINT_FRACTION[j] * lengths[b, k]
-            x0, x1, x2 = f * _SEGMENT_AXIS[k, 0], f * _SEGMENT_AXIS[k, 1], f * _SEGMENT_AXIS[k, 2]
-            for i in range(3):
-                joints[b, j, i] = ((r[i, 0] * x0 + r[i, 1] * x1) + r[i, 2] * x2) + origins[b, k, i]
+            axis_point_f32(rotations[b, k], origins[b, k], f, _SEGMENT_AXIS[k], joints[b, j])
     n = 0
     for b in range(B):
         for v in range(H):
@@ -135,13 +132,18 @@ def _joint_support(
     _support(rows, points, seg, labels, has_labels, group, joints, slots, radius, fxfy, area)
 
 
-def fit_signals(render, regions, obs, radii, max_points: int, level: float, tables) -> tuple:
+def fit_signals(render, regions, obs, radii) -> tuple:
     """The surface-error quantile (B,) float64 mm, limb visibility (B, 4) float64 and joint
     support (B, J) float64 cm^2 of a fit's last rendering on one observed frame (``obs`` a
     batch of views of it, or of one pose), CPU float32; ``radii`` the body's (B, K, 2)
-    cross-section radii; ``tables``: joint_support's group, slots and radius tensors. The
-    same values as :func:`runtime.tracker.signals.frame_signals`."""
+    cross-section radii. The same values as :func:`runtime.tracker.signals.frame_signals`."""
     import torch
+
+    from . import joint_support
+    from .signals import MAX_SURFACE_POINTS, SURFACE_LEVEL
+
+    max_points, level = MAX_SURFACE_POINTS, SURFACE_LEVEL
+    tables = (joint_support._GROUP, joint_support._SEGMENT_JOINTS, joint_support._RADIUS)
 
     kin = render.kin
     B = kin.origins.shape[0]

@@ -352,14 +352,11 @@ def _fused_signals(render, obs, regions, extra, body, cfg) -> FrameSignals:
     """:func:`~runtime.tracker.signals.frame_signals` with the surface error, limb visibility
     and joint support in one compiled call (:mod:`runtime.tracker.signals_kernel`; the same
     values)."""
-    from . import joint_support, signals, signals_kernel
+    from . import signals_kernel
 
     B = render.depth.shape[0]
     radii = body.radii.to(render.depth).expand(B, sk.NUM_SEGMENTS, 2)
-    tables = (joint_support._GROUP, joint_support._SEGMENT_JOINTS, joint_support._RADIUS)
-    surface, visibility, support = signals_kernel.fit_signals(
-        render, regions, obs, radii, signals.MAX_SURFACE_POINTS, 0.97, tables
-    )
+    surface, visibility, support = signals_kernel.fit_signals(render, regions, obs, radii)
     return FrameSignals(
         depth_error_cm(regions, extra, cfg),
         overlap(render.mask, obs.silhouette),
@@ -501,36 +498,35 @@ class Tracker:
         same results as K calls of :meth:`fit` at a fraction of their cost (the refits of
         the arm search and the detector's refinement). A tracker of a batch of K bodies
         fits start k with body k (the size search's candidates)."""
-        if starts.dim() != 2 or starts.shape[1] != sk.NUM_DOFS:
-            raise TrackerError(f"starts must be (K, {sk.NUM_DOFS}), got {tuple(starts.shape)}")
-        K = starts.shape[0]
-        if K == 0:
+        fit = self._fit_batch(obs, starts, iterations, signals=True)
+        if fit is None:
             return []
-        cfg = (
-            self.cfg if iterations is None else dataclasses.replace(self.cfg, iterations=iterations)
-        )
-        q0 = starts.to(device=self.device, dtype=self.dtype)
-        fit = fit_frames(expand_observation(obs, K), q0, None, self.body, cfg, self.geometry)
         host = _host_scalars(fit)
-        return [self._result(fit, k, host) for k in range(K)]
+        return [self._result(fit, k, host) for k in range(starts.shape[0])]
 
     def fit_overlaps(
         self, obs: Observation, starts: torch.Tensor, iterations: int | None = None
     ) -> torch.Tensor:
         """The silhouette overlaps (K,) of :meth:`fit_starts`' results, without their other
         signals (the size search's refits read nothing else)."""
+        fit = self._fit_batch(obs, starts, iterations, signals=False)
+        return torch.zeros(0, dtype=torch.float64) if fit is None else fit.overlap.cpu()
+
+    def _fit_batch(
+        self, obs: Observation, starts: torch.Tensor, iterations: int | None, signals: bool
+    ) -> FrameFit | None:
+        """The batched fit of :meth:`fit_starts` (None for no starts)."""
         if starts.dim() != 2 or starts.shape[1] != sk.NUM_DOFS:
             raise TrackerError(f"starts must be (K, {sk.NUM_DOFS}), got {tuple(starts.shape)}")
         K = starts.shape[0]
         if K == 0:
-            return torch.zeros(0, dtype=torch.float64)
+            return None
         cfg = (
             self.cfg if iterations is None else dataclasses.replace(self.cfg, iterations=iterations)
         )
         q0 = starts.to(device=self.device, dtype=self.dtype)
         obs_k = expand_observation(obs, K)
-        fit = fit_frames(obs_k, q0, None, self.body, cfg, self.geometry, signals=False)
-        return fit.overlap.cpu()
+        return fit_frames(obs_k, q0, None, self.body, cfg, self.geometry, signals=signals)
 
     def _result(self, fit: FrameFit, k: int, host: torch.Tensor) -> TrackResult:
         """The result of start ``k``; ``host``: :func:`_host_scalars` of ``fit``."""
