@@ -76,7 +76,7 @@ def _inliers(
 
 
 def _compiled_kernel():
-    """:mod:`runtime.detector.ransac_kernel` (numba's compiled scoring), or None without numba."""
+    """:mod:`runtime.detector.ransac_kernel` (numba's compiled fit), or None without numba."""
     return compiled_module("depthmocap.runtime.detector.ransac_kernel")
 
 
@@ -140,6 +140,13 @@ def fit_bones(
 
     def rand(*shape):
         return torch.rand(*shape, generator=generator).to(device=dev, dtype=dt)
+
+    kernel = _compiled_kernel() if dev.type == "cpu" and dt == torch.float32 else None
+    if kernel is not None and not points.requires_grad:  # the same fit, compiled
+        inlier, found, p1, u1, best = kernel.fit_bones_cpu(
+            points, seg, reach, max_perp, max_points, samples, scored, min_pair_fraction, rand
+        )
+        return BoneFit(inlier, found, p1, u1, best)
 
     # Random order within each bone: sort by (segment, random key); rank inside the group.
     order = torch.argsort(seg.to(dt) + rand(N) * 0.5)

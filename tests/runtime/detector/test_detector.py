@@ -205,23 +205,45 @@ def test_compiled_inlier_counts_equal_torch(dtype):
     assert got.dtype == torch.int64 and torch.equal(got, want)
 
 
-def test_fit_bones_is_the_same_without_the_compiled_scoring(monkeypatch):
-    from depthmocap.runtime.detector import bone_ransac
-
-    q = make_pose("walk")
-    depth, labels, mask = render_labels(q, BODY)
-    use = labels > 0
+def _rendered_points():
+    """A rendered walking pose's labelled points (N, 3) and labels (N,)."""
     from depthmocap.shared.camera import depth_to_points
 
-    points = depth_to_points(depth[None], INTR)[0][use]
+    depth, labels, _ = render_labels(make_pose("walk"), BODY)
+    use = labels > 0
+    return depth_to_points(depth[None], INTR)[0][use], labels[use]
+
+
+def _scattered_points():
+    """Points on a 1 cm lattice (many equal distances and scores), labels of every class, one
+    class with a single point (no pair) and one with none."""
+    g = torch.Generator().manual_seed(11)
+    points = torch.randint(0, 40, (900, 3), generator=g).float() * 0.01 + torch.tensor(
+        [0.0, 0.0, 2.5]
+    )
+    labels = torch.randint(1, NUM_CLASSES, (900,), generator=g)
+    labels[labels == 7] = 6
+    labels[0] = 7
+    labels[labels == 9] = 8
+    return points, labels
+
+
+@pytest.mark.parametrize("make_points", [_rendered_points, _scattered_points])
+def test_fit_bones_is_the_same_without_the_compiled_fit(monkeypatch, make_points):
+    """The compiled RANSAC (pairs, scores, winners, inliers) is the torch fit to the bit."""
+    from depthmocap.runtime.detector import bone_ransac
+
+    points, labels = make_points()
     fits = []
     for kernel in (bone_ransac._compiled_kernel, lambda: None):
         monkeypatch.setattr(bone_ransac, "_compiled_kernel", kernel)
-        fits.append(
-            fit_bones(points, labels[use], BODY, generator=torch.Generator().manual_seed(5))
-        )
-    assert torch.equal(fits[0].inlier, fits[1].inlier) and torch.equal(fits[0].score, fits[1].score)
-    assert torch.equal(fits[0].line_point, fits[1].line_point)
+        fits.append(fit_bones(points, labels, BODY, generator=torch.Generator().manual_seed(5)))
+    new, ref = fits
+    assert torch.equal(new.inlier, ref.inlier) and torch.equal(new.score, ref.score)
+    assert torch.equal(new.found, ref.found)
+    assert bool(ref.found.all()) == (make_points is _rendered_points)  # bones without a pair
+    assert torch.equal(new.line_point[ref.found], ref.line_point[ref.found])
+    assert torch.equal(new.line_dir[ref.found], ref.line_dir[ref.found])
 
 
 def test_part_markers_split_halves():
