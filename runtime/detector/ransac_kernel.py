@@ -197,9 +197,7 @@ def fit_bones_cpu(
     )  # fmt: skip
     keys = torch.from_numpy(ok).to(points.dtype) + rand(K, samples) * 0.5
     pick = torch.topk(keys, min(scored, samples), dim=1).indices
-    out = _winners(
-        pts, sg, table, a, b, d, ok, _array(pick), _array(reach), _array(max_perp)
-    )
+    out = _winners(pts, sg, table, a, b, d, ok, _array(pick), _array(reach), _array(max_perp))
     return tuple(torch.from_numpy(x) for x in out)
 
 
