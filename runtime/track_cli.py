@@ -403,8 +403,6 @@ def _run(args, stream, estimator, writer, view, seg_cfg, device) -> int:
                 code, note = 2, f"error: {err}"
             finally:
                 progress.close()
-                if code == 0 and callable(getattr(estimator, "close", None)):
-                    estimator.close()  # the size search's last sample, if still in flight
                 writer.extra.update(
                     {
                         "dropped_frames": stats.dropped,

@@ -69,7 +69,7 @@ class BodyScaleConfig:
         "once this many samples are in, every later sampled frame moves the tracked body to "
         "the size of the samples in so far (read without waiting: the refits of the frame "
         "sampled before), so the person is tracked near their size from the 4th tracked "
-        "frame instead of at the population's until the search ends (the 25th); the final "
+        "frame instead of at the population's until the search ends (the 22nd); the final "
         "size still comes from all ``samples`` (so with ``samples`` or more: no interim "
         "size). None: the body changes once, at the end. "
         "1 against None: tuning set 46.4 -> 42.3 mm, tracking failure 9.7 -> 7.0%; size "
@@ -171,13 +171,11 @@ class BodyScaleSearch:
     its ``result()``, such as :class:`~runtime.hybrid.pieces.PiecesInFlight`): the refits then
     run beside the track (the hybrid runs them on a worker thread, off the frame's critical
     path), and a sample is read at the next sampled frame, a whole sampling period later.
-    So is the last one: the call a period after the ``cfg.samples``-th sample returns the
-    factor (also :attr:`scale`), the overlaps' peak (:attr:`peak`) times ``cfg.correction``
-    (it was read at once, and the frame that waited for its ~30 ms of refits was one of
-    the slowest of every stream: issue 38). With ``cfg.interim_after`` the calls that take a
-    sample return the factor of the samples read so far (:attr:`interim`), once that many
-    are read: the body to track with until the final one. :meth:`finish` reads a last
-    sample still in flight when the stream ends. The result does not depend on where the
+    The last sample is read at once: the call that takes the ``cfg.samples``-th frame returns
+    the factor (also :attr:`scale`), the overlaps' peak (:attr:`peak`) times
+    ``cfg.correction``. With ``cfg.interim_after`` the calls that take a sample before that
+    return the factor of the samples read so far (:attr:`interim`), once that many are read:
+    the body to track with until the final one. The result does not depend on where the
     overlaps are computed: the same size on the same frame as with an inline ``fit``. A
     search runs once per estimator; :attr:`curves` keeps each sample's (S,) overlaps for
     diagnostics.
@@ -221,32 +219,19 @@ class BodyScaleSearch:
             return None
         if self._pending is not None:
             self._read(self._pending)
-            self._pending = None
-        if self.samples == self.cfg.samples:  # the last sample read, a period after it
-            return self._finish()
         self._pending = fit(self.bodies, frame, q.detach())
         self.samples += 1
         if interim_limit is not None and fold is not None and not fold <= interim_limit:
             self._folded = True
-        read = len(self.curves)  # samples whose overlaps are in the score
-        first = self.cfg.interim_after
-        if first is None or read < first or self._folded:
-            return None
-        self.interim = self._factor(peak_of(self.factors, self._score / read))
-        return self.interim
-
-    def finish(self) -> float | None:
-        """The size once every sample is taken, its last one read now if still pending (a
-        stream that ended within a sampling period of it): for the record, as nothing is
-        tracked with it any more; None while samples are missing."""
-        if self.scale is None and self.samples == self.cfg.samples:
-            if self._pending is not None:
-                self._read(self._pending)
-                self._pending = None
-            self._finish()
-        return self.scale
-
-    def _finish(self) -> float:
+        if self.samples < self.cfg.samples:
+            read = len(self.curves)  # samples whose overlaps are in the score
+            first = self.cfg.interim_after
+            if first is None or read < first or self._folded:
+                return None
+            self.interim = self._factor(peak_of(self.factors, self._score / read))
+            return self.interim
+        self._read(self._pending)  # the last sample: the size is wanted now
+        self._pending = None
         self.peak = peak_of(self.factors, self._score / self.samples)
         self.scale = self._factor(self.peak)
         return self.scale

@@ -168,12 +168,8 @@ class HybridEstimator:
             self._behind.reset()
 
     def close(self) -> None:
-        """The stream is over: the size search's last sample read if its refits are still
-        in flight (:meth:`BodyScaleSearch.finish`, so :attr:`body_scale` reports it), and the
-        worker thread released (the estimator goes on without one: later samples are
-        refitted inline)."""
-        if self.scale_search is not None:
-            self.scale_search.finish()
+        """Wait for the size search's refits in flight and release its worker thread (the
+        estimator goes on without one: later samples are refitted inline)."""
         if self._worker is not None:
             self._worker.shutdown(wait=True)
             self._worker = None

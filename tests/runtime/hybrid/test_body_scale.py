@@ -57,9 +57,8 @@ def test_refits_every_kth_frame_at_all_sizes_then_stops():
 
     found = [search.offer(f"frame{i}", torch.full((34,), float(i)), fit) for i in range(10)]
     assert seen == ["frame0", "frame2", "frame4"]  # refitted as they come, no stall at the end
-    # The last sample is read a sampling period after it was taken, as the others are.
-    assert found[:6] == [None] * 6 and found[7:] == [None] * 3
-    assert found[6] == pytest.approx(1.08, abs=1e-6) and search.scale == found[6]
+    assert found[:4] == [None] * 4 and found[5:] == [None] * 5
+    assert found[4] == pytest.approx(1.08, abs=1e-6) and search.scale == found[4]
     assert search.bodies.lengths.shape == (len(search.factors), 15)
     bad = BodyScaleSearch(BodyScaleConfig(every=1), body)
     bad.offer("f", torch.zeros(34), lambda *a: [1.0])  # read at the next sample
@@ -67,29 +66,9 @@ def test_refits_every_kth_frame_at_all_sizes_then_stops():
         bad.offer("g", torch.zeros(34), lambda *a: [1.0])
 
 
-def test_finish_reads_the_last_sample_of_a_stream_that_ended():
-    """A stream that ends within a sampling period of the last sample still gets its size
-    (the one the next sampled frame would have returned); with samples missing, none."""
-    body = BodyShape.default()
-    stature = float(body.stature())
-
-    def fit(bodies, frame, q):
-        return -((bodies.stature().numpy() / stature - 0.96) ** 2)
-
-    cfg = BodyScaleConfig(samples=2, every=3, interim_after=None)
-    ended, went_on = BodyScaleSearch(cfg, body), BodyScaleSearch(cfg, body)
-    assert [ended.offer(i, torch.zeros(34), fit) for i in range(5)] == [None] * 5
-    assert ended.scale is None and ended.finish() == pytest.approx(0.96, abs=1e-6)
-    assert ended.finish() == ended.scale  # twice harmless
-    assert [went_on.offer(i, torch.zeros(34), fit) for i in range(7)][6] == ended.scale
-    early = BodyScaleSearch(cfg, body)
-    early.offer(0, torch.zeros(34), fit)  # one sample of two
-    assert early.finish() is None and early.scale is None
-
-
 def test_samples_on_a_thread_give_the_inline_size_on_the_same_frame():
     """A Future of the overlaps gives the same size on the same frame as the overlaps
-    themselves (each sample read at the next one taken, the last a period later), and its failure
+    themselves (each sample read at the next one taken, the last at once), and its failure
     reaches the caller when the sample is read."""
     from concurrent.futures import ThreadPoolExecutor
 
@@ -108,7 +87,7 @@ def test_samples_on_a_thread_give_the_inline_size_on_the_same_frame():
             threaded.offer(i, torch.zeros(34), lambda b, f, q: worker.submit(fit, b, f, q))
             for i in range(16)
         ]
-        assert found == found_inline and found[12] is not None  # samples 0, 3, 6, 9: found at 12
+        assert found == found_inline and found[9] is not None  # samples 0, 3, 6, 9: found at 9
         assert threaded.scale == pytest.approx(0.9 + 0.01 * 4.5, abs=0.01)
         np.testing.assert_array_equal(np.stack(threaded.curves), np.stack(inline.curves))
 
@@ -138,14 +117,12 @@ def test_interim_sizes_from_the_samples_read_so_far():
 
     plain, found_plain = run(interim_after=None)
     search, found = run(interim_after=1)
-    # Frames 0, 2, 4, 6 are sampled; at frame 2 the sample of frame 0 is read, and so on, the
-    # last at frame 8.
+    # Frames 0, 2, 4, 6 are sampled; at frame 2 the sample of frame 0 is read, and so on.
     assert found[0] is None and found[1] is None and found[3] is None and found[5] is None
     assert found[2] == pytest.approx(1.10, abs=1e-6)
     assert found[4] == pytest.approx(1.06, abs=0.005)  # the peak of the mean of two curves
-    assert found[6] is not None and search.interim == found[6]  # three curves
-    assert found_plain[:8] == [None] * 8
-    assert found[8] == found_plain[8] == search.scale and found[9] is None
+    assert search.interim == found[4]
+    assert found[6] == found_plain[6] == search.scale and found[7:] == [None] * 3
     _, later = run(interim_after=2)
     assert later[2] is None and later[4] == found[4]
     _, never = run(interim_after=4)  # as many as the samples: only the final size
@@ -170,13 +147,13 @@ def test_no_interim_size_after_a_folded_sample():
         search = BodyScaleSearch(BodyScaleConfig(samples=4, every=1, **kw), body)
         return [search.offer(i, torch.zeros(34), fit, j) for i, j in enumerate(poses)]
 
-    upright = run([standing] * 6)  # samples at 0-3, the last read at 4
-    assert [f is not None for f in upright] == [False, True, True, True, True, False]
-    sits = run([standing, standing, seated, standing, standing, standing])
-    assert sits[1] == upright[1] and sits[2:4] == [None, None] and sits[4] == upright[4]
-    starts_seated = run([seated] + [standing] * 5)
-    assert starts_seated[:4] == [None] * 4 and starts_seated[4] == upright[4]  # final kept
-    assert run([seated] * 6, interim_max_fold_deg=None) == upright  # the gate off
+    upright = run([standing] * 5)
+    assert [f is not None for f in upright] == [False, True, True, True, False]
+    sits = run([standing, standing, seated, standing, standing])
+    assert sits[1] == upright[1] and sits[2] is None and sits[3] == upright[3]  # final kept
+    starts_seated = run([seated] + [standing] * 4)
+    assert starts_seated[:3] == [None] * 3 and starts_seated[3] == upright[3]
+    assert run([seated] * 5, interim_max_fold_deg=None) == upright  # the gate off
     with pytest.raises(ConfigError):
         BodyScaleConfig(interim_max_fold_deg=0.0)
 
@@ -227,13 +204,12 @@ def test_the_hybrid_tracks_with_the_interim_sizes(one_thread):
             for other in (est.arm_search.body, est.detector.body):
                 torch.testing.assert_close(other.lengths, est.body.lengths)
     (statures, poses, scale, interim), inline = runs
-    # Frame 0 detected; samples at 1, 2, 3: interim sizes at 2 and 3 (samples 1, 2 read),
-    # the final one at 4 (sample 3 read).
+    # Frame 0 detected; samples at 1, 2, 3: an interim size at 2 (sample 1 read), then 3 final.
     base_stature = float(base.stature())
-    assert statures[:2] == [base_stature] * 2 and statures[2] != base_stature
-    assert interim is not None and statures[3] == pytest.approx(base_stature * interim, rel=1e-5)
-    assert statures[4] == pytest.approx(base_stature * scale, rel=1e-5)
-    assert statures[4:] == [statures[4]] * 2
+    assert statures[:2] == [base_stature] * 2
+    assert interim is not None and statures[2] == pytest.approx(base_stature * interim, rel=1e-5)
+    assert statures[3] == pytest.approx(base_stature * scale, rel=1e-5)
+    assert statures[3:] == [statures[3]] * 3
     assert (statures, scale, interim) == (inline[0], inline[2], inline[3])
     for a, b in zip(poses, inline[1], strict=True):
         np.testing.assert_array_equal(a, b)
@@ -277,14 +253,12 @@ def test_a_folded_body_is_not_sampled_nor_counted():
 
     seated = _stick_figure((0, 0, -1), (0, 0, -1))
     standing = _stick_figure((0, 1, 0), (0, 1, 0))
-    poses = [seated] * 3 + [standing] * 3 + [seated, standing, standing]
+    poses = [seated] * 3 + [standing] * 3 + [seated, standing]
     found = [search.offer(i, torch.zeros(34), fit, j) for i, j in enumerate(poses)]
     assert seen == [3, 5]  # every 2nd unfolded frame
-    assert found[:5] == [None] * 5 and found[6:8] == [None] * 2  # 5: an interim size
-    assert found[8] == pytest.approx(1.0, abs=1e-6) == search.scale  # the next taken frame
-    free = BodyScaleSearch(BodyScaleConfig(samples=1, every=1, max_fold_deg=None), body)
-    assert free.offer(0, torch.zeros(34), fit, seated) is None
-    assert free.offer(1, torch.zeros(34), fit, seated) is not None  # the check switched off
+    assert found[5] == pytest.approx(1.0, abs=1e-6) and found[:5] == [None] * 5
+    free = BodyScaleSearch(BodyScaleConfig(samples=1, max_fold_deg=None), body)
+    assert free.offer(0, torch.zeros(34), fit, seated) is not None  # the check switched off
     with pytest.raises(ConfigError):
         BodyScaleConfig(max_fold_deg=0.0)
 
@@ -302,7 +276,7 @@ def test_the_search_finds_the_size_of_a_rendered_person(one_thread, true_scale):
     the search with the tracker's batched refits recovers the factor."""
     default = BodyShape.default()
     person = default.scaled(true_scale)
-    truth = camera_motion("walk", 28, seed=0, body=person).float()
+    truth = camera_motion("walk", 24, seed=0, body=person).float()
     depth = render_body(truth, person, INTR).depth
     search = BodyScaleSearch(BodyScaleConfig(samples=6, every=4, correction=1.0), default)
     trackers: dict = {}
@@ -316,12 +290,11 @@ def test_the_search_finds_the_size_of_a_rendered_person(one_thread, true_scale):
         search.offer(Frame(i, i / 30, depth[i], depth[i] > 0, INTR), truth[i], fit)
         for i in range(len(truth))
     ]
-    # Six frames taken, every 4th: the last (frame 20) read at the next one taken.
-    assert found[24] == pytest.approx(true_scale, abs=0.03)
-    assert found[24] == search.scale and found[25:] == [None] * 3
+    assert found[20] == pytest.approx(true_scale, abs=0.03)  # the 6th frame taken, every 4th
+    assert found[20] == search.scale and found[21:] == [None] * 3
     # Interim sizes at the frames taken after the first, from the samples read before them.
-    interim = [f for i, f in enumerate(found[:24]) if f is not None]
-    assert [i for i, f in enumerate(found[:24]) if f is not None] == [4, 8, 12, 16, 20]
+    interim = [f for i, f in enumerate(found[:20]) if f is not None]
+    assert [i for i, f in enumerate(found[:20]) if f is not None] == [4, 8, 12, 16]
     assert interim[-1] == pytest.approx(true_scale, abs=0.03)
 
 
@@ -363,9 +336,9 @@ def test_the_correction_multiplies_the_peak_and_the_curves_are_kept():
     def fit(bodies, frame, q):
         return -((bodies.stature().numpy() / stature - 0.96) ** 2)
 
-    found = [search.offer(i, torch.zeros(34), fit) for i in range(3)]
+    found = [search.offer(i, torch.zeros(34), fit) for i in range(2)]
     assert search.peak == pytest.approx(0.96, abs=1e-6)
-    assert found[2] == pytest.approx(0.96 * 1.05, abs=1e-6) and search.scale == found[2]
+    assert found[1] == pytest.approx(0.96 * 1.05, abs=1e-6) and search.scale == found[1]
     assert len(search.curves) == 2 and search.curves[0].shape == search.factors.shape
     with pytest.raises(ConfigError):
         BodyScaleConfig(correction=0.0)
@@ -374,8 +347,7 @@ def test_the_correction_multiplies_the_peak_and_the_curves_are_kept():
 def test_the_corrected_size_stays_within_the_grid():
     body = BodyShape.default()
     search = BodyScaleSearch(BodyScaleConfig(samples=1, every=1, correction=1.1), body)
-    for i in range(2):  # the sample, then its reading
-        found = search.offer(i, torch.zeros(34), lambda bodies, f, q: bodies.stature().numpy())
+    found = search.offer(0, torch.zeros(34), lambda bodies, f, q: bodies.stature().numpy())
     assert search.peak == pytest.approx(1.16) and found == pytest.approx(1.16)
 
 
@@ -405,7 +377,6 @@ def test_the_hybrid_sizes_on_its_worker_thread_as_inline(one_thread):
         runs.append((poses, scales))
     (poses_bg, scales_bg), (poses_in, scales_in) = runs
     assert scales_bg == scales_in and scales_bg[-1] is not None
-    # Frame 0 detected; samples at 1 and 3, the last read at 5.
-    assert scales_bg.index(scales_bg[-1]) == 5
+    assert scales_bg.index(scales_bg[-1]) == 3  # frame 0 detected; samples at 1 and 3
     for a, b in zip(poses_bg, poses_in, strict=True):
         np.testing.assert_array_equal(a, b)
