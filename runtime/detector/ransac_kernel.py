@@ -59,20 +59,15 @@ def _counts(sub, sub_ok, a, u, d, reach, max_perp, out):  # pragma: no cover - c
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def _pairs(points, seg, order, pair_draws, reach, min_reach, max_points):  # pragma: no cover
-    """The subsets and the drawn pairs of ``fit_bones``: the (K, P) subset table (-1: empty)
-    of each bone's first ``max_points`` points in ``order``, the pairs' points ``a``, ``b``
-    (K, S, 3), distances ``d`` (K, S) and length test ``ok`` (K, S)."""
+    """The subsets and the drawn pairs of ``fit_bones``: each bone's first ``max_points``
+    points in ``order`` (``sub`` (K, P, 3), ``sub_ok`` (K, P) where they exist), the pairs'
+    points ``a``, ``b`` (K, S, 3), distances ``d`` (K, S) and length test ``ok`` (K, S)."""
     K, S = pair_draws.shape[0], pair_draws.shape[1]
     N = seg.shape[0]
     counts = np.zeros(K, np.int64)
     for i in range(N):
         counts[seg[i]] += 1
-    top = 1
-    if N > 0:
-        top = 0
-        for k in range(K):
-            top = max(top, counts[k])
-    P = max(1, min(max_points, top))
+    P = max(1, min(max_points, counts.max()))
     table = np.full((K, P), -1, np.int64)
     filled = np.zeros(K, np.int64)
     for i in range(N):  # the rank of a point within its bone, in the random order
@@ -100,24 +95,21 @@ def _pairs(points, seg, order, pair_draws, reach, min_reach, max_points):  # pra
             d[k, s] = norm3_float32(b[k, s, 0] - a[k, s, 0], b[k, s, 1] - a[k, s, 1],
                                     b[k, s, 2] - a[k, s, 2])  # fmt: skip
             ok[k, s] = d[k, s] <= reach[k] and d[k, s] >= min_reach[k] and n_sub >= 2
-    return table, a, b, d, ok
+    sub = np.empty((K, P, 3), dt)
+    for k in range(K):
+        for p in range(P):
+            for c in range(3):
+                sub[k, p, c] = points[max(table[k, p], 0), c]
+    return sub, table >= 0, a, b, d, ok
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
-def _winners(points, seg, table, a, b, d, ok, pick, reach, max_perp):  # pragma: no cover
-    """Scores the ``pick``-ed pairs (K, S'), takes each bone's first best, and tests every
-    point against its bone's winner: inlier (N,), found (K,), line point and direction
-    (K, 3), score (K,)."""
+def _winners(points, seg, sub, sub_ok, a, b, d, ok, pick, reach, max_perp):  # pragma: no cover
+    """Scores the ``pick``-ed pairs (K, S') on ``_pairs``' subsets, takes each bone's first
+    best, and tests every point against its bone's winner: inlier (N,), found (K,), line
+    point and direction (K, 3), score (K,)."""
     K, Sp = pick.shape[0], pick.shape[1]
-    P = table.shape[1]
     dt = points.dtype
-    sub = np.empty((K, P, 3), dt)
-    sub_ok = np.empty((K, P), np.bool_)
-    for k in range(K):
-        for p in range(P):
-            sub_ok[k, p] = table[k, p] >= 0
-            for c in range(3):
-                sub[k, p, c] = points[max(table[k, p], 0), c]
     pa = np.empty((K, Sp, 3), dt)
     pu = np.empty((K, Sp, 3), dt)
     pd = np.empty((K, Sp), dt)
@@ -191,13 +183,13 @@ def fit_bones_cpu(
     pair_draws = rand(K, samples, 2)
     min_reach = min_pair_fraction * reach
     pts, sg = _array(points), _array(seg)
-    table, a, b, d, ok = _pairs(
+    sub, sub_ok, a, b, d, ok = _pairs(
         pts, sg, _array(order), _array(pair_draws), _array(reach), _array(min_reach),
         int(max_points),
     )  # fmt: skip
     keys = torch.from_numpy(ok).to(points.dtype) + rand(K, samples) * 0.5
     pick = torch.topk(keys, min(scored, samples), dim=1).indices
-    out = _winners(pts, sg, table, a, b, d, ok, _array(pick), _array(reach), _array(max_perp))
+    out = _winners(pts, sg, sub, sub_ok, a, b, d, ok, _array(pick), _array(reach), _array(max_perp))
     return tuple(torch.from_numpy(x) for x in out)
 
 
