@@ -141,6 +141,11 @@ def fit_bones(
     def rand(*shape):
         return torch.rand(*shape, generator=generator).to(device=dev, dtype=dt)
 
+    if N == 0:  # no points: no bone found (the paths below gather from the points)
+        found = torch.zeros(K, dtype=torch.bool, device=dev)
+        line = torch.zeros(K, 3, device=dev, dtype=dt)
+        score = torch.zeros(K, dtype=torch.long, device=dev)
+        return BoneFit(found[:0], found, line, line.clone(), score)
     kernel = _compiled_kernel() if dev.type == "cpu" and dt == torch.float32 else None
     if kernel is not None and not points.requires_grad:  # the same fit, compiled
         inlier, found, p1, u1, best = kernel.fit_bones_cpu(

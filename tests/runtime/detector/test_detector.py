@@ -246,6 +246,16 @@ def test_fit_bones_is_the_same_without_the_compiled_fit(monkeypatch, make_points
     assert torch.equal(new.line_dir[ref.found], ref.line_dir[ref.found])
 
 
+def test_fit_bones_of_no_points_finds_no_bone(monkeypatch):
+    from depthmocap.runtime.detector import bone_ransac
+
+    for kernel in (bone_ransac._compiled_kernel, lambda: None):
+        monkeypatch.setattr(bone_ransac, "_compiled_kernel", kernel)
+        fit = fit_bones(torch.zeros(0, 3), torch.zeros(0, dtype=torch.long), BODY)
+        assert fit.inlier.shape == (0,) and not bool(fit.found.any())
+        assert fit.score.shape == (sk.NUM_SEGMENTS,) and int(fit.score.sum()) == 0
+
+
 def test_part_markers_split_halves():
     m = part_markers(BODY)
     upper, lower = PART_NAMES.index("l_thigh_upper") - 1, PART_NAMES.index("l_thigh_lower") - 1
