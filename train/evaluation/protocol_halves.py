@@ -49,11 +49,12 @@ def split_protocol(source: Path, outputs: tuple[Path, Path]) -> list[int]:
     try:
         manifest = json.loads((source / "manifest.json").read_text())
         recordings = manifest["recordings"]
+        names = [r["name"] for r in recordings]
     except (OSError, ValueError, KeyError, TypeError) as err:
         raise ProtocolHalvesError(
             f"{source}: no readable manifest.json with recordings ({err})"
         ) from err
-    missing = [r["name"] for r in recordings if not (source / r["name"]).is_dir()]
+    missing = [name for name in names if not (source / name).is_dir()]
     if missing:
         raise ProtocolHalvesError(f"{source}: recordings missing: {', '.join(missing[:5])}")
     counts = []

@@ -40,6 +40,11 @@ def test_bad_input_is_a_clear_error(tmp_path, capsys):
     src = _protocol(tmp_path)
     with pytest.raises(ProtocolHalvesError, match="manifest"):
         split_protocol(tmp_path / "nowhere", (tmp_path / "a", tmp_path / "b"))
+    nameless = tmp_path / "nameless"
+    nameless.mkdir()
+    (nameless / "manifest.json").write_text(json.dumps({"recordings": [{"frames": 3}]}))
+    with pytest.raises(ProtocolHalvesError, match="manifest"):
+        split_protocol(nameless, (tmp_path / "a", tmp_path / "b"))
     (src / "rec3" / "meta.json").unlink()
     (src / "rec3").rmdir()
     with pytest.raises(ProtocolHalvesError, match="rec3"):
