@@ -77,6 +77,11 @@ def _pairs(points, seg, order, pair_draws, reach, min_reach, max_points):  # pra
             table[k, filled[k]] = j
         filled[k] += 1
     dt = points.dtype
+    sub = np.empty((K, P, 3), dt)
+    for k in range(K):
+        for p in range(P):
+            for c in range(3):
+                sub[k, p, c] = points[max(table[k, p], 0), c]
     a = np.empty((K, S, 3), dt)
     b = np.empty((K, S, 3), dt)
     d = np.empty((K, S), dt)
@@ -88,18 +93,12 @@ def _pairs(points, seg, order, pair_draws, reach, min_reach, max_points):  # pra
         for s in range(S):
             i = min(np.int64(pair_draws[k, s, 0] * scale), top_index)
             j = min(np.int64(pair_draws[k, s, 1] * scale), top_index)
-            pi, pj = max(table[k, i], 0), max(table[k, j], 0)
             for c in range(3):
-                a[k, s, c] = points[pi, c]
-                b[k, s, c] = points[pj, c]
+                a[k, s, c] = sub[k, i, c]
+                b[k, s, c] = sub[k, j, c]
             d[k, s] = norm3_float32(b[k, s, 0] - a[k, s, 0], b[k, s, 1] - a[k, s, 1],
                                     b[k, s, 2] - a[k, s, 2])  # fmt: skip
             ok[k, s] = d[k, s] <= reach[k] and d[k, s] >= min_reach[k] and n_sub >= 2
-    sub = np.empty((K, P, 3), dt)
-    for k in range(K):
-        for p in range(P):
-            for c in range(3):
-                sub[k, p, c] = points[max(table[k, p], 0), c]
     return sub, table >= 0, a, b, d, ok
 
 
