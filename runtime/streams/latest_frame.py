@@ -17,6 +17,11 @@ torch ops leave the second core mostly idle (issue 38).
 A file read as fast as possible keeps every frame (``skip=False``): the reader then prepares
 one frame ahead and waits for the consumer to take it, so a recording is processed as a
 two-stage pipeline (mask and labels beside the previous frame's estimate) with nothing lost.
+It reads the next frame only once the consumer has taken the one prepared: reading on into a
+second frame while the first waited took the second core from the estimator's slowest
+frames (a detection's split refits; the first frame's detection beside two preparations),
+the 95th-percentile frame x0.92-0.97 and the first frame 47 -> 40 ms on the broad protocol
+(thirty-fifth session, ``docs/experiments.md``).
 """
 
 from __future__ import annotations
@@ -49,7 +54,8 @@ class LatestFrameReader:
             ``(prepare(frame), arrival)`` (``arrival``: when the frame was read, before its
             preparation). Its errors reach the consumer like the stream's.
         skip: the newest frame wins (a camera). False: every frame is delivered in order;
-            the reader holds at most one finished frame and waits until the consumer takes it.
+            the reader reads a frame once the one before has been taken, so it holds at most
+            one frame, finished or in preparation, beside the consumer's.
     Attributes:
         skipped: frames replaced by a newer one before the consumer took them (0 with
             ``skip=False``).
@@ -76,7 +82,7 @@ class LatestFrameReader:
     def _read(self) -> None:
         start: tuple[float, float] | None = None
         try:
-            for frame in self.stream:
+            for frame in self._frames():
                 if self._stop.is_set():
                     break
                 if self.pace:
@@ -88,8 +94,6 @@ class LatestFrameReader:
                 arrival = time.perf_counter()
                 item = frame if self.prepare is None else self.prepare(frame)
                 with self._cond:
-                    while not self.skip and self._slot is not None and not self._stop.is_set():
-                        self._cond.wait(0.1)
                     if self._stop.is_set():
                         break
                     if self._slot is not None:
@@ -102,6 +106,22 @@ class LatestFrameReader:
             with self._cond:
                 self._ended = True
                 self._cond.notify()
+
+    def _frames(self) -> Iterator[DepthFrame]:
+        """The stream's frames; keeping every frame, each read only once the slot is empty
+        (the consumer has taken the frame before)."""
+        frames = iter(self.stream)
+        while True:
+            if not self.skip:
+                with self._cond:
+                    while self._slot is not None and not self._stop.is_set():
+                        self._cond.wait(0.1)
+                if self._stop.is_set():
+                    return
+            frame = next(frames, None)
+            if frame is None:
+                return
+            yield frame
 
     def __iter__(self) -> Iterator[tuple[Any, float]]:
         if self._thread is None:

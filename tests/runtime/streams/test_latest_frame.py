@@ -123,22 +123,26 @@ def test_preparation_errors_reach_the_consumer():
     assert got and got[-1] < 2
 
 
-def test_keeping_every_frame_delivers_all_in_order_and_reads_at_most_two_ahead():
+def test_keeping_every_frame_delivers_all_in_order_and_reads_one_ahead():
     """``skip=False`` (a file read as fast as possible): a slow consumer still gets every
-    frame in order; the reader holds one finished frame and prepares the next, no more."""
-    ahead = []
-    got: list[int] = []
+    frame in order, and the reader reads a frame only once the consumer has taken the one
+    before: beside the consumer's frame it holds one, prepared or being prepared, never two."""
+    slot_empty_at_read = []
 
-    def prepare(frame):
-        ahead.append(frame.index - (got[-1] if got else -1))
-        return frame.index
+    class Watched(CountingStream):
+        def __iter__(self):
+            for frame in super().__iter__():
+                with reader._cond:
+                    slot_empty_at_read.append(reader._slot is None)
+                yield frame
 
-    reader = LatestFrameReader(CountingStream(15), prepare=prepare, skip=False)
+    reader = LatestFrameReader(Watched(15), prepare=lambda f: f.index, skip=False)
+    got = []
     for index, _ in reader:
         got.append(index)
-        time.sleep(0.003)
+        time.sleep(0.003)  # the reader would have read on into the next frame by now
     assert got == list(range(15)) and reader.skipped == 0
-    assert max(ahead) <= 3  # the one taken, the one waiting, the one being prepared
+    assert len(slot_empty_at_read) == 15 and all(slot_empty_at_read)
 
 
 def test_close_stops_a_reader_waiting_for_the_consumer():
