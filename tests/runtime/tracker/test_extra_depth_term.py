@@ -140,8 +140,9 @@ class TestClosestPoints:
     def test_the_compiled_search_is_the_exact_nearest(self):
         """Against brute force in float64: the smallest squared distance within the gates,
         ties to the smallest index, in scenes built to break a grid search: exact ties on a
-        lattice, candidates with NaN coordinates, queries far outside the candidates' box,
-        candidates on a line (a degenerate box), empty poses."""
+        lattice, candidates with NaN coordinates or depths, queries far outside the
+        candidates' box or without depth, candidates on a line (a degenerate box), empty
+        poses."""
         kernel = pytest.importorskip("depthmocap.runtime.tracker.closest_kernel")
         rng = np.random.default_rng(0)
         for trial in range(120):
@@ -156,6 +157,9 @@ class TestClosestPoints:
                 c[: nc // 4, 1] = np.nan
             if trial % 7 == 3:
                 q[: nq // 3, :2] += 3.0  # far outside the box
+            if trial % 6 == 4:  # no depth: never within the gate (nor in a cell's range)
+                c[: nc // 5, 2] = np.nan
+                q[: nq // 5, 2] = np.nan
             qb = rng.integers(0, poses, nq)
             cb = rng.integers(0, poses - 1, nc)  # the last pose has no candidates
             gate, max_d2 = float(rng.choice([0.03, 0.2, 10.0])), float(rng.choice([0.01, 1.0]))
