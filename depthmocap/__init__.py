@@ -67,12 +67,16 @@ def _use_kernel_cache_of_these_sources() -> None:
         return
     import importlib.util
 
-    folders = []
-    for name in ("shared", "runtime"):  # where the kernels are (bench and train have none)
-        spec = importlib.util.find_spec(f"{__name__}.{name}")
-        folders += list((spec and spec.submodule_search_locations) or ())
-    root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "depthmocap"
-    use_kernel_cache(kernel_cache_folder(folders, root))
+    try:  # no home folder (a bare container) or an unreadable install: numba's default
+        root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "depthmocap"
+        folders = []
+        for name in ("shared", "runtime"):  # where the kernels are (bench and train have none)
+            spec = importlib.util.find_spec(f"{__name__}.{name}")
+            folders += list((spec and spec.submodule_search_locations) or ())
+        folder = kernel_cache_folder(folders, root)
+    except (OSError, RuntimeError, KeyError, ImportError):
+        return
+    use_kernel_cache(folder)
 
 
 _use_kernel_cache_of_these_sources()

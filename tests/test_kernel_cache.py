@@ -68,3 +68,12 @@ def test_importing_the_package_picks_this_install_s_folder_unless_the_user_chose
     assert _cache_dir_after_import(env) == chosen  # the same kernels, the same folder
     env["NUMBA_CACHE_DIR"] = str(tmp_path / "mine")
     assert _cache_dir_after_import(env) == str(tmp_path / "mine")
+
+
+def test_no_home_folder_leaves_numba_s_default(tmp_path):
+    """A bare container: no HOME, no XDG_CACHE_HOME and no password entry to find one in must
+    not stop the package from importing."""
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "XDG_CACHE_HOME")}
+    env["HOME"] = str(tmp_path / "missing" / "home")  # unwritable: a file blocks the path
+    (tmp_path / "missing").write_text("not a folder")
+    assert _cache_dir_after_import(env) == "None"
