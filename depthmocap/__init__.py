@@ -11,75 +11,16 @@ forest training, evaluation) and ``depthmocap.bench`` (benchmarks).
 
 from __future__ import annotations
 
-import hashlib
 import importlib
-import os
-import time
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+from depthmocap.shared.kernel_cache import use_kernel_cache_of_these_sources
 
 __version__ = "0.1.0"
 
-# Compiled-kernel caches unused for this long are deleted when another one is made.
-_KERNEL_CACHE_KEEP_S = 30 * 86400
-
-
-def kernel_cache_folder(code_folders: list[Path], root: Path) -> Path:
-    """The numba cache folder under ``root`` for the compiled kernels (``*_kernel.py``) found
-    in ``code_folders``: named by the hash of their names and sources, so any change to any
-    kernel gives another folder."""
-    digest = hashlib.sha1()
-    for folder in code_folders:
-        for path in sorted(Path(folder).rglob("*_kernel.py")):
-            digest.update(path.name.encode())
-            digest.update(path.read_bytes())
-    return root / f"numba-{digest.hexdigest()[:16]}"
-
-
-def use_kernel_cache(folder: Path, keep_s: float = _KERNEL_CACHE_KEEP_S) -> bool:
-    """Make ``folder`` numba's cache (``NUMBA_CACHE_DIR``) and delete its siblings unused for
-    ``keep_s`` seconds; False (nothing changed) where it cannot be written."""
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        os.utime(folder)  # in use: kept by the clean-up of the others
-        for other in folder.parent.glob("numba-*"):
-            if other != folder and time.time() - other.stat().st_mtime > keep_s:
-                import shutil
-
-                shutil.rmtree(other, ignore_errors=True)
-    except OSError:
-        return False
-    os.environ["NUMBA_CACHE_DIR"] = str(folder)
-    return True
-
-
-def _use_kernel_cache_of_these_sources() -> None:
-    """Point numba's on-disk cache at :func:`kernel_cache_folder` of this install, unless the
-    user set ``NUMBA_CACHE_DIR``.
-
-    numba keys a cached function on its own file alone, and a kernel that calls another
-    carries its own compiled copy of the callee: after an update that changed one kernel's
-    data (a field added to a tuple it returns) but not the file of a kernel calling it, the
-    caller's stale copy read the new data wrongly and crashed the process (thirty-fifth
-    session, in a checkout). A folder per set of sources makes any change a fresh cache.
-    Where the cache root cannot be written, numba's default (``__pycache__``) stays."""
-    if "NUMBA_CACHE_DIR" in os.environ:
-        return
-    import importlib.util
-
-    try:  # no home folder (a bare container) or an unreadable install: numba's default
-        root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "depthmocap"
-        folders = []
-        for name in ("shared", "runtime"):  # where the kernels are (bench and train have none)
-            spec = importlib.util.find_spec(f"{__name__}.{name}")
-            folders += list((spec and spec.submodule_search_locations) or ())
-        folder = kernel_cache_folder(folders, root)
-    except (OSError, RuntimeError, KeyError, ImportError):
-        return
-    use_kernel_cache(folder)
-
-
-_use_kernel_cache_of_these_sources()
+# Before anything can import numba: its compiled kernels' cache, one folder per version of
+# their sources (a stale compiled copy of a changed kernel crashed a checkout).
+use_kernel_cache_of_these_sources()
 
 # Name -> module: imported on first use, so ``import depthmocap`` stays instant and a
 # script that only reads results never loads torch.
