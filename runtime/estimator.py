@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     import torch
     from depthmocap.runtime.frame import Frame
     from depthmocap.runtime.streams.base import DepthFrame
+    from depthmocap.shared.joint_confidence import JointConfidence
 
 __all__ = [
     "PoseEstimate",
@@ -40,6 +41,7 @@ __all__ = [
     "make_estimator",
     "estimate_frame",
     "prepare_frame",
+    "evidence_of",
     "lost",
     "observed_of",
 ]
@@ -74,7 +76,12 @@ class PoseEstimate:
         labels: optional (H, W) uint8 body-part labels (shared.labels) the estimator computed;
             only used for overlay images.
         observed: optional (16,) bool, the named joints the depth image confirms; the
-            others are inferred (:mod:`runtime.tracker.joint_support`). None: unknown.
+            others are inferred (:mod:`runtime.tracker.joint_support`, or with a joint
+            confidence model :mod:`shared.joint_confidence`). None: unknown.
+        joint_support_cm2: optional (16,) the evidence behind ``observed``: each joint's
+            surface area the depth image confirms (:mod:`runtime.tracker.joint_support`).
+        limb_visibility: optional (4,) visible fraction of the left/right arm and leg in the
+            fitted model's rendering.
     """
 
     q: np.ndarray | None
@@ -83,6 +90,8 @@ class PoseEstimate:
     errors: dict[str, float] = field(default_factory=dict)
     labels: np.ndarray | None = None
     observed: np.ndarray | None = None
+    joint_support_cm2: np.ndarray | None = None
+    limb_visibility: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -95,6 +104,13 @@ class PoseEstimate:
             self.joints = np.asarray(self.joints, dtype=np.float64)
             if self.joints.shape != (16, 3):
                 raise ValueError(f"joints must be (16, 3), got {self.joints.shape}")
+        for name, size in (("joint_support_cm2", 16), ("limb_visibility", 4)):
+            value = getattr(self, name)
+            if value is not None:
+                value = np.asarray(value, dtype=np.float64)
+                if value.shape != (size,):
+                    raise ValueError(f"{name} must be ({size},), got {value.shape}")
+                setattr(self, name, value)
         if self.observed is not None:
             self.observed = np.asarray(self.observed, dtype=bool)
             if self.observed.shape != (16,):
@@ -105,11 +121,30 @@ class PoseEstimate:
         return np.ones(16, dtype=bool) if self.observed is None else self.observed
 
 
-def observed_of(fit) -> np.ndarray | None:
-    """The (16,) bool observed-joint flags of a tracker fit (``TrackResult.observed``, a
-    tensor), or None when there is no fit or it has none."""
+def observed_of(fit, confidence: JointConfidence | None = None) -> np.ndarray | None:
+    """The (16,) bool observed-joint flags of a tracker fit, or None when there is no fit or
+    it has none: with ``confidence``, the joints whose confidence reaches its threshold
+    (:mod:`shared.joint_confidence`, read from the fit's support and limb visibility);
+    without, the fit's own area test (``TrackResult.observed``)."""
+    support = getattr(fit, "joint_support_cm2", None)
+    shown = getattr(fit, "limb_visibility", None)
+    if confidence is not None and support is not None and shown is not None:
+        from depthmocap.shared.joint_confidence import joint_confidence
+
+        p = joint_confidence(confidence, support.detach(), shown.detach())
+        return (p >= confidence.threshold).cpu().numpy()
     flags = getattr(fit, "observed", None)
     return None if flags is None else flags.detach().cpu().numpy().astype(bool)
+
+
+def evidence_of(fit) -> dict[str, np.ndarray | None]:
+    """A fit's per-joint support and per-limb visibility as ``PoseEstimate`` keyword
+    arguments (each None where the fit has none, or there is no fit)."""
+    return {
+        name: None if value is None else value.detach().cpu().double().numpy()
+        for name in ("joint_support_cm2", "limb_visibility")
+        for value in (getattr(fit, name, None),)
+    }
 
 
 def lost(**errors: float) -> PoseEstimate:

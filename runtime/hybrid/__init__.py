@@ -19,6 +19,7 @@ from depthmocap.runtime.frame import LabelSource
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.camera import Intrinsics
 from depthmocap.shared.config import as_config
+from depthmocap.shared.joint_confidence import JointConfidence
 from depthmocap.shared.joint_offsets import JointOffsets
 
 from .config import (
@@ -89,7 +90,8 @@ def create_estimator(
         raise HybridError(str(err)) from None
     detector = Detector(body, intrinsics, cfg.detector, device=device)
     offsets = None if cfg.joint_offsets is None else load_offsets(cfg.joint_offsets)
-    return HybridEstimator(labels, detector, tracker, cfg, offsets)
+    confidence = None if cfg.joint_confidence is None else load_confidence(cfg.joint_confidence)
+    return HybridEstimator(labels, detector, tracker, cfg, offsets, confidence=confidence)
 
 
 def load_offsets(name: str) -> JointOffsets:
@@ -107,6 +109,23 @@ def load_offsets(name: str) -> JointOffsets:
         return load_joint_offsets(path)
     except JointOffsetsError as err:
         raise HybridError(f"joint_offsets: {err}") from None
+
+
+def load_confidence(name: str) -> JointConfidence:
+    """The joint-confidence file ``name`` (relative: under the shipped models/ folder).
+
+    Raises:
+        HybridError: missing, unreadable, or of another format or version.
+    """
+    from depthmocap.shared.joint_confidence import JointConfidenceError, load_joint_confidence
+    from depthmocap.shared.resources import MODELS_DIR
+
+    path = Path(name)
+    path = path if path.is_absolute() else MODELS_DIR / path
+    try:
+        return load_joint_confidence(path)
+    except JointConfidenceError as err:
+        raise HybridError(f"joint_confidence: {err}") from None
 
 
 def recording_labels(path: Path) -> LabelSource:

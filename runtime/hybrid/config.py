@@ -267,6 +267,14 @@ class HybridConfig:
         "joints; runtime-track and depthmocap.Tracker switch it off when given a body, "
         "whose joints the offsets were not fitted for)",
     )
+    joint_confidence: str | None = field_doc(
+        "joint_confidence.json",
+        "report a joint observed when its learned confidence reaches the file's threshold "
+        "(shared.joint_confidence: its confirmed area, its limb's visibility and its "
+        "neighbour's area; a file, relative paths under the shipped models/ folder); None: "
+        "the tracker's own area test (tracker.observed_joint_area_cm2). Output only: the "
+        "poses do not change",
+    )
     labels_from_recording: str | None = field_doc(
         None,
         "a synthetic recording whose ground-truth part labels stand in for the forest's "

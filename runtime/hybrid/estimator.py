@@ -37,10 +37,11 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from depthmocap.runtime.detector import DetectionResult, Detector
-from depthmocap.runtime.estimator import PoseEstimate, lost, observed_of
+from depthmocap.runtime.estimator import PoseEstimate, evidence_of, lost, observed_of
 from depthmocap.runtime.frame import Frame, LabelSource
 from depthmocap.runtime.tracker.prior_term import velocity_scale
 from depthmocap.runtime.tracker.tracker import Tracker, TrackResult
+from depthmocap.shared.joint_confidence import JointConfidence
 from depthmocap.shared.joint_offsets import JointOffsets, apply_offsets
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
 
@@ -110,6 +111,9 @@ class HybridEstimator:
         cfg: the settings.
         offsets: where the output joints sit relative to the model's
             (``shared.joint_offsets``), or None: the model's own joints.
+        confidence: which joints to report observed (``shared.joint_confidence``), or
+            None: the tracker's own area test. Either way the unseen-limb hold reads the
+            area test, so the poses do not depend on it.
         background: run the size search's refits on a worker thread (the same size, found
             on the same frame, as inline) and half of every batched refit's starts on a
             helper thread (:mod:`~runtime.hybrid.split_refits`; the same fits); False: all
@@ -124,9 +128,10 @@ class HybridEstimator:
         cfg: HybridConfig,
         offsets: JointOffsets | None = None,
         background: bool = True,
+        confidence: JointConfidence | None = None,
     ) -> None:
         self.label_source, self.detector, self.tracker, self.cfg = labels, detector, tracker, cfg
-        self.offsets = offsets
+        self.offsets, self.confidence = offsets, confidence
         self.arm_search = (
             None if cfg.arm_search is None else ArmSearch(cfg.arm_search, tracker.body)
         )
@@ -251,10 +256,15 @@ class HybridEstimator:
         self.state.q_prev, self.state.q_prev2 = q, self.state.q_prev
         self.state.index_prev, self.state.index_prev2 = frame.index, self.state.index_prev
         estimate = PoseEstimate(
-            q.cpu().double().numpy(), self._joints(q), "tracked", errors, observed=observed_of(res)
+            q.cpu().double().numpy(),
+            self._joints(q),
+            "tracked",
+            errors,
+            observed=observed_of(res, self.confidence),
+            **evidence_of(res),
         )
         if self.cfg.hold_unseen_limbs:
-            self.state.held = held_dofs(estimate.observed)
+            self.state.held = held_dofs(observed_of(res))
         search = self.scale_search
         if search is not None:
             scale = search.offer(frame, q, self._size_overlaps, estimate.joints)
@@ -348,7 +358,8 @@ class HybridEstimator:
             "detected",
             errors,
             det.labels.cpu().numpy().astype(np.uint8),
-            observed=observed_of(det.refined),
+            observed=observed_of(det.refined, self.confidence),
+            **evidence_of(det.refined),
         )
 
     def estimate(self, frame: Frame) -> PoseEstimate:

@@ -112,6 +112,7 @@ class TrackResult:
             rendering (:func:`runtime.tracker.signals.limb_visibility`); None if unknown.
         observed: (J,) bool, the named joints the depth image confirms
             (:mod:`runtime.tracker.joint_support`; the others are inferred); None if unknown.
+        joint_support_cm2: (J,) the confirmed area behind ``observed``; None if unknown.
     """
 
     q: torch.Tensor
@@ -122,6 +123,7 @@ class TrackResult:
     converged: bool
     limb_visibility: torch.Tensor | None = None
     observed: torch.Tensor | None = None
+    joint_support_cm2: torch.Tensor | None = None
 
     @property
     def signals(self) -> FitSignals:
@@ -541,6 +543,7 @@ class Tracker:
             converged=bool(converged),
             limb_visibility=s.limb_visibility[k],
             observed=observed_joints(s.joint_support_cm2[k], self.cfg.observed_joint_area_cm2),
+            joint_support_cm2=s.joint_support_cm2[k],
         )
 
 

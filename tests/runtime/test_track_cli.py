@@ -371,6 +371,14 @@ def test_pose_estimate_checks_shapes():
         PoseEstimate(np.zeros(33), None, "tracked")
     with pytest.raises(ValueError, match=r"\(16, 3\)"):
         PoseEstimate(None, np.zeros((15, 3)), "tracked")
+    with pytest.raises(ValueError, match=r"joint_support_cm2 must be \(16,\)"):
+        PoseEstimate(None, None, "tracked", joint_support_cm2=np.zeros(15))
+    with pytest.raises(ValueError, match=r"limb_visibility must be \(4,\)"):
+        PoseEstimate(None, None, "tracked", limb_visibility=np.zeros(3))
+    kept = PoseEstimate(
+        None, None, "tracked", joint_support_cm2=[1] * 16, limb_visibility=[0.5] * 4
+    )
+    assert kept.joint_support_cm2.dtype == np.float64 and kept.limb_visibility.shape == (4,)
 
 
 # ---- as a separate process -------------------------------------------------------------------

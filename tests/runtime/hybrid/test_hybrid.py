@@ -33,6 +33,7 @@ from depthmocap.runtime.tracker.signals import FitSignals
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.joint_confidence import GROUPS, JointConfidence
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
 from depthmocap.shared.labels import PART_NAMES
 
@@ -250,6 +251,37 @@ def test_observed_joints_come_from_the_tracker_fits(scene):
         assert e.observed.sum() >= 14, e.observed
     fake, _ = make_hybrid(scene, FakeTracker())
     assert all(estimate_frame(fake, frame_of(depth, i, mask)).observed is None for i in range(2))
+
+
+def test_a_joint_confidence_sets_the_flags_not_the_poses(scene):
+    """With a confidence model the flags are its; the poses (whose unseen-limb hold reads
+    the tracker's own area test) and the evidence reported are the same as without."""
+    q, depth, labels, mask = scene
+    G = len(GROUPS)
+    models = {
+        "area test": None,
+        "none": JointConfidence(np.zeros((G, 3)), np.full(G, -50.0), 0.5),
+        "all": JointConfidence(np.zeros((G, 3)), np.full(G, 50.0), 0.5),
+    }
+    frames = []
+    for i in range(4):  # the right arm rises: a held limb would lag it
+        qi = q.clone()
+        qi[sk.DOF_NAMES.index("r_humerus_abd")] = math.radians(12 * i)
+        d, _, m = render_labels(qi)
+        frames.append(frame_of(d, i, m))
+    runs = {}
+    for name, model in models.items():
+        est, _ = make_hybrid(scene, Tracker(BODY, INTR), refine_iterations=2)
+        est.confidence = model
+        runs[name] = [estimate_frame(est, f) for f in frames]
+    area = TrackerConfig().observed_joint_area_cm2
+    for plain, none, every in zip(runs["area test"], runs["none"], runs["all"], strict=True):
+        assert plain.joint_support_cm2.shape == (16,) and plain.limb_visibility.shape == (4,)
+        np.testing.assert_array_equal(plain.observed, plain.joint_support_cm2 >= area)
+        assert not none.observed.any() and every.observed.all()
+        for other in (none, every):
+            np.testing.assert_array_equal(other.q, plain.q)
+            np.testing.assert_array_equal(other.joint_support_cm2, plain.joint_support_cm2)
 
 
 def test_no_labelled_pixels_is_lost_and_resets(scene):

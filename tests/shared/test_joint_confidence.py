@@ -1,0 +1,131 @@
+"""The joint confidence behind the observed flags: features, the model, the file format."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.joint_confidence import (
+    GROUPS,
+    JOINT_GROUP,
+    JointConfidence,
+    JointConfidenceError,
+    confidence_features,
+    joint_confidence,
+    load_joint_confidence,
+    save_joint_confidence,
+)
+
+J = len(sk.JOINT_NAMES)
+
+
+def _index(name: str) -> int:
+    return sk.JOINT_NAMES.index(name)
+
+
+def test_groups_pair_the_sides_and_keep_the_trunk_together():
+    assert GROUPS == ("trunk", "shoulder", "elbow", "wrist", "hip", "knee", "ankle")
+    assert JOINT_GROUP[_index("head")] == JOINT_GROUP[_index("pelvis")] == "trunk"
+    assert JOINT_GROUP[_index("l_wrist")] == JOINT_GROUP[_index("r_wrist")] == "wrist"
+
+
+def test_features_golden():
+    support = torch.arange(J, dtype=torch.float64)  # joint j has j cm^2
+    shown = torch.tensor([0.1, 0.2, 0.3, 0.4], dtype=torch.float64)
+    f = confidence_features(support, shown)
+    assert f.shape == (J, 3) and f.dtype == torch.float64
+    assert torch.allclose(f[:, 0], torch.log1p(support))
+    # visibility: the joint's limb (left arm 0.1, right arm 0.2, left leg 0.3, right leg 0.4)
+    expect = {"head": 1.0, "spine": 1.0, "l_shoulder": 0.1, "l_wrist": 0.1, "r_elbow": 0.2,
+              "l_hip": 0.3, "l_ankle": 0.3, "r_knee": 0.4}  # fmt: skip
+    for name, value in expect.items():
+        assert f[_index(name), 1].item() == pytest.approx(value), name
+    # neighbour: wrist <- elbow, elbow <- wrist, shoulder <- elbow, legs alike, trunk: itself
+    pairs = {"l_wrist": "l_elbow", "r_elbow": "r_wrist", "l_shoulder": "l_elbow",
+             "r_ankle": "r_knee", "l_knee": "l_ankle", "r_hip": "r_knee",
+             "neck": "neck"}  # fmt: skip
+    for joint, neighbour in pairs.items():
+        assert f[_index(joint), 2].item() == pytest.approx(math.log1p(_index(neighbour)))
+
+
+def test_features_batch_and_missing_values():
+    support = torch.full((2, 5, J), 3.0)
+    support[0, 0, 0] = float("nan")
+    support[1, 0, 0] = -2.0  # no area is negative: clamped to none
+    shown = torch.full((2, 5, 4), float("nan"))
+    f = confidence_features(support, shown)
+    assert f.shape == (2, 5, J, 3)
+    assert f[0, 0, 0, 0] == 0 and f[1, 0, 0, 0] == 0
+    assert (f[..., _index("l_wrist"), 1] == 0).all()  # an unknown limb counts as hidden
+    assert (f[..., _index("head"), 1] == 1).all()
+
+
+def _model(threshold=0.5):
+    w = np.tile([1.0, 2.0, 0.5], (len(GROUPS), 1))
+    b = -np.arange(len(GROUPS), dtype=np.float64)
+    return JointConfidence(w, b, threshold, 0.95, "test", 7)
+
+
+def test_confidence_is_the_logistic_of_each_group_s_weights():
+    model = _model()
+    support = torch.rand(3, J, dtype=torch.float64) * 50
+    shown = torch.rand(3, 4, dtype=torch.float64)
+    p = joint_confidence(model, support, shown)
+    f = confidence_features(support, shown).numpy()
+    group = np.array([GROUPS.index(g) for g in JOINT_GROUP])
+    expect = 1 / (1 + np.exp(-(f @ np.array([1.0, 2.0, 0.5]) - group)))
+    assert p.shape == (3, J)
+    np.testing.assert_allclose(p.numpy(), expect, rtol=1e-12)
+
+
+def test_round_trip(tmp_path):
+    model = _model(0.42)
+    path = tmp_path / "sub" / "c.json"
+    save_joint_confidence(path, model)
+    back = load_joint_confidence(path)
+    np.testing.assert_allclose(back.weights, model.weights)
+    np.testing.assert_allclose(back.bias, model.bias)
+    assert (back.threshold, back.recall, back.fitted_on, back.frames) == (0.42, 0.95, "test", 7)
+    assert not list(path.parent.glob("*.tmp"))
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda d: d.update(format="other"), "not a depthmocap-joint-confidence"),
+        (lambda d: d.update(version=99), "version 99"),
+        (lambda d: d.update(joint_names=d["joint_names"][::-1]), "joints"),
+        (lambda d: d.update(features="other"), "features"),
+        (lambda d: d["groups"].pop("wrist"), "groups"),
+        (lambda d: d["groups"]["wrist"].update(weights=[1.0]), "bad joint-confidence values"),
+        (lambda d: d["groups"]["wrist"].update(bias="x"), "bad joint-confidence values"),
+        (lambda d: d.update(threshold=1.5), "threshold"),
+        (lambda d: d.pop("threshold"), "bad joint-confidence values"),
+    ],
+)
+def test_bad_files_say_what_is_wrong(tmp_path, change, message):
+    path = tmp_path / "c.json"
+    data = _model().to_json_dict()
+    change(data)
+    path.write_text(json.dumps(data))
+    with pytest.raises(JointConfidenceError, match=message):
+        load_joint_confidence(path)
+
+
+def test_missing_and_unreadable_files(tmp_path):
+    with pytest.raises(JointConfidenceError, match="no such"):
+        load_joint_confidence(tmp_path / "none.json")
+    (tmp_path / "bad.json").write_text("{not json")
+    with pytest.raises(JointConfidenceError, match="not a readable"):
+        load_joint_confidence(tmp_path / "bad.json")
+
+
+def test_the_shipped_file_loads():
+    from depthmocap.shared.resources import MODELS_DIR
+
+    model = load_joint_confidence(MODELS_DIR / "joint_confidence.json")
+    assert 0 < model.threshold < 1 and model.frames > 1000

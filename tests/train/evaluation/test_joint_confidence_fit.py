@@ -1,0 +1,83 @@
+"""Fitting the joint confidence: the logistic regression, the threshold, the figures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.joint_confidence import joint_confidence
+from depthmocap.train.evaluation.joint_confidence_fit import (
+    fit_confidence,
+    fit_logistic,
+    flag_figures,
+    main,
+)
+
+J = len(sk.JOINT_NAMES)
+
+
+def test_logistic_regression_recovers_known_weights():
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(20000, 2)) * [2.0, 0.5] + [1.0, -1.0]
+    true_w, true_b = np.array([1.5, -2.0]), 0.3
+    y = (rng.random(len(x)) < 1 / (1 + np.exp(-(x @ true_w + true_b)))).astype(float)
+    w, b = fit_logistic(x, y, l2=0.0)
+    np.testing.assert_allclose(w, true_w, atol=0.12)
+    assert b == pytest.approx(true_b, abs=0.12)
+
+
+def test_flag_figures_golden():
+    observed = np.array([[True, True, False], [True, False, False]])
+    in_view = np.array([[True, False, True], [True, True, False]])
+    error = np.array([[0.05, 0.3, 0.5], [0.1, 0.1, 0.9]])
+    f = flag_figures(observed, in_view, error)
+    assert f["recall"] == pytest.approx(2 / 4)  # two of the four joints in view flagged
+    assert f["failure"] == pytest.approx(1 / 2)  # frame 0 flags a joint 30 cm off
+    assert f["in_view"] == pytest.approx(2 / 3)
+
+
+def _evidence(rng, frames=3000):
+    """Joints in view with the same spread of support whether right or wrong; a wrong joint
+    (2% of the limbs' joints) is on a limb the model hardly shows. An area test cannot tell
+    them apart; the fitted confidence, which reads the limb's visibility, must."""
+    in_view = rng.random((frames, J)) < 0.85
+    support = np.where(in_view, rng.gamma(3.0, 30.0, (frames, J)), rng.gamma(1.0, 2.0, (frames, J)))
+    limbs = {"l_arm": 0, "r_arm": 1, "l_leg": 2, "r_leg": 3}
+    limb_of = np.array([
+        -1 if n in ("head", "neck", "spine", "pelvis")
+        else limbs[n[:2] + ("arm" if n[2:] in ("shoulder", "elbow", "wrist") else "leg")]
+        for n in sk.JOINT_NAMES
+    ])  # fmt: skip
+    visibility = rng.uniform(0.3, 1.0, (frames, 4))
+    bad_limb = rng.random((frames, 4)) < 0.02
+    visibility[bad_limb] = rng.uniform(0.0, 0.1, int(bad_limb.sum()))
+    wrong = np.zeros((frames, J), dtype=bool)
+    limb_joints = limb_of >= 0
+    wrong[:, limb_joints] = bad_limb[:, limb_of[limb_joints]]
+    error = np.where(wrong, 0.35, 0.04)
+    return support, visibility, in_view, error
+
+
+def test_fitted_flags_keep_the_recall_and_fail_less_than_the_area_test():
+    rng = np.random.default_rng(1)
+    support, visibility, in_view, error = _evidence(rng)
+    model = fit_confidence(support, visibility, in_view, error, recall=0.9)
+    assert model.recall == pytest.approx(0.9, abs=0.002)
+    p = joint_confidence(model, torch.as_tensor(support), torch.as_tensor(visibility)).numpy()
+    fitted = flag_figures(p >= model.threshold, in_view, error)
+    area = np.quantile(support[in_view], 0.1)  # an area test keeping as many joints in view
+    plain = flag_figures(support >= area, in_view, error)
+    assert fitted["recall"] == pytest.approx(0.9, abs=0.002)
+    assert plain["recall"] == pytest.approx(0.9, abs=0.002)
+    assert plain["failure"] > 0.05
+    assert fitted["failure"] < 0.5 * plain["failure"]
+
+
+def test_cli_rejects_bad_arguments(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main(["--recordings", str(tmp_path / "none"), "--out", str(tmp_path / "c.json")])
+    with pytest.raises(SystemExit):
+        main(["--recordings", str(tmp_path), "--out", str(tmp_path / "c.json"), "--recall", "0"])
+    assert main(["--recordings", str(tmp_path), "--out", str(tmp_path / "c.json")]) == 2
+    assert "no recordings with ground truth" in capsys.readouterr().err

@@ -1,0 +1,233 @@
+"""Fit the joint confidence behind the observed flags (``shared.joint_confidence``).
+
+    python -m depthmocap.train.evaluation.joint_confidence_fit \\
+        --recordings data/tune_half_a data/tune_half_b --out models/joint_confidence.json
+
+Each recording (synthetic, with ``groundtruth.npz`` and part labels) is tracked here by the
+shipped hybrid, frame by frame as ``runtime-track`` runs a file (``--config`` lays settings
+over it). Every pose gives each joint its evidence (confirmed area, limb visibility; the
+estimate's ``joint_support_cm2`` and ``limb_visibility``) and a target: the joint is in view
+(``train.evaluation.visibility``, from the rendered labels) and its output position is within
+``--within-m`` of the truth. One logistic regression per joint group fits the targets; the
+threshold then keeps ``--recall`` of the joints in view. ``--validate`` tracks other
+recordings and prints what the fitted flags and the tracker's own area test give there.
+
+Fit on recordings you do not report: the shipped file comes from the broad protocol's tuning
+sets (its spec with another seed; ``docs/protocol.md``), never from ``data/dev_broad``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.joint_confidence import (
+    GROUPS,
+    JOINT_GROUP,
+    NUM_FEATURES,
+    JointConfidence,
+    confidence_features,
+    joint_confidence,
+    save_joint_confidence,
+)
+
+__all__ = ["flag_figures", "fit_confidence", "fit_logistic", "main", "track_evidence"]
+
+
+def track_evidence(recording: Path, config: str | None = None) -> dict[str, np.ndarray]:
+    """Track ``recording`` with the shipped hybrid and pair each posed frame's evidence with
+    its ground truth.
+
+    Returns:
+        ``support`` (F, J), ``visibility`` (F, 4) of the limbs in the fit, ``in_view`` (F, J)
+        bool, ``error_m`` (F, J) output joints to the truth, ``observed`` (F, J) bool the
+        estimate's flags; F the frames with a pose and evidence.
+    """
+    from depthmocap.runtime.api import Tracker
+    from depthmocap.runtime.estimator import estimate_frame, make_estimator, prepare_frame
+    from depthmocap.runtime.estimator_setup import load_body
+    from depthmocap.runtime.segmentation import PersonSegmenter
+    from depthmocap.runtime.streams import open_stream
+    from depthmocap.shared.recording import Recording
+
+    from .truth import GROUND_TRUTH, recording_truth
+    from .visibility import recording_joint_visibility
+
+    rec = Recording(recording)
+    truth = recording_truth(rec)
+    if truth.kind != GROUND_TRUTH or tuple(truth.joint_names) != sk.JOINT_NAMES:
+        raise ValueError(f"{recording}: needs a ground truth with this build's joints")
+    in_view = recording_joint_visibility(rec, truth.joints, sk.JOINT_NAMES)
+    if in_view is None:
+        raise ValueError(f"{recording}: has no part labels to tell which joints are in view")
+    from depthmocap.shared.config import load_settings, merged_settings
+
+    # The flags the evidence is paired with are the tracker's own area test's.
+    overlay = merged_settings(load_settings(config) if config else {}, {"joint_confidence": None})
+    tracker = Tracker(config=overlay)
+    keys = ("frame", "support", "visibility", "joints", "observed")
+    rows: dict[str, list] = {k: [] for k in keys}
+    segment = PersonSegmenter(tracker.segmentation)  # a stream's own, as runtime-track's
+    with open_stream(str(recording)) as stream:
+        estimator = make_estimator(
+            tracker.mode, tracker.model, load_body(None), stream.intrinsics, tracker.device,
+            tracker.settings,
+        )  # fmt: skip
+        for index, frame in enumerate(stream):
+            prepared = prepare_frame(estimator, frame, segment, tracker.device)
+            est = estimate_frame(estimator, prepared)
+            if est.joints is None or est.joint_support_cm2 is None or est.limb_visibility is None:
+                continue
+            rows["frame"].append(index)
+            rows["support"].append(est.joint_support_cm2)
+            rows["visibility"].append(est.limb_visibility)
+            rows["joints"].append(est.joints)
+            rows["observed"].append(est.observed_or_all())
+        close = getattr(estimator, "close", None)
+        if close is not None:
+            close()
+    frames = np.asarray(rows["frame"], dtype=np.int64)
+    J = len(sk.JOINT_NAMES)
+    joints = np.asarray(rows["joints"]).reshape(-1, J, 3)
+    return {
+        "support": np.asarray(rows["support"]).reshape(-1, J),
+        "visibility": np.asarray(rows["visibility"]).reshape(-1, 4),
+        "in_view": in_view[frames],
+        "error_m": np.linalg.norm(joints - truth.joints[frames], axis=-1),
+        "observed": np.asarray(rows["observed"], dtype=bool).reshape(-1, J),
+    }
+
+
+def fit_logistic(x: np.ndarray, y: np.ndarray, l2: float = 1e-3) -> tuple[np.ndarray, float]:
+    """Logistic regression of targets ``y`` (N,) in {0, 1} on features ``x`` (N, K):
+    weights (K,) and bias on the raw features (fitted on standardized ones, with an L2
+    penalty ``l2`` on the standardized weights)."""
+    X = torch.as_tensor(x, dtype=torch.float64)
+    Y = torch.as_tensor(y, dtype=torch.float64)
+    mu, sd = X.mean(0), X.std(0).clamp_min(1e-9)
+    Z = (X - mu) / sd
+    w = torch.zeros(X.shape[1], dtype=torch.float64, requires_grad=True)
+    b = torch.zeros((), dtype=torch.float64, requires_grad=True)
+    opt = torch.optim.LBFGS([w, b], max_iter=500, line_search_fn="strong_wolfe")
+
+    def closure():
+        opt.zero_grad()
+        logits = Z @ w + b
+        loss = torch.nn.functional.binary_cross_entropy_with_logits(logits, Y) + l2 * (w * w).sum()
+        loss.backward()
+        return loss
+
+    opt.step(closure)
+    with torch.no_grad():
+        raw = w / sd
+        return raw.numpy(), float(b - (raw * mu).sum())
+
+
+def fit_confidence(
+    support: np.ndarray,
+    visibility: np.ndarray,
+    in_view: np.ndarray,
+    error_m: np.ndarray,
+    recall: float = 0.95,
+    within_m: float = 0.2,
+) -> JointConfidence:
+    """The joint confidence of (F, J) ``support``, (F, 4) limb ``visibility``, (F, J)
+    ``in_view`` and ``error_m`` (module docstring); its threshold keeps ``recall`` of the
+    joints in view."""
+    f = confidence_features(torch.as_tensor(support), torch.as_tensor(visibility)).numpy()
+    target = in_view & (error_m <= within_m)
+    weights = np.zeros((len(GROUPS), NUM_FEATURES))
+    bias = np.zeros(len(GROUPS))
+    for k, group in enumerate(GROUPS):
+        cols = [j for j, g in enumerate(JOINT_GROUP) if g == group]
+        weights[k], bias[k] = fit_logistic(
+            f[:, cols].reshape(-1, NUM_FEATURES), target[:, cols].reshape(-1).astype(float)
+        )
+    model = JointConfidence(weights, bias, 0.5)
+    p = joint_confidence(model, torch.as_tensor(support), torch.as_tensor(visibility)).numpy()
+    threshold = float(np.quantile(p[in_view], 1.0 - recall)) if in_view.any() else 0.5
+    kept = float((p[in_view] >= threshold).mean()) if in_view.any() else float("nan")
+    return JointConfidence(weights, bias, threshold, kept, frames=len(support))
+
+
+def flag_figures(
+    observed: np.ndarray, in_view: np.ndarray, error_m: np.ndarray, within_m: float = 0.2
+) -> dict[str, float]:
+    """What (F, J) ``observed`` flags give: ``recall`` (share of the joints in view they
+    flag), ``failure`` (share of frames with a flagged joint beyond ``within_m``) and
+    ``in_view`` (share of flagged joints in view)."""
+    flagged = max(1, int(observed.sum()))
+    return {
+        "recall": float((observed & in_view).sum() / max(1, int(in_view.sum()))),
+        "failure": float((observed & (error_m > within_m)).any(1).mean()) if len(observed) else 0.0,
+        "in_view": float((observed & in_view).sum() / flagged),
+    }
+
+
+def _evidence(folders: list[Path], config: str | None) -> dict[str, np.ndarray]:
+    parts = []
+    for folder in folders:
+        for rec in sorted(p for p in folder.iterdir() if (p / "groundtruth.npz").is_file()):
+            parts.append(track_evidence(rec, config))
+            print(f"  {rec.name}: {len(parts[-1]['support'])} frames", flush=True)
+    if not parts:
+        raise ValueError(f"no recordings with ground truth in {', '.join(map(str, folders))}")
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+def _report(label: str, data: dict, model: JointConfidence) -> None:
+    support, shown = torch.as_tensor(data["support"]), torch.as_tensor(data["visibility"])
+    p = joint_confidence(model, support, shown)
+    for name, flags in (("fitted flags", p.numpy() >= model.threshold),
+                        ("area test", data["observed"])):  # fmt: skip
+        f = flag_figures(flags, data["in_view"], data["error_m"])
+        print(
+            f"{label}, {name}: recall {100 * f['recall']:.1f}% of the joints in view, frames "
+            f"with a flagged joint over 20 cm {100 * f['failure']:.2f}%, flagged joints in "
+            f"view {100 * f['in_view']:.1f}%"
+        )
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog="python -m depthmocap.train.evaluation.joint_confidence_fit",
+        description=__doc__.splitlines()[0],
+    )
+    p.add_argument("--recordings", type=Path, nargs="+", required=True,
+                   help="folders of synthetic recordings with ground truth")  # fmt: skip
+    p.add_argument("--out", type=Path, required=True, help="the joint-confidence file to write")
+    p.add_argument("--recall", type=float, default=0.95, help="share of in-view joints to flag")
+    p.add_argument("--within-m", type=float, default=0.2, help="a joint further off is wrong")
+    p.add_argument("--config", default=None, help="settings over the shipped preset")
+    p.add_argument("--validate", type=Path, nargs="*", default=[], help="other recordings")
+    args = p.parse_args(argv)
+    if not 0.0 < args.recall <= 1.0:
+        p.error(f"--recall must be in (0, 1], got {args.recall}")
+    for folder in [*args.recordings, *args.validate]:
+        if not folder.is_dir():
+            p.error(f"{folder}: no such folder")
+    try:
+        data = _evidence(args.recordings, args.config)
+        model = fit_confidence(
+            data["support"], data["visibility"], data["in_view"], data["error_m"],
+            args.recall, args.within_m,
+        )  # fmt: skip
+        held = _evidence(args.validate, args.config) if args.validate else None
+    except (FileNotFoundError, ValueError, KeyError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    model.fitted_on = ", ".join(map(str, args.recordings))
+    save_joint_confidence(args.out, model)
+    print(f"{len(data['support'])} frames -> {args.out} (threshold {model.threshold:.4f})")
+    _report("fitted on", data, model)
+    if held is not None:
+        _report("held out", held, model)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
