@@ -31,7 +31,6 @@ joints in view. Shipped as ``models/joint_confidence.json``:
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,6 +39,7 @@ import numpy as np
 import torch
 
 from . import skeleton as sk
+from .json_file import read_json_file, write_json_file
 
 __all__ = [
     "FEATURES",
@@ -193,11 +193,7 @@ def joint_confidence(
 
 def save_joint_confidence(path: str | Path, model: JointConfidence) -> None:
     """Write ``model`` as JSON (atomically: a reader never sees half a file)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(model.to_json_dict(), indent=1) + "\n")
-    tmp.replace(path)
+    write_json_file(path, model.to_json_dict())
 
 
 def load_joint_confidence(path: str | Path) -> JointConfidence:
@@ -208,14 +204,7 @@ def load_joint_confidence(path: str | Path) -> JointConfidence:
             set, joint names other than this build's, or bad values.
     """
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise JointConfidenceError(f"{path}: no such joint-confidence file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise JointConfidenceError(
-            f"{path}: not a readable joint-confidence file ({err})"
-        ) from None
+    data = read_json_file(path, "joint-confidence", JointConfidenceError)
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise JointConfidenceError(f"{path}: not a {FORMAT} file")
     if data.get("version") != VERSION:

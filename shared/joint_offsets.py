@@ -27,7 +27,6 @@ Version 1 files (constant offsets: no ``pose_*`` keys) are still read.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +35,7 @@ import numpy as np
 import torch
 
 from . import skeleton as sk
+from .json_file import read_json_file, write_json_file
 
 __all__ = [
     "FORMAT",
@@ -129,11 +129,7 @@ class JointOffsets:
 
 def save_joint_offsets(path: str | Path, offsets: JointOffsets) -> None:
     """Write ``offsets`` as JSON (atomically: a reader never sees half a file)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(offsets.to_json_dict(), indent=1) + "\n")
-    tmp.replace(path)
+    write_json_file(path, offsets.to_json_dict())
 
 
 def load_joint_offsets(path: str | Path) -> JointOffsets:
@@ -144,12 +140,7 @@ def load_joint_offsets(path: str | Path) -> JointOffsets:
             other than this build's, or bad values.
     """
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise JointOffsetsError(f"{path}: no such joint-offsets file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise JointOffsetsError(f"{path}: not a readable joint-offsets file ({err})") from None
+    data = read_json_file(path, "joint-offsets", JointOffsetsError)
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise JointOffsetsError(f"{path}: not a {FORMAT} file")
     if data.get("version") not in _READABLE:

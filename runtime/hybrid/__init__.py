@@ -101,14 +101,8 @@ def load_offsets(name: str) -> JointOffsets:
         HybridError: missing, unreadable, or of another format or version.
     """
     from depthmocap.shared.joint_offsets import JointOffsetsError, load_joint_offsets
-    from depthmocap.shared.resources import MODELS_DIR
 
-    path = Path(name)
-    path = path if path.is_absolute() else MODELS_DIR / path
-    try:
-        return load_joint_offsets(path)
-    except JointOffsetsError as err:
-        raise HybridError(f"joint_offsets: {err}") from None
+    return _load_model_file(name, "joint_offsets", load_joint_offsets, JointOffsetsError)
 
 
 def load_confidence(name: str) -> JointConfidence:
@@ -118,14 +112,20 @@ def load_confidence(name: str) -> JointConfidence:
         HybridError: missing, unreadable, or of another format or version.
     """
     from depthmocap.shared.joint_confidence import JointConfidenceError, load_joint_confidence
+
+    return _load_model_file(name, "joint_confidence", load_joint_confidence, JointConfidenceError)
+
+
+def _load_model_file(name: str, key: str, load, error: type[Exception]):
+    """``load`` of the file ``name`` under the shipped models/ folder (or absolute), its
+    ``error`` reported as a :class:`HybridError` naming the setting ``key``."""
     from depthmocap.shared.resources import MODELS_DIR
 
     path = Path(name)
-    path = path if path.is_absolute() else MODELS_DIR / path
     try:
-        return load_joint_confidence(path)
-    except JointConfidenceError as err:
-        raise HybridError(f"joint_confidence: {err}") from None
+        return load(path if path.is_absolute() else MODELS_DIR / path)
+    except error as err:
+        raise HybridError(f"{key}: {err}") from None
 
 
 def recording_labels(path: Path) -> LabelSource:

@@ -128,16 +128,13 @@ def fit_logistic(x: np.ndarray, y: np.ndarray, l2: float = 1e-3) -> tuple[np.nda
 
 
 def fit_confidence(
-    support: np.ndarray,
-    visibility: np.ndarray,
-    in_view: np.ndarray,
-    error_m: np.ndarray,
-    recall: float = 0.95,
-    within_m: float = 0.2,
+    evidence: dict[str, np.ndarray], recall: float = 0.95, within_m: float = 0.2
 ) -> JointConfidence:
-    """The joint confidence of (F, J) ``support``, (F, 4) limb ``visibility``, (F, J)
-    ``in_view`` and ``error_m`` (module docstring); its threshold keeps ``recall`` of the
-    joints in view."""
+    """The joint confidence fitted to ``evidence`` as :func:`track_evidence` returns it (its
+    ``support``, ``visibility``, ``in_view`` and ``error_m``; module docstring); its threshold
+    keeps ``recall`` of the joints in view."""
+    support, visibility = evidence["support"], evidence["visibility"]
+    in_view, error_m = evidence["in_view"], evidence["error_m"]
     f = confidence_features(torch.as_tensor(support), torch.as_tensor(visibility)).numpy()
     target = in_view & (error_m <= within_m)
     weights = np.zeros((len(GROUPS), NUM_FEATURES))
@@ -212,10 +209,7 @@ def main(argv: list[str] | None = None) -> int:
             p.error(f"{folder}: no such folder")
     try:
         data = _evidence(args.recordings, args.config)
-        model = fit_confidence(
-            data["support"], data["visibility"], data["in_view"], data["error_m"],
-            args.recall, args.within_m,
-        )  # fmt: skip
+        model = fit_confidence(data, args.recall, args.within_m)
         held = _evidence(args.validate, args.config) if args.validate else None
     except (FileNotFoundError, ValueError, KeyError) as err:
         print(f"error: {err}", file=sys.stderr)

@@ -62,7 +62,8 @@ def _evidence(rng, frames=3000):
 def test_fitted_flags_keep_the_recall_and_fail_less_than_the_area_test():
     rng = np.random.default_rng(1)
     support, visibility, in_view, error = _evidence(rng)
-    model = fit_confidence(support, visibility, in_view, error, recall=0.9)
+    evidence = {"support": support, "visibility": visibility, "in_view": in_view, "error_m": error}
+    model = fit_confidence(evidence, recall=0.9)
     assert model.recall == pytest.approx(0.9, abs=0.002)
     p = joint_confidence(model, torch.as_tensor(support), torch.as_tensor(visibility)).numpy()
     fitted = flag_figures(p >= model.threshold, in_view, error)
