@@ -23,7 +23,7 @@ def test_wei2012_is_the_paper():
     cfg = hybrid_config(preset_settings("wei2012"))
     assert cfg.failure == FailureThresholds(2.5, 0.9, None) and cfg.failure.lost_overlap is None
     assert cfg.keep_better is None and cfg.arm_search is None and cfg.body_scale is None
-    assert cfg.behind_model is None
+    assert cfg.behind_model is None and cfg.joint_confidence is None
     assert not cfg.tracker.use_labels and not cfg.tracker.use_collision
     assert cfg.detector.label_smoothing_window == 1 and cfg.detector.reset_limbs == "none"
 
