@@ -3,10 +3,12 @@
     python -m depthmocap.train.evaluation.joint_confidence_fit \\
         --recordings data/tune_half_a data/tune_half_b --out models/joint_confidence.json
 
-Each recording (synthetic, with ``groundtruth.npz`` and part labels) is tracked here by the
-shipped hybrid, frame by frame as ``runtime-track`` runs a file (``--config`` lays settings
-over it). Every pose gives each joint its evidence (confirmed area, limb visibility; the
-estimate's ``joint_support_cm2`` and ``limb_visibility``) and a target: the joint is in view
+Each recording (synthetic, with ``groundtruth.npz`` and part labels) is tracked by the
+shipped hybrid as ``runtime-track`` runs a file (``--config`` lays settings over it), in a
+subprocess (``python -m depthmocap.bench.joint_evidence``; ``train`` never imports
+``runtime``), into ``--evidence``, where a later fit finds it again. Every pose gives each
+joint its evidence (confirmed area, limb visibility; the estimate's ``joint_support_cm2``
+and ``limb_visibility``) and a target: the joint is in view
 (``train.evaluation.visibility``, from the rendered labels) and its output position is within
 ``--within-m`` of the truth. One logistic regression per joint group fits the targets; the
 threshold then keeps ``--recall`` of the joints in view. ``--validate`` tracks other
@@ -19,6 +21,7 @@ sets (its spec with another seed; ``docs/protocol.md``), never from ``data/dev_b
 from __future__ import annotations
 
 import argparse
+import subprocess
 import sys
 from pathlib import Path
 
@@ -35,23 +38,17 @@ from depthmocap.shared.joint_confidence import (
     save_joint_confidence,
 )
 
-__all__ = ["flag_figures", "fit_confidence", "fit_logistic", "main", "track_evidence"]
+__all__ = ["flag_figures", "fit_confidence", "fit_logistic", "main", "recording_evidence"]
 
 
-def track_evidence(recording: Path, config: str | None = None) -> dict[str, np.ndarray]:
-    """Track ``recording`` with the shipped hybrid and pair each posed frame's evidence with
-    its ground truth.
+def recording_evidence(recording: Path, evidence: Path) -> dict[str, np.ndarray]:
+    """A recording's evidence file (``bench.joint_evidence``) paired with its ground truth.
 
     Returns:
         ``support`` (F, J), ``visibility`` (F, 4) of the limbs in the fit, ``in_view`` (F, J)
         bool, ``error_m`` (F, J) output joints to the truth, ``observed`` (F, J) bool the
-        estimate's flags; F the frames with a pose and evidence.
+        area test's flags; F the frames with a pose.
     """
-    from depthmocap.runtime.api import Tracker
-    from depthmocap.runtime.estimator import estimate_frame, make_estimator, prepare_frame
-    from depthmocap.runtime.estimator_setup import load_body
-    from depthmocap.runtime.segmentation import PersonSegmenter
-    from depthmocap.runtime.streams import open_stream
     from depthmocap.shared.recording import Recording
 
     from .truth import GROUND_TRUTH, recording_truth
@@ -64,42 +61,17 @@ def track_evidence(recording: Path, config: str | None = None) -> dict[str, np.n
     in_view = recording_joint_visibility(rec, truth.joints, sk.JOINT_NAMES)
     if in_view is None:
         raise ValueError(f"{recording}: has no part labels to tell which joints are in view")
-    from depthmocap.shared.config import load_settings, merged_settings
-
-    # The flags the evidence is paired with are the tracker's own area test's.
-    overlay = merged_settings(load_settings(config) if config else {}, {"joint_confidence": None})
-    tracker = Tracker(config=overlay)
-    keys = ("frame", "support", "visibility", "joints", "observed")
-    rows: dict[str, list] = {k: [] for k in keys}
-    segment = PersonSegmenter(tracker.segmentation)  # a stream's own, as runtime-track's
-    with open_stream(str(recording)) as stream:
-        estimator = make_estimator(
-            tracker.mode, tracker.model, load_body(None), stream.intrinsics, tracker.device,
-            tracker.settings,
-        )  # fmt: skip
-        for index, frame in enumerate(stream):
-            prepared = prepare_frame(estimator, frame, segment, tracker.device)
-            est = estimate_frame(estimator, prepared)
-            if est.joints is None or est.joint_support_cm2 is None or est.limb_visibility is None:
-                continue
-            rows["frame"].append(index)
-            rows["support"].append(est.joint_support_cm2)
-            rows["visibility"].append(est.limb_visibility)
-            rows["joints"].append(est.joints)
-            rows["observed"].append(est.observed_or_all())
-        close = getattr(estimator, "close", None)
-        if close is not None:
-            close()
-    frames = np.asarray(rows["frame"], dtype=np.int64)
-    J = len(sk.JOINT_NAMES)
-    joints = np.asarray(rows["joints"]).reshape(-1, J, 3)
-    return {
-        "support": np.asarray(rows["support"]).reshape(-1, J),
-        "visibility": np.asarray(rows["visibility"]).reshape(-1, 4),
-        "in_view": in_view[frames],
-        "error_m": np.linalg.norm(joints - truth.joints[frames], axis=-1),
-        "observed": np.asarray(rows["observed"], dtype=bool).reshape(-1, J),
-    }
+    with np.load(evidence) as data:
+        frames = data["frame"]
+        if len(frames) and (frames.min() < 0 or frames.max() >= len(truth.joints)):
+            raise ValueError(f"{evidence}: frames beyond {recording}'s {len(truth.joints)}")
+        return {
+            "support": data["support"],
+            "visibility": data["visibility"],
+            "in_view": in_view[frames],
+            "error_m": np.linalg.norm(data["joints"] - truth.joints[frames], axis=-1),
+            "observed": data["observed"],
+        }
 
 
 def fit_logistic(x: np.ndarray, y: np.ndarray, l2: float = 1e-3) -> tuple[np.ndarray, float]:
@@ -130,7 +102,7 @@ def fit_logistic(x: np.ndarray, y: np.ndarray, l2: float = 1e-3) -> tuple[np.nda
 def fit_confidence(
     evidence: dict[str, np.ndarray], recall: float = 0.95, within_m: float = 0.2
 ) -> JointConfidence:
-    """The joint confidence fitted to ``evidence`` as :func:`track_evidence` returns it (its
+    """The joint confidence fitted to ``evidence`` as :func:`recording_evidence` returns it (its
     ``support``, ``visibility``, ``in_view`` and ``error_m``; module docstring); its threshold
     keeps ``recall`` of the joints in view."""
     support, visibility = evidence["support"], evidence["visibility"]
@@ -165,12 +137,19 @@ def flag_figures(
     }
 
 
-def _evidence(folders: list[Path], config: str | None) -> dict[str, np.ndarray]:
+def _evidence(folders: list[Path], store: Path, config: str | None) -> dict[str, np.ndarray]:
+    """Every recording's evidence in ``folders``, tracked into ``store/FOLDER`` by
+    ``bench.joint_evidence`` in a subprocess where not there yet."""
     parts = []
     for folder in folders:
+        out = store / folder.name
+        cmd = [sys.executable, "-m", "depthmocap.bench.joint_evidence"]
+        cmd += ["--recordings", str(folder), "--out", str(out)]
+        cmd += ["--config", config] if config else []
+        if subprocess.run(cmd).returncode != 0:
+            raise ValueError(f"tracking {folder} failed (command: {' '.join(cmd)})")
         for rec in sorted(p for p in folder.iterdir() if (p / "groundtruth.npz").is_file()):
-            parts.append(track_evidence(rec, config))
-            print(f"  {rec.name}: {len(parts[-1]['support'])} frames", flush=True)
+            parts.append(recording_evidence(rec, out / f"{rec.name}.npz"))
     if not parts:
         raise ValueError(f"no recordings with ground truth in {', '.join(map(str, folders))}")
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
@@ -200,6 +179,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--recall", type=float, default=0.95, help="share of in-view joints to flag")
     p.add_argument("--within-m", type=float, default=0.2, help="a joint further off is wrong")
     p.add_argument("--config", default=None, help="settings over the shipped preset")
+    p.add_argument("--evidence", type=Path, default=Path("out/joint_evidence"),
+                   help="where each recording's tracked evidence is kept (reused)")  # fmt: skip
     p.add_argument("--validate", type=Path, nargs="*", default=[], help="other recordings")
     args = p.parse_args(argv)
     if not 0.0 < args.recall <= 1.0:
@@ -208,9 +189,9 @@ def main(argv: list[str] | None = None) -> int:
         if not folder.is_dir():
             p.error(f"{folder}: no such folder")
     try:
-        data = _evidence(args.recordings, args.config)
+        data = _evidence(args.recordings, args.evidence, args.config)
         model = fit_confidence(data, args.recall, args.within_m)
-        held = _evidence(args.validate, args.config) if args.validate else None
+        held = _evidence(args.validate, args.evidence, args.config) if args.validate else None
     except (FileNotFoundError, ValueError, KeyError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

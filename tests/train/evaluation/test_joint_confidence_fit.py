@@ -82,3 +82,41 @@ def test_cli_rejects_bad_arguments(tmp_path, capsys):
         main(["--recordings", str(tmp_path), "--out", str(tmp_path / "c.json"), "--recall", "0"])
     assert main(["--recordings", str(tmp_path), "--out", str(tmp_path / "c.json")]) == 2
     assert "no recordings with ground truth" in capsys.readouterr().err
+
+
+def _recording_with_truth(path, frames=3):
+    from depthmocap.shared.camera import Intrinsics
+    from depthmocap.shared.recording import RecordingWriter
+
+    truth = np.zeros((frames, J, 3))
+    truth[..., 2] = 2.0
+    truth[:, :, 0] = np.linspace(-0.3, 0.3, J)
+    with RecordingWriter(path, Intrinsics.kinect_v1(320)) as w:
+        for _ in range(frames):
+            w.write_frame(np.zeros((240, 320), np.uint16), np.zeros((240, 320), np.uint8))
+        w.write_groundtruth(truth, list(sk.JOINT_NAMES))
+    return truth
+
+
+def test_recording_evidence_pairs_each_posed_frame_with_its_truth(tmp_path):
+    from depthmocap.train.evaluation.joint_confidence_fit import recording_evidence
+
+    truth = _recording_with_truth(tmp_path / "rec")
+    joints = truth[[0, 2]].copy()
+    joints[1, 3, 1] += 0.25  # frame 2's pelvis 25 cm off
+    np.savez(
+        tmp_path / "rec.npz", frame=np.array([0, 2]), support=np.full((2, J), 7.0),
+        visibility=np.ones((2, 4)), joints=joints, observed=np.ones((2, J), bool),
+    )  # fmt: skip
+    e = recording_evidence(tmp_path / "rec", tmp_path / "rec.npz")
+    assert e["support"].shape == (2, J) and e["in_view"].shape == (2, J)
+    assert not e["in_view"].any()  # no depth: no joint is in view
+    expect = np.zeros((2, J))
+    expect[1, 3] = 0.25
+    np.testing.assert_allclose(e["error_m"], expect, atol=1e-6)  # stored as float32
+    np.savez(
+        tmp_path / "bad.npz", frame=np.array([5]), support=np.zeros((1, J)),
+        visibility=np.ones((1, 4)), joints=truth[:1], observed=np.ones((1, J), bool),
+    )  # fmt: skip
+    with pytest.raises(ValueError, match="frames beyond"):
+        recording_evidence(tmp_path / "rec", tmp_path / "bad.npz")

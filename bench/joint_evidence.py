@@ -1,0 +1,115 @@
+"""Record what the shipped hybrid says about each joint, for fitting its confidence.
+
+    python -m depthmocap.bench.joint_evidence --recordings data/tune_half_a --out out/evidence
+
+Each recording is tracked as ``runtime-track`` runs a file (the population body, the shipped
+settings with ``--config`` laid over them; the observed flags from the tracker's own area
+test, ``joint_confidence`` off), and every frame with a pose gives a line of evidence: the
+joints' confirmed areas, the limbs' visibility in the fit, the output joints and the flags.
+One ``NAME.npz`` per recording (written whole, so an interrupted run resumes at the next
+recording; one already there is kept). ``python -m
+depthmocap.train.evaluation.joint_confidence_fit`` pairs them with the ground truth (``train``
+never imports ``runtime``; this is the runtime side).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+from depthmocap.runtime.api import Tracker
+from depthmocap.runtime.estimator import estimate_frame, make_estimator, prepare_frame
+from depthmocap.runtime.estimator_setup import load_body
+from depthmocap.runtime.segmentation import PersonSegmenter
+from depthmocap.runtime.streams import open_stream
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.config import load_settings, merged_settings
+
+__all__ = ["main", "record_evidence", "track_evidence"]
+
+
+def track_evidence(recording: Path, config: str | None = None) -> dict[str, np.ndarray]:
+    """Track ``recording`` (module docstring).
+
+    Returns:
+        ``frame`` (F,) indices of the frames with a pose, ``support`` (F, J) confirmed areas
+        (cm^2), ``visibility`` (F, 4) of the limbs in the fit, ``joints`` (F, J, 3) output
+        joints, ``observed`` (F, J) bool the area test's flags.
+    """
+    # The flags recorded beside the evidence are the tracker's own area test's.
+    overlay = merged_settings(load_settings(config) if config else {}, {"joint_confidence": None})
+    tracker = Tracker(config=overlay)
+    keys = ("frame", "support", "visibility", "joints", "observed")
+    rows: dict[str, list] = {k: [] for k in keys}
+    segment = PersonSegmenter(tracker.segmentation)  # a stream's own, as runtime-track's
+    with open_stream(str(recording)) as stream:
+        estimator = make_estimator(
+            tracker.mode, tracker.model, load_body(None), stream.intrinsics, tracker.device,
+            tracker.settings,
+        )  # fmt: skip
+        try:
+            for index, frame in enumerate(stream):
+                prepared = prepare_frame(estimator, frame, segment, tracker.device)
+                est = estimate_frame(estimator, prepared)
+                if est.joints is None or est.joint_support_cm2 is None:
+                    continue
+                if est.limb_visibility is None:
+                    continue
+                for key, value in zip(keys, (index, est.joint_support_cm2, est.limb_visibility,
+                                             est.joints, est.observed_or_all())):  # fmt: skip
+                    rows[key].append(value)
+        finally:
+            close = getattr(estimator, "close", None)
+            if close is not None:
+                close()
+    J = len(sk.JOINT_NAMES)
+    return {
+        "frame": np.asarray(rows["frame"], dtype=np.int64),
+        "support": np.asarray(rows["support"], dtype=np.float64).reshape(-1, J),
+        "visibility": np.asarray(rows["visibility"], dtype=np.float64).reshape(-1, 4),
+        "joints": np.asarray(rows["joints"], dtype=np.float64).reshape(-1, J, 3),
+        "observed": np.asarray(rows["observed"], dtype=bool).reshape(-1, J),
+    }
+
+
+def record_evidence(recordings: list[Path], out: Path, config: str | None = None) -> list[Path]:
+    """:func:`track_evidence` of each recording into ``out/NAME.npz`` (kept where present);
+    the files, in the recordings' order."""
+    out.mkdir(parents=True, exist_ok=True)
+    files = []
+    for rec in recordings:
+        path = out / f"{rec.name}.npz"
+        if not path.is_file():
+            tmp = out / f"{rec.name}.tmp.npz"
+            np.savez(tmp, **track_evidence(rec, config))
+            tmp.replace(path)
+            print(f"  {rec.name}", flush=True)
+        files.append(path)
+    return files
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog="python -m depthmocap.bench.joint_evidence", description=__doc__.splitlines()[0]
+    )
+    p.add_argument("--recordings", type=Path, nargs="+", required=True,
+                   help="recordings, or folders of them")  # fmt: skip
+    p.add_argument("--out", type=Path, required=True, help="folder for one NAME.npz each")
+    p.add_argument("--config", default=None, help="settings over the shipped preset")
+    args = p.parse_args(argv)
+    recordings = []
+    for path in args.recordings:
+        if (path / "meta.json").is_file():
+            recordings.append(path)
+        elif path.is_dir():
+            recordings += sorted(r for r in path.iterdir() if (r / "meta.json").is_file())
+        else:
+            p.error(f"{path}: no such recording or folder")
+    record_evidence(recordings, args.out, args.config)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

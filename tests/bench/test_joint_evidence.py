@@ -1,0 +1,30 @@
+"""Recording the hybrid's per-joint evidence (bench.joint_evidence)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from depthmocap.bench import joint_evidence
+from depthmocap.runtime.tracker import TrackerConfig
+
+
+def test_evidence_of_each_posed_frame_is_written_once(two_demo_recordings, tmp_path, monkeypatch):
+    out = tmp_path / "evidence"
+    assert joint_evidence.main(["--recordings", str(two_demo_recordings), "--out", str(out)]) == 0
+    files = sorted(p.name for p in out.iterdir())
+    assert files == ["a.npz", "b.npz"]
+    with np.load(out / "a.npz") as data:
+        assert list(data["frame"]) == [0, 1]
+        assert data["support"].shape == (2, 16) and data["visibility"].shape == (2, 4)
+        assert data["joints"].shape == (2, 16, 3) and np.isfinite(data["joints"]).all()
+        # the flags beside the evidence are the tracker's own area test, not the confidence's
+        area = TrackerConfig().observed_joint_area_cm2
+        np.testing.assert_array_equal(data["observed"], data["support"] >= area)
+    # A second run keeps what is there (an interrupted run resumes at the next recording).
+    monkeypatch.setattr(joint_evidence, "track_evidence", lambda *a: pytest.fail("tracked again"))
+    joint_evidence.main(["--recordings", str(two_demo_recordings / "a"), "--out", str(out)])
+
+
+def test_a_missing_recording_is_a_usage_error(tmp_path):
+    with pytest.raises(SystemExit):
+        joint_evidence.main(["--recordings", str(tmp_path / "none"), "--out", str(tmp_path)])
