@@ -53,13 +53,11 @@ def track_evidence(recording: Path, config: str | None = None) -> dict[str, np.n
             for index, frame in enumerate(stream):
                 prepared = prepare_frame(estimator, frame, segment, tracker.device)
                 est = estimate_frame(estimator, prepared)
-                if est.joints is None or est.joint_support_cm2 is None:
-                    continue
-                if est.limb_visibility is None:
-                    continue
-                for key, value in zip(keys, (index, est.joint_support_cm2, est.limb_visibility,
-                                             est.joints, est.observed_or_all())):  # fmt: skip
-                    rows[key].append(value)
+                values = (index, est.joint_support_cm2, est.limb_visibility, est.joints,
+                          est.observed)  # fmt: skip
+                if all(v is not None for v in values):  # a frame with a pose and its evidence
+                    for key, value in zip(keys, values, strict=True):
+                        rows[key].append(value)
         finally:
             close = getattr(estimator, "close", None)
             if close is not None:

@@ -21,8 +21,10 @@ sets (its spec with another seed; ``docs/protocol.md``), never from ``data/dev_b
 from __future__ import annotations
 
 import argparse
+import hashlib
 import subprocess
 import sys
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -61,17 +63,24 @@ def recording_evidence(recording: Path, evidence: Path) -> dict[str, np.ndarray]
     in_view = recording_joint_visibility(rec, truth.joints, sk.JOINT_NAMES)
     if in_view is None:
         raise ValueError(f"{recording}: has no part labels to tell which joints are in view")
-    with np.load(evidence) as data:
-        frames = data["frame"]
-        if len(frames) and (frames.min() < 0 or frames.max() >= len(truth.joints)):
-            raise ValueError(f"{evidence}: frames beyond {recording}'s {len(truth.joints)}")
-        return {
-            "support": data["support"],
-            "visibility": data["visibility"],
-            "in_view": in_view[frames],
-            "error_m": np.linalg.norm(data["joints"] - truth.joints[frames], axis=-1),
-            "observed": data["observed"],
-        }
+    try:
+        with np.load(evidence) as data:
+            stored = {k: data[k] for k in ("frame", "support", "visibility", "joints", "observed")}
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as err:
+        raise ValueError(
+            f"{evidence}: not a readable evidence file ({err}); delete it to track "
+            f"{recording.name} again"
+        ) from None
+    frames = stored["frame"]
+    if len(frames) and (frames.min() < 0 or frames.max() >= len(truth.joints)):
+        raise ValueError(f"{evidence}: frames beyond {recording}'s {len(truth.joints)}")
+    return {
+        "support": stored["support"],
+        "visibility": stored["visibility"],
+        "in_view": in_view[frames],
+        "error_m": np.linalg.norm(stored["joints"] - truth.joints[frames], axis=-1),
+        "observed": stored["observed"],
+    }
 
 
 def fit_logistic(x: np.ndarray, y: np.ndarray, l2: float = 1e-3) -> tuple[np.ndarray, float]:
@@ -141,8 +150,10 @@ def _evidence(folders: list[Path], store: Path, config: str | None) -> dict[str,
     """Every recording's evidence in ``folders``, tracked into ``store/FOLDER`` by
     ``bench.joint_evidence`` in a subprocess where not there yet."""
     parts = []
+    # Evidence tracked with other settings is kept apart: a file found is reused as it is.
+    tag = "" if not config else "-" + hashlib.sha1(Path(config).read_bytes()).hexdigest()[:8]
     for folder in folders:
-        out = store / folder.name
+        out = store / f"{folder.name}{tag}"
         cmd = [sys.executable, "-m", "depthmocap.bench.joint_evidence"]
         cmd += ["--recordings", str(folder), "--out", str(out)]
         cmd += ["--config", config] if config else []
@@ -155,16 +166,16 @@ def _evidence(folders: list[Path], store: Path, config: str | None) -> dict[str,
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
-def _report(label: str, data: dict, model: JointConfidence) -> None:
+def _report(label: str, data: dict, model: JointConfidence, within_m: float) -> None:
     support, shown = torch.as_tensor(data["support"]), torch.as_tensor(data["visibility"])
     p = joint_confidence(model, support, shown)
     for name, flags in (("fitted flags", p.numpy() >= model.threshold),
                         ("area test", data["observed"])):  # fmt: skip
-        f = flag_figures(flags, data["in_view"], data["error_m"])
+        f = flag_figures(flags, data["in_view"], data["error_m"], within_m)
         print(
             f"{label}, {name}: recall {100 * f['recall']:.1f}% of the joints in view, frames "
-            f"with a flagged joint over 20 cm {100 * f['failure']:.2f}%, flagged joints in "
-            f"view {100 * f['in_view']:.1f}%"
+            f"with a flagged joint over {100 * within_m:g} cm {100 * f['failure']:.2f}%, "
+            f"flagged joints in view {100 * f['in_view']:.1f}%"
         )
 
 
@@ -180,7 +191,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--within-m", type=float, default=0.2, help="a joint further off is wrong")
     p.add_argument("--config", default=None, help="settings over the shipped preset")
     p.add_argument("--evidence", type=Path, default=Path("out/joint_evidence"),
-                   help="where each recording's tracked evidence is kept (reused)")  # fmt: skip
+                   help="where each recording's tracked evidence is kept and reused (per "
+                        "folder name and --config file)")  # fmt: skip
     p.add_argument("--validate", type=Path, nargs="*", default=[], help="other recordings")
     args = p.parse_args(argv)
     if not 0.0 < args.recall <= 1.0:
@@ -198,9 +210,9 @@ def main(argv: list[str] | None = None) -> int:
     model.fitted_on = ", ".join(map(str, args.recordings))
     save_joint_confidence(args.out, model)
     print(f"{len(data['support'])} frames -> {args.out} (threshold {model.threshold:.4f})")
-    _report("fitted on", data, model)
+    _report("fitted on", data, model, args.within_m)
     if held is not None:
-        _report("held out", held, model)
+        _report("held out", held, model, args.within_m)
     return 0
 
 

@@ -120,3 +120,15 @@ def test_recording_evidence_pairs_each_posed_frame_with_its_truth(tmp_path):
     )  # fmt: skip
     with pytest.raises(ValueError, match="frames beyond"):
         recording_evidence(tmp_path / "rec", tmp_path / "bad.npz")
+
+
+def test_an_unreadable_evidence_file_is_a_clear_error(tmp_path):
+    from depthmocap.train.evaluation.joint_confidence_fit import recording_evidence
+
+    _recording_with_truth(tmp_path / "rec")
+    (tmp_path / "torn.npz").write_bytes(b"PK\x03\x04 torn")
+    with pytest.raises(ValueError, match="not a readable evidence file.*delete it"):
+        recording_evidence(tmp_path / "rec", tmp_path / "torn.npz")
+    np.savez(tmp_path / "short.npz", frame=np.array([0]))  # a key missing
+    with pytest.raises(ValueError, match="not a readable evidence file"):
+        recording_evidence(tmp_path / "rec", tmp_path / "short.npz")
