@@ -28,6 +28,7 @@ from depthmocap.train.bodies.anny_body import AnnyBody, make_body, sample_phenot
 from depthmocap.train.bodies.measurements import anatomical_joints
 from depthmocap.train.bodies.posing import pose_anny
 from depthmocap.train.mocap.clip import axis_rotation
+from depthmocap.train.synth.garments import GarmentConfig, dress_body
 from depthmocap.train.synth.render import DepthLabelRenderer
 from depthmocap.train.synth.viewpoints import ViewpointConfig, Viewpoints, transform_points
 
@@ -56,6 +57,10 @@ class SceneConfig:
     )
     viewpoints: ViewpointConfig = field_doc(
         default_factory=ViewpointConfig, help="camera distance, height, yaw, pitch and roll"
+    )
+    garments: GarmentConfig = field_doc(
+        default_factory=GarmentConfig,
+        help="clothing drawn over the bare body (closed leg gaps, cloth thickness); off by default",
     )
 
 
@@ -178,7 +183,7 @@ def render_frame(
     cam = view.cam_from_world[0]
     verts_cam = transform_points(cam, vertices).astype(np.float32)
     frame = renderer.render(verts_cam, body.faces, body.labels)
-    depth, labels = frame.depth, frame.labels
+    depth, labels = dress_body(frame.depth, frame.labels, intr, cfg.garments, rng)
     if cfg.floor:
         bg_cfg = scene_behind(cfg.scene, float(view.distance[0]))
         if scene is None and not cfg.background:
