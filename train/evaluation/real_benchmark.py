@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import argparse
 import fnmatch
+import hashlib
 import json
 import sys
 import time
@@ -252,12 +253,19 @@ def typical_frames(scored: list[Scored]) -> list[dict]:
 
 
 def _track(
-    rec: Path, result: Path, threads: int, device: str | None, config: Path | None = None
+    rec: Path,
+    result: Path,
+    threads: int,
+    device: str | None,
+    config: Path | None = None,
+    model: Path | None = None,
 ) -> None:
     cmd = [sys.executable, "-m", "depthmocap.runtime.track_cli", "--input", str(rec),
            "--output", str(result), "--threads", str(threads), "--save-overlays", "-q"]  # fmt: skip
     if config is not None:
         cmd += ["--config", str(config)]
+    if model is not None:
+        cmd += ["--model", str(model)]
     if device:
         cmd += ["--device", device]
     run_command(cmd)  # RuntimeError with the end of stderr if it fails
@@ -424,6 +432,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--config", type=Path, help="runtime-track --config (settings over the shipped preset)"
     )
+    p.add_argument(
+        "--model", type=Path, help="runtime-track --model (another forest than the shipped one)"
+    )
     p.add_argument("--retrack", action="store_true", help="track again even if a result is there")
     p.add_argument(
         "--sheet", type=Path, help="worst-frames contact sheet PNG (default OUT/worst_frames.png)"
@@ -439,13 +450,21 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _settings_check(out: Path, config: Path | None, retrack: bool) -> str | None:
+def _settings_check(
+    out: Path, config: Path | None, retrack: bool, model: Path | None = None
+) -> str | None:
     """Record the settings the results in ``out`` are tracked with (``OUT/settings.yaml``: the
-    ``--config`` text, empty for the shipped preset) and refuse to reuse results made with
-    others; returns an error message or None."""
+    ``--config`` text, empty for the shipped preset, and a comment naming another forest by its
+    content hash) and refuse to reuse results made with others; returns an error message or
+    None."""
     if config is not None and not config.is_file():
         return f"--config: no such file {config}"
+    if model is not None and not model.is_file():
+        return f"--model: no such file {model}"
     text = "" if config is None else config.read_text()
+    if model is not None:
+        digest = hashlib.sha256(model.read_bytes()).hexdigest()
+        text += f"\n# --model {model} sha256 {digest}\n"
     saved = out / "settings.yaml"
     # Older outputs have no record: they were made with the shipped preset.
     before = saved.read_text() if saved.is_file() else ""
@@ -461,7 +480,7 @@ def _settings_check(out: Path, config: Path | None, retrack: bool) -> str | None
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    problem = _settings_check(args.out, args.config, args.retrack)
+    problem = _settings_check(args.out, args.config, args.retrack, args.model)
     if problem is not None:
         print(f"error: {problem}", file=sys.stderr)
         return 2
@@ -480,7 +499,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             frames = len(Recording(rec))
             if args.retrack or not _complete(results / rec.name, frames):
-                _track(rec, results / rec.name, args.threads, args.device, args.config)
+                _track(rec, results / rec.name, args.threads, args.device, args.config, args.model)
             s = score(rec, results / rec.name)
         except (RecordingError, ResultFileError, EvaluationError, RuntimeError) as err:
             print(f"error: {rec.name}: {str(err).splitlines()[-1]}", file=sys.stderr)

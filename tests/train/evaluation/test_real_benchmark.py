@@ -184,6 +184,30 @@ def test_track_passes_settings_to_runtime_track(tmp_path, monkeypatch):
     cmd = seen[1]
     assert cmd[cmd.index("--config") + 1] == str(tmp_path / "ab.yaml")
     assert cmd[cmd.index("--device") + 1] == "cpu"
+    assert "--model" not in cmd
+    rb._track(tmp_path / "rec", tmp_path / "res", 1, None, None, tmp_path / "f.npz")
+    assert seen[2][seen[2].index("--model") + 1] == str(tmp_path / "f.npz")
+
+
+def test_another_forest_is_recorded_by_its_hash(tmp_path, capsys):
+    """Results tracked with another forest are not reused for the shipped one, nor for a forest
+    rewritten under the same name."""
+    out, data = tmp_path / "out", tmp_path / "data"
+    args = ["--data", str(data), "--out", str(out)]
+    assert rb.main([*args, "--model", str(tmp_path / "none.npz")]) == 2
+    assert "--model: no such file" in capsys.readouterr().err
+    forest = tmp_path / "f.npz"
+    forest.write_bytes(b"one")
+    assert rb.main([*args, "--model", str(forest)]) == 2  # no recordings; settings recorded
+    assert "sha256" in (out / "settings.yaml").read_text()
+    (out / "results").mkdir()
+    assert rb.main([*args, "--model", str(forest)]) == 2
+    assert "no recording" in capsys.readouterr().err  # the same forest: reused
+    forest.write_bytes(b"two")
+    assert rb.main([*args, "--model", str(forest)]) == 2
+    assert "other settings" in capsys.readouterr().err
+    assert rb.main(args) == 2
+    assert "other settings" in capsys.readouterr().err
 
 
 def test_settings_are_recorded_and_never_mixed(tmp_path, capsys):
