@@ -219,6 +219,11 @@ def score_recordings(
     return out
 
 
+def _short(model: Path) -> str:
+    """A forest's name for the table: its file name, with its folder when that is generic."""
+    return model.name if model.name != "forest.npz" else f"{model.parent.name}/{model.name}"
+
+
 def _table(name: str, result: dict) -> str:
     cells = " ".join(
         f"{'-' if a is None else f'{100 * a:.1f}':>11}" for a in result["per_group"].values()
@@ -272,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         results = {k: agreement(c) for k, c in counts.items() if c.sum()}
         report[str(model)] = results
-        print(_table(f"{model.name}", results["forest"]))
+        print(_table(_short(model), results["forest"]))
         if "forest_vs_labels" in results:
             print(_table("  against rendered labels", results["forest_vs_labels"]))
             print(_table("  drawn groups' own", results["drawn_vs_labels"]))
