@@ -27,10 +27,9 @@ from depthmocap.shared.labels import PART_NAMES
 
 __all__ = ["GarmentConfig", "close_leg_gaps", "thicken_silhouette", "dress_body"]
 
-_LEFT_LEG = np.isin(np.arange(len(PART_NAMES)), [PART_NAMES.index(n) for n in PART_NAMES
-                    if n.startswith(("l_thigh", "l_shank"))])  # fmt: skip
-_RIGHT_LEG = np.isin(np.arange(len(PART_NAMES)), [PART_NAMES.index(n) for n in PART_NAMES
-                     if n.startswith(("r_thigh", "r_shank"))])  # fmt: skip
+# (C,) whether each part lies on the left or the right leg.
+_LEFT_LEG = np.array([n.startswith(("l_thigh", "l_shank")) for n in PART_NAMES])
+_RIGHT_LEG = np.array([n.startswith(("r_thigh", "r_shank")) for n in PART_NAMES])
 
 
 @dataclass
@@ -60,11 +59,10 @@ class GarmentConfig:
             raise ValueError("garments.max_depth_step_m must be positive")
 
 
-def _nearest_person_columns(person: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _nearest_person_columns(person: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per pixel of an (H, W) mask, the column of the nearest mask pixel at or left of it and at
-    or right of it in its row (-1 where there is none)."""
-    h, w = person.shape
-    cols = np.broadcast_to(np.arange(w), (h, w))
+    or right of it in its row (-1 where there is none); ``cols`` is each pixel's column."""
+    w = person.shape[1]
     left = np.maximum.accumulate(np.where(person, cols, -1), axis=1)
     right = np.minimum.accumulate(np.where(person, cols, w)[:, ::-1], axis=1)[:, ::-1]
     return left, np.where(right == w, -1, right)
@@ -87,8 +85,12 @@ def close_leg_gaps(
         (depth_m, labels), new arrays; the input is not changed.
     """
     person = labels > 0
-    left, right = _nearest_person_columns(person)
-    rows = np.broadcast_to(np.arange(person.shape[0])[:, None], person.shape)
+    h, w = person.shape
+    rows, cols = (
+        np.broadcast_to(np.arange(h)[:, None], (h, w)),
+        np.broadcast_to(np.arange(w), (h, w)),
+    )
+    left, right = _nearest_person_columns(person, cols)
     gap = ~person & (left >= 0) & (right >= 0)
     lc, rc = np.where(gap, left, 0), np.where(gap, right, 0)
     lab_l, lab_r = labels[rows, lc], labels[rows, rc]
@@ -97,7 +99,7 @@ def close_leg_gaps(
     width_px = (rc - lc - 1).astype(np.float64)
     width_m = width_px * 0.5 * (d_l + d_r) / intr.fx
     fill = gap & legs & (width_m <= max_gap_m) & (np.abs(d_l - d_r) <= max_depth_step_m)
-    t = (np.broadcast_to(np.arange(person.shape[1]), person.shape) - lc) / np.maximum(rc - lc, 1)
+    t = (cols - lc) / np.maximum(rc - lc, 1)
     depth_out = np.where(fill, d_l + t * (d_r - d_l), depth_m).astype(depth_m.dtype)
     labels_out = np.where(fill, np.where(t < 0.5, lab_l, lab_r), labels).astype(labels.dtype)
     return depth_out, labels_out
