@@ -12,7 +12,7 @@ are also scored against the rendered labels, which says how far the drawing itse
 trusted.
 
 It found what breaks first on real depth (docs/real_data.md): the shipped forest agrees on 93%
-of the torso's pixels but on 31-37% of the thighs' and 12-16% of the shanks' (92-94% and
+of the torso's pixels but on 34-35% of the thighs' and 13-18% of the shanks' (93-95% and
 84-92% on rendered bodies): it labels trousered legs as abdomen and thighs.
 
     python -m depthmocap.train.evaluation.part_agreement --data /work/data/utd \\
