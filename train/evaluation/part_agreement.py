@@ -275,7 +275,8 @@ def main(argv: list[str] | None = None) -> int:
         except (ForestFormatError, RecordingError, ValueError, OSError) as err:
             print(f"error: {err}", file=sys.stderr)
             return 2
-        results = {k: agreement(c) for k, c in counts.items() if c.sum()}
+        # A frame set with no confidently drawn pixel still gets its row ("-" throughout).
+        results = {k: agreement(c) for k, c in counts.items() if k == "forest" or c.sum()}
         report[str(model)] = results
         print(_table(_short(model), results["forest"]))
         if "forest_vs_labels" in results:

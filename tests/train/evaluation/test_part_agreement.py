@@ -118,6 +118,13 @@ def test_a_run_on_a_labelled_recording(tmp_path, capsys):
     assert mine["drawn_vs_labels"]["overall"] == 1.0
     assert report[str(head)]["forest"]["overall"] == 0.0
     assert "chest.npz" in capsys.readouterr().out
+    # A skeleton far from every pixel: nothing counted, a row of dashes rather than a crash.
+    far = tmp_path / "far"
+    with RecordingWriter(far / "rec", intr, fps=30.0, source="test") as w:
+        w.write_frame(depth, labels)
+        w.write_groundtruth(joints[None] + [5.0, 0, 0], list(sk.JOINT_NAMES), q=np.zeros((1, 34)))
+    assert pa.main(["--data", str(far), "--model", str(chest), "--out", str(out)]) == 0
+    assert json.loads(out.read_text())[str(chest)]["forest"]["overall"] is None
     # Bad input: clear errors, no traceback.
     assert pa.main(["--data", str(tmp_path / "none")]) == 2
     assert pa.main([*args, "--model", str(tmp_path / "missing.npz")]) == 2
