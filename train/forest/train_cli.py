@@ -40,7 +40,12 @@ PRESETS = {
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="train-forest", description=__doc__.splitlines()[0])
-    p.add_argument("--data", required=True, help="training-set directory (make synth)")
+    p.add_argument(
+        "--data",
+        required=True,
+        nargs="+",
+        help="training-set directory (make synth); several are read as one, in order",
+    )
     p.add_argument("--out", required=True, help="output forest.npz")
     p.add_argument("--config", help="YAML preset (default: built-in defaults)")
     p.add_argument("--preset", choices=sorted(PRESETS), help="a named preset instead of --config")
@@ -62,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
         preset = PRESETS[args.preset] if args.preset else args.config
         cfg = config_from_args(ForestConfig, args, load_config(ForestConfig, preset))
         cfg.validate()
-        from depthmocap.train.synth.trainset import TrainSet
+        from depthmocap.train.synth.trainset import open_trainsets
 
         from .evaluate import evaluate_forest, save_confusion_png
         from .onnx_export import embedded_graph, export_onnx
@@ -70,12 +75,12 @@ def main(argv: list[str] | None = None) -> int:
 
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
-        trainset = TrainSet(args.data)
+        trainset = open_trainsets(args.data)
         t0 = time.perf_counter()
         forest = train_forest(trainset, cfg, log=(lambda s: None) if args.quiet else print,
                               max_frames=args.max_frames)  # fmt: skip
         forest.stats["command"] = command
-        forest.stats["data"] = str(args.data)
+        forest.stats["data"] = " ".join(str(d) for d in args.data)
         forest.onnx_graph = embedded_graph(forest)
         save_forest(out, forest)
         save_config(cfg, out.with_suffix(".yaml"))

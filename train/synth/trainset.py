@@ -36,6 +36,8 @@ __all__ = [
     "file_sha256",
     "write_manifest",
     "TrainSet",
+    "TrainSetUnion",
+    "open_trainsets",
 ]
 
 TRAINSET_FORMAT = "depthmocap-trainset"
@@ -232,3 +234,66 @@ class TrainSet:
             body=np.concatenate([p.body for p in parts]),
             intrinsics=parts[0].intrinsics,
         )
+
+
+class TrainSetUnion(TrainSet):
+    """Several training sets read as one, in the order given (``train-forest --data A B``).
+
+    Lets a set rendered with other scene settings (clothed bodies, another seed) be added to
+    the main one without re-rendering or copying either. The sets must share the image size,
+    the intrinsics and the part set; the union's content hash covers every shard in order, so a
+    forest records exactly what it saw.
+    """
+
+    def __init__(self, roots: list[str | Path], verify: bool = False):
+        if not roots:
+            raise TrainSetError("no training sets given")
+        parts = [TrainSet(r, verify=verify) for r in roots]
+        first = parts[0]
+        for p in parts[1:]:
+            if p.intrinsics != first.intrinsics:
+                raise TrainSetError(
+                    f"{p.root}: intrinsics {p.intrinsics} differ from {first.root}'s "
+                    f"{first.intrinsics}"
+                )
+        # A shard's file as a path from the working directory: Path(root) / file keeps it.
+        shards = [
+            {**s, "file": str(p.root / s["file"]), "set": k}
+            for k, p in enumerate(parts)
+            for s in p.manifest["shards"]
+        ]
+        counts = [p.manifest.get("class_pixel_counts") for p in parts]
+        self.root = Path(".")
+        self.parts = parts
+        self.intrinsics = first.intrinsics
+        self.manifest = {
+            **first.manifest,
+            "seed": [p.manifest.get("seed") for p in parts],
+            "frames": int(sum(p.frames for p in parts)),
+            "shards": shards,
+            "class_pixel_counts": (
+                [int(c) for c in np.sum(np.asarray(counts, np.int64), axis=0)]
+                if all(c is not None for c in counts)
+                else None
+            ),
+            "content_hash": hashlib.sha256(
+                "".join(s["sha256"] for s in shards).encode()
+            ).hexdigest(),
+            "config": [p.manifest.get("config") for p in parts],
+            "sets": [
+                {
+                    "root": str(p.root),
+                    "frames": p.frames,
+                    "content_hash": p.manifest.get("content_hash"),
+                }
+                for p in parts
+            ],
+        }
+
+
+def open_trainsets(roots: list[str | Path], verify: bool = False) -> TrainSet:
+    """One training set, or the union of several (one root reads exactly as :class:`TrainSet`)."""
+    roots = list(roots)
+    if not roots:
+        raise TrainSetError("no training sets given")
+    return TrainSet(roots[0], verify) if len(roots) == 1 else TrainSetUnion(roots, verify)

@@ -21,7 +21,14 @@ from depthmocap.train.forest.features import (
 from depthmocap.train.forest.grow import GrowParams, grow_tree
 from depthmocap.train.forest.predict import predict_posteriors
 from depthmocap.train.forest.trainer import train_forest
-from depthmocap.train.synth.trainset import Shard, TrainSet, write_manifest, write_shard
+from depthmocap.train.synth.trainset import (
+    Shard,
+    TrainSet,
+    TrainSetError,
+    open_trainsets,
+    write_manifest,
+    write_shard,
+)
 
 REPO = Path(__file__).resolve().parents[3]
 TOY_INTR = Intrinsics(64, 48, 50.0, 50.0, 31.5, 23.5)
@@ -170,6 +177,46 @@ def test_training_is_deterministic_for_a_seed(toy_set, toy_forest):
     assert not np.array_equal(other.u, toy_forest.u)
 
 
+def _split_toy_set(root: Path, out: Path, intr: Intrinsics = TOY_INTR) -> list[Path]:
+    """Each shard of the toy set as a training set of its own (the same files, in order)."""
+    full = TrainSet(root)
+    roots = []
+    for k, s in enumerate(full.manifest["shards"]):
+        part = out / f"part{k}"
+        part.mkdir(parents=True)
+        (part / s["file"]).write_bytes((root / s["file"]).read_bytes())
+        labels = full.shard(k).labels
+        write_manifest(part, intr, [s], np.bincount(labels.ravel(), minlength=20), k, {})
+        roots.append(part)
+    return roots
+
+
+def test_union_of_sets_reads_and_trains_as_one(toy_set, toy_forest, tmp_path):
+    roots = _split_toy_set(toy_set[0], tmp_path)
+    assert len(roots) == 2
+    union = open_trainsets(roots, verify=True)
+    full = TrainSet(toy_set[0])
+    assert union.frames == full.frames == 40 and union.num_shards == 2
+    assert union.manifest["content_hash"] == full.manifest["content_hash"]
+    assert union.manifest["class_pixel_counts"] == full.manifest["class_pixel_counts"]
+    assert [s["frames"] for s in union.manifest["sets"]] == [20, 20]
+    picked = np.array([3, 25, 39])
+    assert np.array_equal(union.load_frames(picked).depth, full.load_frames(picked).depth)
+    forest = train_forest(union, tiny_config(), log=None)
+    for name in ("u", "v", "threshold", "left", "right", "leaf", "leaf_dist", "roots"):
+        assert np.array_equal(getattr(forest, name), getattr(toy_forest, name)), name
+    assert type(open_trainsets(roots[:1])) is TrainSet
+
+
+def test_union_refuses_sets_from_other_cameras(toy_set, tmp_path):
+    a = _split_toy_set(toy_set[0], tmp_path / "a")[0]
+    b = _split_toy_set(toy_set[0], tmp_path / "b", Intrinsics(64, 48, 60.0, 60.0, 31.5, 23.5))[1]
+    with pytest.raises(TrainSetError, match="intrinsics"):
+        open_trainsets([a, b])
+    with pytest.raises(TrainSetError, match="no training sets"):
+        open_trainsets([])
+
+
 def test_evaluation_and_confusion_png(toy_set, toy_forest):
     res = evaluate_forest(toy_forest, toy_set[0])
     assert res["frames"] == 40 and res["pixel_accuracy"] == 1.0
@@ -187,7 +234,8 @@ def test_train_and_eval_clis(toy_set, tmp_path, capsys):
 
     out = tmp_path / "m" / "forest.npz"
     rc = train_main(
-        ["--data", str(toy_set[0]), "--out", str(out), "--preset", "tiny", "--quiet",
+        ["--data", str(toy_set[0]), str(toy_set[0]), "--out", str(out), "--preset", "tiny",
+         "--quiet",
          "--pixels-per-frame", "300", "--eval-data", str(toy_set[0]), "--onnx",
          str(tmp_path / "f.onnx")]
     )  # fmt: skip
@@ -198,6 +246,7 @@ def test_train_and_eval_clis(toy_set, tmp_path, capsys):
     metrics = json.loads(out.with_suffix(".metrics.json").read_text())
     assert metrics["evaluation"]["mean_class_accuracy"] > 0.9
     assert "train-forest" in metrics["training"]["command"]
+    assert metrics["training"]["data"] == f"{toy_set[0]} {toy_set[0]}"
     assert out.with_suffix(".confusion.png").is_file()
     rc = eval_main(["--model", str(out), "--data", str(toy_set[0]), "--out", str(tmp_path / "e")])
     assert rc == 0 and (tmp_path / "e" / "confusion.png").is_file()
