@@ -5,6 +5,7 @@ Examples::
     train-forest --data data/synth --out models/forest.npz --config configs/forest.yaml
     train-forest --data data/synth_tiny --out /tmp/forest.npz --preset tiny
     train-forest --data data/synth --out /tmp/f.npz --max-frames 2000 --trees 1 --eval-data data/dev
+    train-forest --data data/synth data/synth_clothed --out /tmp/f.npz   # two sets read as one
 
 Writes ``forest.npz`` (with the ONNX graph embedded for the onnxruntime backend), the config it
 was trained with next to it (``forest.yaml``) and ``forest.metrics.json`` (training statistics,
