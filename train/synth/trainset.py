@@ -124,6 +124,11 @@ def read_shard(path: Path) -> Shard:
         raise TrainSetError(f"{path}: unreadable shard ({exc})") from exc
 
 
+def _content_hash(shards: list[dict]) -> str:
+    """sha256 over the shards' own hashes, in order: what a forest records it was grown on."""
+    return hashlib.sha256("".join(s["sha256"] for s in shards).encode()).hexdigest()
+
+
 def write_manifest(
     root: Path,
     intr: Intrinsics,
@@ -134,7 +139,7 @@ def write_manifest(
     extra: dict | None = None,
 ) -> dict:
     """Write ``manifest.json`` atomically for the finished shards (in order)."""
-    content = hashlib.sha256("".join(s["sha256"] for s in shards).encode()).hexdigest()
+    content = _content_hash(shards)
     manifest = {
         "format": TRAINSET_FORMAT,
         "version": TRAINSET_VERSION,
@@ -240,9 +245,9 @@ class TrainSetUnion(TrainSet):
     """Several training sets read as one, in the order given (``train-forest --data A B``).
 
     Lets a set rendered with other scene settings (clothed bodies, another seed) be added to
-    the main one without re-rendering or copying either. The sets must share the image size,
-    the intrinsics and the part set; the union's content hash covers every shard in order, so a
-    forest records exactly what it saw.
+    the main one without re-rendering or copying either. The sets must share the intrinsics
+    (image size included) and the part set; the union's content hash covers every shard in
+    order, so a forest records exactly what it saw.
     """
 
     def __init__(self, roots: list[str | Path], verify: bool = False):
@@ -256,15 +261,14 @@ class TrainSetUnion(TrainSet):
                     f"{p.root}: intrinsics {p.intrinsics} differ from {first.root}'s "
                     f"{first.intrinsics}"
                 )
-        # A shard's file as a path from the working directory: Path(root) / file keeps it.
+        # Each shard's file as an absolute path: Path(root) / file then keeps it as it is.
         shards = [
-            {**s, "file": str(p.root / s["file"]), "set": k}
-            for k, p in enumerate(parts)
+            {**s, "file": str(p.root.resolve() / s["file"])}
+            for p in parts
             for s in p.manifest["shards"]
         ]
         counts = [p.manifest.get("class_pixel_counts") for p in parts]
-        self.root = Path(".")
-        self.parts = parts
+        self.root = Path("/")
         self.intrinsics = first.intrinsics
         self.manifest = {
             **first.manifest,
@@ -276,9 +280,7 @@ class TrainSetUnion(TrainSet):
                 if all(c is not None for c in counts)
                 else None
             ),
-            "content_hash": hashlib.sha256(
-                "".join(s["sha256"] for s in shards).encode()
-            ).hexdigest(),
+            "content_hash": _content_hash(shards),
             "config": [p.manifest.get("config") for p in parts],
             "sets": [
                 {
@@ -294,6 +296,4 @@ class TrainSetUnion(TrainSet):
 def open_trainsets(roots: list[str | Path], verify: bool = False) -> TrainSet:
     """One training set, or the union of several (one root reads exactly as :class:`TrainSet`)."""
     roots = list(roots)
-    if not roots:
-        raise TrainSetError("no training sets given")
     return TrainSet(roots[0], verify) if len(roots) == 1 else TrainSetUnion(roots, verify)
