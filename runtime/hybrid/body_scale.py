@@ -83,6 +83,13 @@ class BodyScaleConfig:
         "tracked too large early drew the final size up with it (real depth, seated starts). "
         "None: every sample",
     )
+    first_at_once: bool = field_doc(
+        False,
+        "read the first sample at once (its refits stall that one frame, ~30 ms) and track "
+        "at its size from the next frame, instead of a sampling period later; the hybrid "
+        "then also samples the detection that starts the track, so the body is sized from "
+        "the first tracked frame on",
+    )
     correction: float = field_doc(
         1.0,
         "factor applied to the size found, kept within min_scale..max_scale (1: none). "
@@ -221,6 +228,9 @@ class BodyScaleSearch:
             self._read(self._pending)
         self._pending = fit(self.bodies, frame, q.detach())
         self.samples += 1
+        if self.cfg.first_at_once and self.samples == 1 and self.samples < self.cfg.samples:
+            self._read(self._pending)
+            self._pending = None
         if interim_limit is not None and fold is not None and not fold <= interim_limit:
             self._folded = True
         if self.samples < self.cfg.samples:

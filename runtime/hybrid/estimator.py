@@ -265,18 +265,23 @@ class HybridEstimator:
         )
         if self.cfg.hold_unseen_limbs:
             self.state.held = held_dofs(observed_of(res))
-        search = self.scale_search
-        if search is not None:
-            scale = search.offer(frame, q, self._size_overlaps, estimate.joints)
-            if scale is not None and scale != self._scale_in_use:
-                self._use_body(search.body.scaled(scale))
-                self._scale_in_use = scale
-            if scale is not None and search.scale is not None:  # the search ends here
-                self._sizes = None
-                if self._worker is not None:
-                    self._worker.shutdown(wait=False)
-                    self._worker = None
+        self._offer_size(frame, q, estimate.joints)
         return estimate
+
+    def _offer_size(self, frame: Frame, q: torch.Tensor, joints: np.ndarray) -> None:
+        """Give the size search a frame's pose; track at the size it returns, if any."""
+        search = self.scale_search
+        if search is None:
+            return
+        scale = search.offer(frame, q, self._size_overlaps, joints)
+        if scale is not None and scale != self._scale_in_use:
+            self._use_body(search.body.scaled(scale))
+            self._scale_in_use = scale
+        if scale is not None and search.scale is not None:  # the search ends here
+            self._sizes = None
+            if self._worker is not None:
+                self._worker.shutdown(wait=False)
+                self._worker = None
 
     def _size_overlaps(self, bodies, frame: Frame, q: torch.Tensor) -> PiecesInFlight | np.ndarray:
         """(S,) silhouette overlaps of ``frame`` refitted from ``q`` with each of the S
@@ -352,7 +357,7 @@ class HybridEstimator:
         self.state.q_prev, self.state.q_prev2 = q, None
         self.state.index_prev, self.state.index_prev2 = frame.index, None
         self.state.held = None
-        return PoseEstimate(
+        estimate = PoseEstimate(
             q.cpu().double().numpy(),
             self._joints(q),
             "detected",
@@ -361,6 +366,12 @@ class HybridEstimator:
             observed=observed_of(det.refined, self.confidence),
             **evidence_of(det.refined),
         )
+        search = self.scale_search
+        if search is not None and search.cfg.first_at_once and search.samples == 0:
+            # Sized from the detection that starts the track: the body is near the
+            # person's size from the first tracked frame, when most re-detections happen.
+            self._offer_size(frame, q, estimate.joints)
+        return estimate
 
     def estimate(self, frame: Frame) -> PoseEstimate:
         """Pose of the person in ``frame`` (module docstring)."""

@@ -132,6 +132,33 @@ def test_interim_sizes_from_the_samples_read_so_far():
         BodyScaleConfig(samples=4, interim_after=0)
 
 
+def test_the_first_sample_read_at_once():
+    """With ``first_at_once`` the first sample is read when it is taken: its size is returned
+    on that frame, a sampling period sooner; later samples are read as before and the final
+    size is the same, on the same frame."""
+    body = BodyShape.default()
+    stature = float(body.stature())
+    peaks = [1.10, 1.02, 0.98, 1.06]
+
+    def fit(bodies, frame, q):
+        return -((bodies.stature().numpy() / stature - peaks[frame // 2]) ** 2)
+
+    def run(**kw):
+        search = BodyScaleSearch(BodyScaleConfig(samples=4, every=2, **kw), body)
+        return search, [search.offer(i, torch.zeros(34), fit) for i in range(10)]
+
+    _, later = run()
+    search, found = run(first_at_once=True)
+    assert found[0] == pytest.approx(1.10, abs=1e-6) and later[0] is None
+    # Frame 2 reads nothing new (sample 0 is in, sample 2 in flight): the same size again.
+    assert found[2] == found[0] and found[4] == later[4] and found[6] == later[6] == search.scale
+    assert [found[k] for k in (1, 3, 5, 7, 8, 9)] == [None] * 6
+    _, alone = run(first_at_once=True, interim_after=None)  # no interim sizes: nothing early
+    assert alone[:6] == [None] * 6 and alone[6] == search.scale
+    single = BodyScaleSearch(BodyScaleConfig(samples=1, first_at_once=True), body)
+    assert single.offer(0, torch.zeros(34), fit) == single.scale == pytest.approx(1.10, abs=1e-6)
+
+
 def test_no_interim_size_after_a_folded_sample():
     """A sample of a folded body (seated, crouched) stops the interim sizes: the body stays
     until the final size, which still counts every sample."""
@@ -213,6 +240,36 @@ def test_the_hybrid_tracks_with_the_interim_sizes(one_thread):
     assert (statures, scale, interim) == (inline[0], inline[2], inline[3])
     for a, b in zip(poses, inline[1], strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_the_hybrid_sizes_from_its_first_detection(one_thread):
+    """With ``first_at_once`` the detection that starts the track is the first sample, read
+    at once: the first tracked frame is tracked at its size, inline and on the worker."""
+    from depthmocap.runtime.estimator import estimate_frame, prepare_frame
+    from depthmocap.runtime.segmentation import PersonSegmenter, SegmentationConfig
+    from depthmocap.runtime.streams import open_stream
+
+    config = {"body_scale": {"samples": 3, "every": 2, "min_scale": 0.9, "max_scale": 1.1,
+                             "step": 0.1, "iterations": 2, "first_at_once": True}}  # fmt: skip
+    runs = []
+    for background in (True, False):
+        segment = PersonSegmenter(SegmentationConfig())
+        with open_stream("demo") as stream:
+            est = _demo_hybrid(stream, config, background)
+            base = float(est.body.stature())
+            statures, status = [], []
+            for k, frame in enumerate(stream):
+                if k == 3:
+                    break
+                status.append(estimate_frame(est, prepare_frame(est, frame, segment)).status)
+                statures.append(float(est.body.stature()))
+                if k == 0:
+                    first = est.scale_search.interim
+            runs.append((statures, status, first))
+    (statures, status, first), inline = runs
+    assert status[0] == "detected" and first is not None and first != 1.0
+    assert statures[0] == pytest.approx(base * first, rel=1e-5)
+    assert (statures, status, first) == inline
 
 
 def _stick_figure(l_thigh, r_thigh) -> np.ndarray:
