@@ -86,9 +86,13 @@ class BodyScaleConfig:
     first_at_once: bool = field_doc(
         False,
         "read the first sample at once (its refits stall that one frame, ~30 ms) and track "
-        "at its size from the next frame, instead of a sampling period later; the hybrid "
-        "then also samples the detection that starts the track, so the body is sized from "
-        "the first tracked frame on",
+        "at its size from the next frame, instead of a sampling period later",
+    )
+    sample_detection: bool = field_doc(
+        False,
+        "with first_at_once, the hybrid samples the detection that starts the track as the "
+        "first sample, so the body is sized from the first tracked frame on (a detection's "
+        "pose is rougher than a tracked one)",
     )
     correction: float = field_doc(
         1.0,

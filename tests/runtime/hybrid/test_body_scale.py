@@ -46,7 +46,9 @@ def test_peak_of_a_parabola_is_its_vertex():
 
 def test_refits_every_kth_frame_at_all_sizes_then_stops():
     body = BodyShape.default()
-    cfg = BodyScaleConfig(samples=3, every=2, correction=1.0, interim_after=None)
+    cfg = BodyScaleConfig(
+        first_at_once=False, samples=3, every=2, correction=1.0, interim_after=None
+    )
     search = BodyScaleSearch(cfg, body)
     stature = float(body.stature())
     seen = []
@@ -60,10 +62,13 @@ def test_refits_every_kth_frame_at_all_sizes_then_stops():
     assert found[:4] == [None] * 4 and found[5:] == [None] * 5
     assert found[4] == pytest.approx(1.08, abs=1e-6) and search.scale == found[4]
     assert search.bodies.lengths.shape == (len(search.factors), 15)
-    bad = BodyScaleSearch(BodyScaleConfig(every=1), body)
+    bad = BodyScaleSearch(BodyScaleConfig(every=1, first_at_once=False), body)
     bad.offer("f", torch.zeros(34), lambda *a: [1.0])  # read at the next sample
     with pytest.raises(ValueError, match="overlaps"):
         bad.offer("g", torch.zeros(34), lambda *a: [1.0])
+    at_once = BodyScaleSearch(BodyScaleConfig(every=1, first_at_once=True), body)
+    with pytest.raises(ValueError, match="overlaps"):
+        at_once.offer("f", torch.zeros(34), lambda *a: [1.0])
 
 
 def test_samples_on_a_thread_give_the_inline_size_on_the_same_frame():
@@ -78,7 +83,9 @@ def test_samples_on_a_thread_give_the_inline_size_on_the_same_frame():
     def fit(bodies, frame, q):
         return -((bodies.stature().numpy() / stature - 0.9 - 0.01 * frame) ** 2)
 
-    cfg = BodyScaleConfig(samples=4, every=3, correction=1.0, interim_after=None)
+    cfg = BodyScaleConfig(
+        first_at_once=False, samples=4, every=3, correction=1.0, interim_after=None
+    )
     inline = BodyScaleSearch(cfg, body)
     found_inline = [inline.offer(i, torch.zeros(34), fit) for i in range(16)]
     with ThreadPoolExecutor(1) as worker:
@@ -94,7 +101,7 @@ def test_samples_on_a_thread_give_the_inline_size_on_the_same_frame():
         def broken(bodies, frame, q):
             raise RuntimeError("refit failed")
 
-        failing = BodyScaleSearch(BodyScaleConfig(samples=2, every=1), body)
+        failing = BodyScaleSearch(BodyScaleConfig(first_at_once=False, samples=2, every=1), body)
         assert failing.offer(0, torch.zeros(34), lambda *a: worker.submit(broken, *a)) is None
         with pytest.raises(RuntimeError, match="refit failed"):
             failing.offer(1, torch.zeros(34), fit)
@@ -112,7 +119,9 @@ def test_interim_sizes_from_the_samples_read_so_far():
         return -((bodies.stature().numpy() / stature - peaks[frame // 2]) ** 2)
 
     def run(**kw):
-        search = BodyScaleSearch(BodyScaleConfig(samples=4, every=2, **kw), body)
+        search = BodyScaleSearch(
+            BodyScaleConfig(first_at_once=False, samples=4, every=2, **kw), body
+        )
         return search, [search.offer(i, torch.zeros(34), fit) for i in range(10)]
 
     plain, found_plain = run(interim_after=None)
@@ -129,7 +138,7 @@ def test_interim_sizes_from_the_samples_read_so_far():
     assert never == found_plain
     assert BodyScaleConfig().interim_after == 1  # shipped
     with pytest.raises(ConfigError):
-        BodyScaleConfig(samples=4, interim_after=0)
+        BodyScaleConfig(first_at_once=False, samples=4, interim_after=0)
 
 
 def test_the_first_sample_read_at_once():
@@ -171,7 +180,9 @@ def test_no_interim_size_after_a_folded_sample():
         return -((bodies.stature().numpy() / stature - 1.0 - 0.02 * frame) ** 2)
 
     def run(poses, **kw):
-        search = BodyScaleSearch(BodyScaleConfig(samples=4, every=1, **kw), body)
+        search = BodyScaleSearch(
+            BodyScaleConfig(first_at_once=False, samples=4, every=1, **kw), body
+        )
         return [search.offer(i, torch.zeros(34), fit, j) for i, j in enumerate(poses)]
 
     upright = run([standing] * 5)
@@ -211,7 +222,8 @@ def test_the_hybrid_tracks_with_the_interim_sizes(one_thread):
     from depthmocap.runtime.streams import open_stream
 
     config = {"body_scale": {"samples": 3, "every": 1, "min_scale": 0.9, "max_scale": 1.1,
-                             "step": 0.1, "interim_after": 1, "iterations": 2}}  # fmt: skip
+                             "step": 0.1, "interim_after": 1, "iterations": 2,
+                             "first_at_once": False}}  # fmt: skip
     runs = []
     for background in (True, False):
         segment = PersonSegmenter(SegmentationConfig())
@@ -242,34 +254,39 @@ def test_the_hybrid_tracks_with_the_interim_sizes(one_thread):
         np.testing.assert_array_equal(a, b)
 
 
-def test_the_hybrid_sizes_from_its_first_detection(one_thread):
-    """With ``first_at_once`` the detection that starts the track is the first sample, read
-    at once: the first tracked frame is tracked at its size, inline and on the worker."""
+@pytest.mark.parametrize("sample_detection", [True, False])
+def test_the_hybrid_reads_its_first_sample_at_once(one_thread, sample_detection):
+    """With ``first_at_once`` the first sample is read when taken: with ``sample_detection``
+    that is the detection starting the track (the first tracked frame is tracked at its
+    size), otherwise the first tracked frame (the second on); inline and worker agree."""
     from depthmocap.runtime.estimator import estimate_frame, prepare_frame
     from depthmocap.runtime.segmentation import PersonSegmenter, SegmentationConfig
     from depthmocap.runtime.streams import open_stream
 
     config = {"body_scale": {"samples": 3, "every": 2, "min_scale": 0.9, "max_scale": 1.1,
-                             "step": 0.1, "iterations": 2, "first_at_once": True}}  # fmt: skip
+                             "step": 0.1, "iterations": 2, "first_at_once": True,
+                             "sample_detection": sample_detection}}  # fmt: skip
     runs = []
     for background in (True, False):
         segment = PersonSegmenter(SegmentationConfig())
         with open_stream("demo") as stream:
             est = _demo_hybrid(stream, config, background)
             base = float(est.body.stature())
-            statures, status = [], []
+            statures, status, interims = [], [], []
             for k, frame in enumerate(stream):
                 if k == 3:
                     break
                 status.append(estimate_frame(est, prepare_frame(est, frame, segment)).status)
                 statures.append(float(est.body.stature()))
-                if k == 0:
-                    first = est.scale_search.interim
-            runs.append((statures, status, first))
-    (statures, status, first), inline = runs
-    assert status[0] == "detected" and first is not None and first != 1.0
-    assert statures[0] == pytest.approx(base * first, rel=1e-5)
-    assert (statures, status, first) == inline
+                interims.append(est.scale_search.interim)
+            runs.append((statures, status, interims))
+    (statures, status, interims), inline = runs
+    assert status[:2] == ["detected", "tracked"]
+    first = 0 if sample_detection else 1  # the frame whose size is read at once
+    assert interims[:first] == [None] * first and interims[first] not in (None, 1.0)
+    assert statures[:first] == [base] * first
+    assert statures[first] == pytest.approx(base * interims[first], rel=1e-5)
+    assert (statures, status, interims) == inline
 
 
 def _stick_figure(l_thigh, r_thigh) -> np.ndarray:
@@ -300,7 +317,9 @@ def test_fold_angle_of_standing_seated_and_one_raised_leg():
 
 def test_a_folded_body_is_not_sampled_nor_counted():
     body = BodyShape.default()
-    cfg = BodyScaleConfig(samples=2, every=2, correction=1.0, max_fold_deg=60.0)
+    cfg = BodyScaleConfig(
+        first_at_once=False, samples=2, every=2, correction=1.0, max_fold_deg=60.0
+    )
     search = BodyScaleSearch(cfg, body)
     seen = []
 
@@ -314,7 +333,7 @@ def test_a_folded_body_is_not_sampled_nor_counted():
     found = [search.offer(i, torch.zeros(34), fit, j) for i, j in enumerate(poses)]
     assert seen == [3, 5]  # every 2nd unfolded frame
     assert found[5] == pytest.approx(1.0, abs=1e-6) and found[:5] == [None] * 5
-    free = BodyScaleSearch(BodyScaleConfig(samples=1, max_fold_deg=None), body)
+    free = BodyScaleSearch(BodyScaleConfig(first_at_once=False, samples=1, max_fold_deg=None), body)
     assert free.offer(0, torch.zeros(34), fit, seated) is not None  # the check switched off
     with pytest.raises(ConfigError):
         BodyScaleConfig(max_fold_deg=0.0)
@@ -335,7 +354,9 @@ def test_the_search_finds_the_size_of_a_rendered_person(one_thread, true_scale):
     person = default.scaled(true_scale)
     truth = camera_motion("walk", 24, seed=0, body=person).float()
     depth = render_body(truth, person, INTR).depth
-    search = BodyScaleSearch(BodyScaleConfig(samples=6, every=4, correction=1.0), default)
+    search = BodyScaleSearch(
+        BodyScaleConfig(first_at_once=False, samples=6, every=4, correction=1.0), default
+    )
     trackers: dict = {}
 
     def fit(bodies, frame, q):  # as the hybrid does: one batched fit of all sizes
@@ -387,7 +408,9 @@ def test_runtime_track_with_the_search_on(tmp_path, one_thread):
 
 def test_the_correction_multiplies_the_peak_and_the_curves_are_kept():
     body = BodyShape.default()
-    search = BodyScaleSearch(BodyScaleConfig(samples=2, every=1, correction=1.05), body)
+    search = BodyScaleSearch(
+        BodyScaleConfig(first_at_once=False, samples=2, every=1, correction=1.05), body
+    )
     stature = float(body.stature())
 
     def fit(bodies, frame, q):
@@ -403,7 +426,9 @@ def test_the_correction_multiplies_the_peak_and_the_curves_are_kept():
 
 def test_the_corrected_size_stays_within_the_grid():
     body = BodyShape.default()
-    search = BodyScaleSearch(BodyScaleConfig(samples=1, every=1, correction=1.1), body)
+    search = BodyScaleSearch(
+        BodyScaleConfig(first_at_once=False, samples=1, every=1, correction=1.1), body
+    )
     found = search.offer(0, torch.zeros(34), lambda bodies, f, q: bodies.stature().numpy())
     assert search.peak == pytest.approx(1.16) and found == pytest.approx(1.16)
 
@@ -417,7 +442,7 @@ def test_the_hybrid_sizes_on_its_worker_thread_as_inline(one_thread):
     from depthmocap.runtime.streams import open_stream
 
     config = {"body_scale": {"samples": 2, "every": 2, "min_scale": 0.9, "max_scale": 1.1,
-                             "step": 0.1}}  # fmt: skip
+                             "step": 0.1, "first_at_once": False}}  # fmt: skip
     runs = []
     for background in (True, False):
         segment = PersonSegmenter(SegmentationConfig())
