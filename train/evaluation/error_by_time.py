@@ -1,0 +1,144 @@
+"""When in a take the errors and the tracking failures are: the frames of ``dev_benchmark``
+runs pooled by their index in the take.
+
+A take starts with a detection and, without a body file, at the population's size until the
+size search has read its first sample, so its first frames behave unlike the rest. How much a
+start-up change moves a table depends on the takes' length: the broad tuning set's takes are
+24 frames long, the size tuning set's 60 and the reported set's 57 on average, and a change
+that helped the first set's start-ups did not help the others (``docs/experiments.md``,
+thirty-ninth session). This table shows where in time a run's error and re-detections sit,
+and with ``--base`` how a change moves each stretch.
+
+Per bin of ``--bin`` frames (the last bin holds every later frame): the frames pooled, their
+mean joint error (mm; the mean over a frame's joints, frames without a pose left out) and the
+share of them that are tracking failures (:func:`.metrics.tracking_failure_pct`'s frames:
+every frame not ``tracked`` except a track's first, so lost frames count too).
+
+    python -m depthmocap.train.evaluation.error_by_time OUT [OUT ...] [--base OUT ...]
+        [--bin 4] [--bins 6] [--config "hybrid, default body @ 0.2 rad"]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+from depthmocap.shared.recording import Recording
+
+from .compare_runs import DEFAULT_CONFIG, load_runs
+from .metrics import initializations
+from .result_io import load_result
+from .truth import recording_truth
+
+__all__ = ["frame_rows", "pooled_by_bin", "format_table", "main"]
+
+
+def frame_rows(recording: str | Path, result: str | Path) -> dict[str, np.ndarray]:
+    """Per written frame of ``result``: its index in the take, its mean joint error against
+    the recording's truth (m; NaN without a pose) and whether it is a tracking failure, each
+    (N,). Joints are those the result and the truth share."""
+    truth = recording_truth(Recording(recording))
+    res = load_result(result)
+    names = [n for n in truth.joint_names if n in res.joint_names]
+    if not names:
+        raise ValueError(f"{result}: no joint in common with {recording}'s truth")
+    if len(res.frame) and int(res.frame.max()) >= len(truth.joints):
+        raise ValueError(f"{result} has frames past the end of {recording}'s truth")
+    ours = res.joints[:, [res.joint_names.index(n) for n in names]]
+    true = np.asarray(truth.joints, dtype=np.float64)[res.frame]
+    true = true[:, [truth.joint_names.index(n) for n in names]]
+    distance = np.linalg.norm(ours - true, axis=-1)  # (N, J), NaN where no pose
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a frame without a pose: NaN
+        error = np.nanmean(distance, axis=1)
+    failure = (res.status != "tracked") & ~initializations(res.status)
+    return {"index": res.frame.astype(np.int64), "error": error, "failure": failure}
+
+
+def pooled_by_bin(runs: Iterable[dict[str, np.ndarray]], bin_frames: int, bins: int) -> list[dict]:
+    """``bins`` rows of :func:`frame_rows` pooled over ``runs``: frames ``k * bin_frames``
+    to ``(k + 1) * bin_frames - 1``, the last row from its first frame on. Each row: ``first``,
+    ``last`` (None for the open last row), ``frames``, ``error_mm`` (NaN for no pose) and
+    ``failure_pct``."""
+    if bin_frames < 1 or bins < 1:
+        raise ValueError(f"bin_frames and bins must be >= 1, got {bin_frames}, {bins}")
+    runs = list(runs)
+    index = np.concatenate([r["index"] for r in runs]) if runs else np.zeros(0, np.int64)
+    error = np.concatenate([r["error"] for r in runs]) if runs else np.zeros(0)
+    failure = np.concatenate([r["failure"] for r in runs]) if runs else np.zeros(0, bool)
+    which = np.minimum(index // bin_frames, bins - 1)
+    rows = []
+    for k in range(bins):
+        sel = which == k
+        posed = sel & np.isfinite(error)
+        rows.append(
+            {
+                "first": k * bin_frames,
+                "last": None if k == bins - 1 else (k + 1) * bin_frames - 1,
+                "frames": int(sel.sum()),
+                "error_mm": 1e3 * float(error[posed].mean()) if posed.any() else float("nan"),
+                "failure_pct": 100.0 * float(failure[sel].mean()) if sel.any() else float("nan"),
+            }
+        )
+    return rows
+
+
+def format_table(rows: list[dict], base: list[dict] | None = None) -> str:
+    """The rows as markdown; with ``base`` (the same bins), each figure as ``base -> new``."""
+
+    def span(r: dict) -> str:
+        return f"{r['first']}-{r['last']}" if r["last"] is not None else f"{r['first']}-"
+
+    if base is None:
+        lines = ["| frames | count | joint error mm | tracking failure |", "|---|---|---|---|"]
+        for r in rows:
+            lines.append(
+                f"| {span(r)} | {r['frames']} | {r['error_mm']:.1f} | {r['failure_pct']:.1f}% |"
+            )
+        return "\n".join(lines)
+    lines = ["| frames | count | joint error mm | tracking failure |", "|---|---|---|---|"]
+    for b, r in zip(base, rows, strict=True):
+        lines.append(
+            f"| {span(r)} | {r['frames']} | {b['error_mm']:.1f} -> {r['error_mm']:.1f} "
+            f"| {b['failure_pct']:.1f}% -> {r['failure_pct']:.1f}% |"
+        )
+    return "\n".join(lines)
+
+
+def _pooled(outs: list[Path], config: str, bin_frames: int, bins: int) -> list[dict]:
+    entries = load_runs(outs, config).values()
+    return pooled_by_bin(
+        (frame_rows(e["recording"], e["result"]) for e in entries), bin_frames, bins
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m depthmocap.train.evaluation.error_by_time",
+        description="Joint error and tracking failures of dev_benchmark runs by the frames' "
+        "index in their take (start-up against the rest).",
+    )
+    parser.add_argument("outs", nargs="+", type=Path, help="dev_benchmark --out folders")
+    parser.add_argument(
+        "--base", nargs="+", type=Path, default=None, help="folders of a run to compare with"
+    )
+    parser.add_argument("--config", default=DEFAULT_CONFIG, help="configuration to read")
+    parser.add_argument("--bin", type=int, default=4, help="frames per bin")
+    parser.add_argument("--bins", type=int, default=6, help="bins (the last one open)")
+    args = parser.parse_args(argv)
+    try:
+        rows = _pooled(args.outs, args.config, args.bin, args.bins)
+        base = None if args.base is None else _pooled(args.base, args.config, args.bin, args.bins)
+    except ValueError as err:  # a missing or malformed report, recording or result; bad bins
+        print(f"error_by_time: {err}", file=sys.stderr)
+        return 2
+    print(format_table(rows, base))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
