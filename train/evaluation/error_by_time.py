@@ -7,7 +7,8 @@ start-up change moves a table depends on the takes' length: the broad tuning set
 24 frames long, the size tuning set's 60 and the reported set's 57 on average, and a change
 that helped the first set's start-ups did not help the others (``docs/experiments.md``,
 thirty-ninth session). This table shows where in time a run's error and re-detections sit,
-and with ``--base`` how a change moves each stretch.
+and with ``--base`` how a change moves each stretch. ``real_benchmark`` outputs are read too
+(their recordings' reference in place of the truth: raw distances to another tracker).
 
 Per bin of ``--bin`` frames (the last bin holds every later frame): the frames pooled, their
 mean joint error (mm; the mean over a frame's joints, frames without a pose left out) and the
@@ -21,6 +22,7 @@ every frame not ``tracked`` except a track's first, so lost frames count too).
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import warnings
 from collections.abc import Iterable
@@ -34,7 +36,7 @@ from .metrics import initializations
 from .result_io import load_result
 from .truth import recording_truth
 
-__all__ = ["frame_rows", "pooled_by_bin", "format_table", "main"]
+__all__ = ["frame_rows", "pooled_by_bin", "run_entries", "format_table", "main"]
 
 
 def frame_rows(recording: str | Path, result: str | Path) -> dict[str, np.ndarray]:
@@ -109,8 +111,23 @@ def format_table(rows: list[dict], base: list[dict] | None = None) -> str:
     return "\n".join(lines)
 
 
+def run_entries(outs: list[Path], config: str) -> list[dict]:
+    """The per-recording entries (each with ``recording`` and ``result``) of ``dev_benchmark``
+    outputs (``config``'s) or of ``real_benchmark`` outputs (their own, scored against the
+    reference: raw distances, as the reference has no offsets of ours to normalize)."""
+    real, bench = [], []
+    for out in outs:
+        path = Path(out) / "report.json"
+        report = json.loads(path.read_text()) if path.is_file() else {}
+        if isinstance(report.get("per_recording"), dict):  # real_benchmark's report
+            real.extend(report["per_recording"].values())
+        else:
+            bench.append(out)
+    return real + (list(load_runs(bench, config).values()) if bench else [])
+
+
 def _pooled(outs: list[Path], config: str, bin_frames: int, bins: int) -> list[dict]:
-    entries = load_runs(outs, config).values()
+    entries = run_entries(outs, config)
     return pooled_by_bin(
         (frame_rows(e["recording"], e["result"]) for e in entries), bin_frames, bins
     )
@@ -122,7 +139,9 @@ def main(argv: list[str] | None = None) -> int:
         description="Joint error and tracking failures of dev_benchmark runs by the frames' "
         "index in their take (start-up against the rest).",
     )
-    parser.add_argument("outs", nargs="+", type=Path, help="dev_benchmark --out folders")
+    parser.add_argument(
+        "outs", nargs="+", type=Path, help="dev_benchmark or real_benchmark --out folders"
+    )
     parser.add_argument(
         "--base", nargs="+", type=Path, default=None, help="folders of a run to compare with"
     )

@@ -96,5 +96,12 @@ def test_a_recording_end_to_end(tmp_path, capsys):
     args = [str(new), "--base", str(base), "--config", CONFIG, "--bin", "4", "--bins", "2"]
     assert ebt.main(args) == 0
     assert "| 0-3 | 4 | 50.0 -> 25.0 | 0.0% -> 25.0% |" in capsys.readouterr().out
+    real = tmp_path / "real"  # real_benchmark's report: its per_recording at the top
+    real.mkdir()
+    entry = {"recording": str(rec), "result": str(res)}
+    (real / "report.json").write_text(json.dumps({"data": "x", "per_recording": {"rec": entry}}))
+    assert len(ebt.run_entries([real, new], CONFIG)) == 2
+    assert ebt.main([str(real), "--bin", "4", "--bins", "2"]) == 0
+    assert "| 0-3 | 4 | 25.0 | 25.0% |" in capsys.readouterr().out
     assert ebt.main([str(tmp_path), "--config", CONFIG]) == 2  # no report.json: said
     assert "no report.json" in capsys.readouterr().err
