@@ -213,38 +213,54 @@ def _demo_hybrid(stream, config: dict, background: bool):
     )  # fmt: skip
 
 
-def test_the_hybrid_tracks_with_the_interim_sizes(one_thread):
-    """On the demo the hybrid moves its tracker to each interim size and then the final one,
-    each the search's own body scaled (not a scaled body scaled again), and the arm search
-    keeps its memory across the changes; background and inline runs agree."""
+def _demo_runs(config: dict, frames: int, before=None) -> list[tuple]:
+    """The shipped hybrid with ``config`` over the demo's first ``frames`` frames, its size
+    refits on a worker thread and then inline: for each run the estimator, its body's stature
+    before the first frame and per frame (estimate, stature after it, interim factor).
+    ``before(est)`` runs on each estimator before its first frame."""
     from depthmocap.runtime.estimator import estimate_frame, prepare_frame
     from depthmocap.runtime.segmentation import PersonSegmenter, SegmentationConfig
     from depthmocap.runtime.streams import open_stream
 
-    config = {"body_scale": {"samples": 3, "every": 1, "min_scale": 0.9, "max_scale": 1.1,
-                             "step": 0.1, "interim_after": 1, "iterations": 2,
-                             "first_at_once": False}}  # fmt: skip
     runs = []
     for background in (True, False):
         segment = PersonSegmenter(SegmentationConfig())
         with open_stream("demo") as stream:
             est = _demo_hybrid(stream, config, background)
-            base = est.body
-            est.arm_search.failed_at["left"] = -5  # a memory that must survive the changes
-            statures, poses = [], []
+            if before is not None:
+                before(est)
+            base = float(est.body.stature())
+            steps = []
             for k, frame in enumerate(stream):
-                if k == 6:
+                if k == frames:
                     break
-                poses.append(estimate_frame(est, prepare_frame(est, frame, segment)).q)
-                statures.append(float(est.body.stature()))
-            search = est.scale_search
-            runs.append((statures, poses, search.scale, search.interim))
-            assert est.arm_search.failed_at.get("left") == -5
-            for other in (est.arm_search.body, est.detector.body):
-                torch.testing.assert_close(other.lengths, est.body.lengths)
-    (statures, poses, scale, interim), inline = runs
+                estimate = estimate_frame(est, prepare_frame(est, frame, segment))
+                steps.append((estimate, float(est.body.stature()), est.scale_search.interim))
+            runs.append((est, base, steps))
+    return runs
+
+
+def test_the_hybrid_tracks_with_the_interim_sizes(one_thread):
+    """On the demo the hybrid moves its tracker to each interim size and then the final one,
+    each the search's own body scaled (not a scaled body scaled again), and the arm search
+    keeps its memory across the changes; background and inline runs agree."""
+    config = {"body_scale": {"samples": 3, "every": 1, "min_scale": 0.9, "max_scale": 1.1,
+                             "step": 0.1, "interim_after": 1, "iterations": 2,
+                             "first_at_once": False}}  # fmt: skip
+
+    def remember(est):
+        est.arm_search.failed_at["left"] = -5  # a memory that must survive the changes
+
+    runs = []
+    for est, base, steps in _demo_runs(config, 6, remember):
+        assert est.arm_search.failed_at.get("left") == -5
+        for other in (est.arm_search.body, est.detector.body):
+            torch.testing.assert_close(other.lengths, est.body.lengths)
+        search = est.scale_search
+        runs.append(([s for _, s, _ in steps], [e.q for e, _, _ in steps], search.scale,
+                     search.interim, base))  # fmt: skip
+    (statures, poses, scale, interim, base_stature), inline = runs
     # Frame 0 detected; samples at 1, 2, 3: an interim size at 2 (sample 1 read), then 3 final.
-    base_stature = float(base.stature())
     assert statures[:2] == [base_stature] * 2
     assert interim is not None and statures[2] == pytest.approx(base_stature * interim, rel=1e-5)
     assert statures[3] == pytest.approx(base_stature * scale, rel=1e-5)
@@ -259,34 +275,21 @@ def test_the_hybrid_reads_its_first_sample_at_once(one_thread, sample_detection)
     """With ``first_at_once`` the first sample is read when taken: with ``sample_detection``
     that is the detection starting the track (the first tracked frame is tracked at its
     size), otherwise the first tracked frame (the second on); inline and worker agree."""
-    from depthmocap.runtime.estimator import estimate_frame, prepare_frame
-    from depthmocap.runtime.segmentation import PersonSegmenter, SegmentationConfig
-    from depthmocap.runtime.streams import open_stream
-
     config = {"body_scale": {"samples": 3, "every": 2, "min_scale": 0.9, "max_scale": 1.1,
                              "step": 0.1, "iterations": 2, "first_at_once": True,
                              "sample_detection": sample_detection}}  # fmt: skip
-    runs = []
-    for background in (True, False):
-        segment = PersonSegmenter(SegmentationConfig())
-        with open_stream("demo") as stream:
-            est = _demo_hybrid(stream, config, background)
-            base = float(est.body.stature())
-            statures, status, interims = [], [], []
-            for k, frame in enumerate(stream):
-                if k == 3:
-                    break
-                status.append(estimate_frame(est, prepare_frame(est, frame, segment)).status)
-                statures.append(float(est.body.stature()))
-                interims.append(est.scale_search.interim)
-            runs.append((statures, status, interims))
-    (statures, status, interims), inline = runs
+    runs = [
+        ([e.status for e, _, _ in steps], [s for _, s, _ in steps], [i for _, _, i in steps],
+         base)
+        for _, base, steps in _demo_runs(config, 3)
+    ]  # fmt: skip
+    (status, statures, interims, base), inline = runs
     assert status[:2] == ["detected", "tracked"]
     first = 0 if sample_detection else 1  # the frame whose size is read at once
     assert interims[:first] == [None] * first and interims[first] not in (None, 1.0)
     assert statures[:first] == [base] * first
     assert statures[first] == pytest.approx(base * interims[first], rel=1e-5)
-    assert (statures, status, interims) == inline
+    assert (status, statures, interims, base) == inline
 
 
 def _stick_figure(l_thigh, r_thigh) -> np.ndarray:
