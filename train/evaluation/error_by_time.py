@@ -7,8 +7,12 @@ start-up change moves a table depends on the takes' length: the broad tuning set
 24 frames long, the size tuning set's 60 and the reported set's 57 on average, and a change
 that helped the first set's start-ups did not help the others (``docs/experiments.md``,
 thirty-ninth session). This table shows where in time a run's error and re-detections sit,
-and with ``--base`` how a change moves each stretch. ``real_benchmark`` outputs are read too
-(their recordings' reference in place of the truth: raw distances to another tracker).
+and with ``--base`` how a change moves each stretch. A second table splits the run's frames by
+how the hybrid chose their pose (:data:`KINDS`): a track kept after failing Wei's tests
+because the detection fitted worse is reported ``tracked`` and is no tracking failure by
+:func:`.metrics.tracking_failure_pct`, yet it is where the largest errors are.
+``real_benchmark`` outputs are read too (their recordings' reference in place of the truth:
+raw distances to another tracker).
 
 Per bin of ``--bin`` frames (the last bin holds every later frame): the frames pooled, their
 mean joint error (mm; the mean over a frame's joints, frames without a pose left out) and the
@@ -36,7 +40,17 @@ from .metrics import initializations
 from .result_io import load_result
 from .truth import recording_truth
 
-__all__ = ["frame_rows", "pooled_by_bin", "run_entries", "format_table", "main"]
+__all__ = [
+    "KINDS",
+    "frame_rows",
+    "pose_kinds",
+    "pooled_by_bin",
+    "pooled_by_kind",
+    "run_entries",
+    "format_table",
+    "format_kinds",
+    "main",
+]
 
 
 def frame_rows(recording: str | Path, result: str | Path) -> dict[str, np.ndarray]:
@@ -57,8 +71,96 @@ def frame_rows(recording: str | Path, result: str | Path) -> dict[str, np.ndarra
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # a frame without a pose: NaN
         error = np.nanmean(distance, axis=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        worst = np.nanmax(distance, axis=1)
     failure = (res.status != "tracked") & ~initializations(res.status)
-    return {"index": res.frame.astype(np.int64), "error": error, "failure": failure}
+    return {
+        "index": res.frame.astype(np.int64),
+        "error": error,
+        "worst": worst,
+        "failure": failure,
+        "kind": pose_kinds(res.status, res.errors),
+    }
+
+
+def pose_kinds(status: np.ndarray, errors: dict[str, np.ndarray]) -> np.ndarray:
+    """(N,) how the hybrid chose each frame's pose (:data:`KINDS`), from its status and the
+    flags the estimator writes among a frame's errors (``runtime.hybrid.estimator``)."""
+    status = np.asarray(status)
+    n = len(status)
+
+    def flag(name: str) -> np.ndarray:
+        return np.isfinite(errors[name]) if name in errors else np.zeros(n, bool)
+
+    kind = np.full(n, KINDS[0], dtype=object)
+    tracked = status == "tracked"
+    kind[tracked & (flag("rechecked") | flag("confirmed_by_detector"))] = KINDS[1]
+    kind[tracked & flag("detector_waited")] = KINDS[2]
+    kind[tracked & flag("kept_over_detector")] = KINDS[3]
+    start = initializations(status)
+    kind[(status == "detected") & ~start] = KINDS[4]
+    kind[start] = KINDS[5]
+    kind[status == "lost"] = KINDS[6]
+    return kind
+
+
+#: How a frame's pose was chosen: passed Wei's tests; passed them, was rechecked by the
+#: detector and kept; failed or suspect while the detector waited after a refusal; failed
+#: them and kept because the detection fitted worse; the detection taken over a track; a
+#: track's first frame; no pose.
+KINDS = (
+    "tracked",
+    "tracked, rechecked",
+    "tracked, detector waited",
+    "tracked, tests failed",
+    "detection taken",
+    "track start",
+    "lost",
+)
+
+
+def pooled_by_kind(runs: Iterable[dict[str, np.ndarray]], gross_m: float = 0.2) -> list[dict]:
+    """Rows of :func:`frame_rows` pooled by :func:`pose_kinds` (the kinds that occur, in
+    :data:`KINDS` order): ``kind``, ``frames``, ``frames_pct`` (of all), ``error_mm`` and
+    ``gross_pct``, the kind's share of all frames with a joint more than ``gross_m`` off."""
+    runs = list(runs)
+    if not runs:
+        return []
+    kind = np.concatenate([r["kind"] for r in runs])
+    error = np.concatenate([r["error"] for r in runs])
+    with np.errstate(invalid="ignore"):
+        gross = np.concatenate([r["worst"] for r in runs]) > gross_m
+    rows = []
+    for k in KINDS:
+        sel = kind == k
+        if not sel.any():
+            continue
+        posed = sel & np.isfinite(error)
+        rows.append(
+            {
+                "kind": k,
+                "frames": int(sel.sum()),
+                "frames_pct": 100.0 * float(sel.mean()),
+                "error_mm": 1e3 * float(error[posed].mean()) if posed.any() else float("nan"),
+                "gross_pct": 100.0 * float((gross & sel).sum()) / max(int(gross.sum()), 1),
+            }
+        )
+    return rows
+
+
+def format_kinds(rows: list[dict]) -> str:
+    """:func:`pooled_by_kind`'s rows as markdown."""
+    lines = [
+        "| pose | frames | share | joint error mm | share of frames with a joint > 20 cm |",
+        "|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['kind']} | {r['frames']} | {r['frames_pct']:.1f}% | {r['error_mm']:.1f} "
+            f"| {r['gross_pct']:.1f}% |"
+        )
+    return "\n".join(lines)
 
 
 def pooled_by_bin(runs: Iterable[dict[str, np.ndarray]], bin_frames: int, bins: int) -> list[dict]:
@@ -126,11 +228,8 @@ def run_entries(outs: list[Path], config: str) -> list[dict]:
     return real + (list(load_runs(bench, config).values()) if bench else [])
 
 
-def _pooled(outs: list[Path], config: str, bin_frames: int, bins: int) -> list[dict]:
-    entries = run_entries(outs, config)
-    return pooled_by_bin(
-        (frame_rows(e["recording"], e["result"]) for e in entries), bin_frames, bins
-    )
+def _frames(outs: list[Path], config: str) -> list[dict[str, np.ndarray]]:
+    return [frame_rows(e["recording"], e["result"]) for e in run_entries(outs, config)]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -150,12 +249,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--bins", type=int, default=6, help="bins (the last one open)")
     args = parser.parse_args(argv)
     try:
-        rows = _pooled(args.outs, args.config, args.bin, args.bins)
-        base = None if args.base is None else _pooled(args.base, args.config, args.bin, args.bins)
+        frames = _frames(args.outs, args.config)
+        rows = pooled_by_bin(frames, args.bin, args.bins)
+        base = None
+        if args.base is not None:
+            base = pooled_by_bin(_frames(args.base, args.config), args.bin, args.bins)
     except ValueError as err:  # a missing or malformed report, recording or result; bad bins
         print(f"error_by_time: {err}", file=sys.stderr)
         return 2
     print(format_table(rows, base))
+    print()
+    print(format_kinds(pooled_by_kind(frames)))
     return 0
 
 

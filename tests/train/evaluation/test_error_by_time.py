@@ -45,6 +45,39 @@ def test_pooled_by_bin_golden():
     assert "| 0-1 | 3 | 20.0 -> 20.0 | 33.3% -> 33.3% |" in text and "| 4- | 2 |" in text
 
 
+def test_pose_kinds_and_their_table_golden():
+    status = np.array(["detected", "tracked", "tracked", "tracked", "detected", "lost",
+                       "detected", "tracked"])  # fmt: skip
+    nan = np.nan
+    errors = {
+        "rechecked": np.array([nan, nan, 1.0, nan, nan, nan, nan, nan]),
+        "kept_over_detector": np.array([nan, nan, nan, 1.0, nan, nan, nan, nan]),
+        "detector_waited": np.array([nan, nan, nan, nan, nan, nan, nan, 1.0]),
+        "overlap": np.full(8, 0.8),  # a signal, not a flag
+    }
+    kinds = ebt.pose_kinds(status, errors).tolist()
+    assert kinds == ["track start", "tracked", "tracked, rechecked", "tracked, tests failed",
+                     "detection taken", "lost", "track start",
+                     "tracked, detector waited"]  # fmt: skip
+    run = {
+        "kind": np.array(kinds, dtype=object),
+        "error": np.array([0.05, 0.02, 0.04, 0.30, 0.06, nan, 0.05, 0.03]),
+        "worst": np.array([0.10, 0.05, 0.25, 0.50, 0.10, nan, 0.10, 0.10]),
+    }
+    rows = {r["kind"]: r for r in ebt.pooled_by_kind([run])}
+    assert list(rows) == [k for k in ebt.KINDS if k in kinds]  # in KINDS order
+    assert rows["track start"]["frames"] == 2 and rows["track start"]["error_mm"] == pytest.approx(
+        50.0
+    )
+    assert rows["tracked, tests failed"]["gross_pct"] == pytest.approx(50.0)  # 1 of 2 frames
+    assert rows["tracked"]["frames_pct"] == pytest.approx(12.5)
+    assert np.isnan(rows["lost"]["error_mm"]) and rows["lost"]["gross_pct"] == 0.0
+    assert "| tracked, tests failed | 1 | 12.5% | 300.0 | 50.0% |" in ebt.format_kinds(
+        list(rows.values())
+    )
+    assert ebt.pooled_by_kind([]) == []
+
+
 def _recording(tmp_path, frames: int):
     truth = np.zeros((frames, len(sk.JOINT_NAMES), 3))
     truth[..., 2] = 2.0
@@ -91,6 +124,8 @@ def test_a_recording_end_to_end(tmp_path, capsys):
     assert ebt.main([str(new), "--config", CONFIG, "--bin", "4", "--bins", "2"]) == 0
     text = capsys.readouterr().out
     assert "| 0-3 | 4 | 25.0 | 25.0% |" in text and "| 4- | 2 | 60.0 | 50.0% |" in text
+    assert "| track start | 2 | 33.3% | 35.0 | 0.0% |" in text  # frames 0 and 5
+    assert "| detection taken | 1 | 16.7% | 30.0 |" in text and "| lost | 1 |" in text
     base_res = _result(tmp_path, "base_res", truth, ["detected"] + ["tracked"] * 5, [0.05] * 6)
     base = _report(tmp_path, "base", rec, base_res)
     args = [str(new), "--base", str(base), "--config", CONFIG, "--bin", "4", "--bins", "2"]
