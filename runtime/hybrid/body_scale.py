@@ -114,6 +114,7 @@ class BodyScaleConfig:
             and (self.max_fold_deg is None or 0.0 < self.max_fold_deg <= 180.0)
             and (self.interim_after is None or self.interim_after >= 1)
             and (self.interim_max_fold_deg is None or 0.0 < self.interim_max_fold_deg <= 180.0)
+            and (self.first_at_once or not self.sample_detection)
         )
         if not ok:
             raise ConfigError(
@@ -121,6 +122,7 @@ class BodyScaleConfig:
                 f"0 < min_scale < max_scale, 0 < step <= their difference, "
                 f"0.5 < correction < 2, 0 < max_fold_deg <= 180 or None, "
                 f"interim_after >= 1 or None, 0 < interim_max_fold_deg <= 180 or None, "
+                f"sample_detection only with first_at_once, "
                 f"got {self}"
             )
 
@@ -205,6 +207,12 @@ class BodyScaleSearch:
         self.scale: float | None = None  # the result, once found
         self.peak: float | None = None  # the overlaps' peak, before the correction
         self.curves: list[np.ndarray] = []
+
+    @property
+    def wants_detection(self) -> bool:
+        """Whether a detection starting the track is to be offered as the first sample
+        (``cfg.sample_detection`` before any sample is taken)."""
+        return self.cfg.sample_detection and self.samples == 0
 
     def offer(
         self,

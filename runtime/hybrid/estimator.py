@@ -366,13 +366,7 @@ class HybridEstimator:
             observed=observed_of(det.refined, self.confidence),
             **evidence_of(det.refined),
         )
-        search = self.scale_search
-        if (
-            search is not None
-            and search.cfg.first_at_once
-            and search.cfg.sample_detection
-            and search.samples == 0
-        ):
+        if self.scale_search is not None and self.scale_search.wants_detection:
             # Sized from the detection that starts the track: the body is near the
             # person's size from the first tracked frame, when most re-detections happen.
             self._offer_size(frame, q, estimate.joints)

@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import warnings
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -36,9 +35,9 @@ import numpy as np
 from depthmocap.shared.recording import Recording
 
 from .compare_runs import DEFAULT_CONFIG, load_runs
-from .metrics import initializations
+from .metrics import initializations, joint_errors, per_frame_error_mm
 from .result_io import load_result
-from .truth import recording_truth
+from .truth import recording_truth, shared_joints
 
 __all__ = [
     "KINDS",
@@ -59,21 +58,13 @@ def frame_rows(recording: str | Path, result: str | Path) -> dict[str, np.ndarra
     (N,). Joints are those the result and the truth share."""
     truth = recording_truth(Recording(recording))
     res = load_result(result)
-    names = [n for n in truth.joint_names if n in res.joint_names]
-    if not names:
-        raise ValueError(f"{result}: no joint in common with {recording}'s truth")
-    if len(res.frame) and int(res.frame.max()) >= len(truth.joints):
-        raise ValueError(f"{result} has frames past the end of {recording}'s truth")
-    ours = res.joints[:, [res.joint_names.index(n) for n in names]]
-    true = np.asarray(truth.joints, dtype=np.float64)[res.frame]
-    true = true[:, [truth.joint_names.index(n) for n in names]]
-    distance = np.linalg.norm(ours - true, axis=-1)  # (N, J), NaN where no pose
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # a frame without a pose: NaN
-        error = np.nanmean(distance, axis=1)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        worst = np.nanmax(distance, axis=1)
+    try:
+        _, ours, true = shared_joints(truth, res)
+    except ValueError as err:
+        raise ValueError(f"{result} against {recording}: {err}") from None
+    distance = joint_errors(ours, true)  # (N, J), NaN where no pose
+    error = per_frame_error_mm(distance) / 1e3
+    worst = np.fmax.reduce(distance, axis=1)  # NaN only where the frame has no pose
     failure = (res.status != "tracked") & ~initializations(res.status)
     return {
         "index": res.frame.astype(np.int64),
@@ -197,18 +188,15 @@ def format_table(rows: list[dict], base: list[dict] | None = None) -> str:
     def span(r: dict) -> str:
         return f"{r['first']}-{r['last']}" if r["last"] is not None else f"{r['first']}-"
 
-    if base is None:
-        lines = ["| frames | count | joint error mm | tracking failure |", "|---|---|---|---|"]
-        for r in rows:
-            lines.append(
-                f"| {span(r)} | {r['frames']} | {r['error_mm']:.1f} | {r['failure_pct']:.1f}% |"
-            )
-        return "\n".join(lines)
+    def pair(key: str, b: dict | None, r: dict, unit: str) -> str:
+        new = f"{r[key]:.1f}{unit}"
+        return new if b is None else f"{b[key]:.1f}{unit} -> {new}"
+
     lines = ["| frames | count | joint error mm | tracking failure |", "|---|---|---|---|"]
-    for b, r in zip(base, rows, strict=True):
+    for b, r in zip(base or [None] * len(rows), rows, strict=True):
         lines.append(
-            f"| {span(r)} | {r['frames']} | {b['error_mm']:.1f} -> {r['error_mm']:.1f} "
-            f"| {b['failure_pct']:.1f}% -> {r['failure_pct']:.1f}% |"
+            f"| {span(r)} | {r['frames']} | {pair('error_mm', b, r, '')} "
+            f"| {pair('failure_pct', b, r, '%')} |"
         )
     return "\n".join(lines)
 

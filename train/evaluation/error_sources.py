@@ -48,7 +48,7 @@ from .depth_refutation import (
     joint_places,
 )
 from .result_io import load_result
-from .truth import recording_truth
+from .truth import recording_truth, shared_joints
 
 __all__ = [
     "HIDDEN",
@@ -81,10 +81,7 @@ def recording_places(recording: str | Path, result: str | Path) -> dict[str, np.
     rec = Recording(recording)
     truth = recording_truth(rec)
     res = load_result(result)
-    names = [n for n in truth.joint_names if n in res.joint_names]
-    ours = res.joints[:, [res.joint_names.index(n) for n in names]]
-    true = np.asarray(truth.joints, dtype=np.float64)[res.frame]
-    true = true[:, [truth.joint_names.index(n) for n in names]]
+    names, ours, true = shared_joints(truth, res)
     error = np.linalg.norm(ours - true, axis=-1)
     our_places = np.empty(error.shape, np.int64)
     true_places = np.empty(error.shape, np.int64)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from depthmocap.shared.recording import Recording, RecordingError, mapped_reference
 
-__all__ = ["Truth", "GROUND_TRUTH", "REFERENCE", "recording_truth"]
+__all__ = ["Truth", "GROUND_TRUTH", "REFERENCE", "recording_truth", "shared_joints"]
 
 GROUND_TRUTH = "ground_truth"
 REFERENCE = "reference"
@@ -62,3 +62,21 @@ def recording_truth(rec: Recording) -> Truth:
         f"{rec.path}: recording has no ground truth (groundtruth.npz) and no reference "
         "skeleton (reference.npz) to compare with"
     )
+
+
+def shared_joints(truth: Truth, result) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """The J joints ``truth`` and a loaded result (:class:`~.result_io.TrackingResult`)
+    share, in the truth's order, and both sides' positions over the result's N written
+    frames: ``(names, ours (N, J, 3), true (N, J, 3))``, NaN where the result has no pose.
+
+    Raises:
+        ValueError: no joint in common, or a result frame past the truth's last.
+    """
+    names = [n for n in truth.joint_names if n in result.joint_names]
+    if not names:
+        raise ValueError(f"the result and the {truth.kind} share no joint")
+    if len(result.frame) and int(result.frame.max()) >= len(truth.joints):
+        raise ValueError(f"the result has frames past the {truth.kind}'s last")
+    ours = result.joints[:, [result.joint_names.index(n) for n in names]]
+    true = np.asarray(truth.joints, dtype=np.float64)[result.frame]
+    return names, ours, true[:, [truth.joint_names.index(n) for n in names]]

@@ -164,6 +164,12 @@ def test_the_first_sample_read_at_once():
     assert [found[k] for k in (1, 3, 5, 7, 8, 9)] == [None] * 6
     _, alone = run(first_at_once=True, interim_after=None)  # no interim sizes: nothing early
     assert alone[:6] == [None] * 6 and alone[6] == search.scale
+    with pytest.raises(ConfigError, match="sample_detection"):
+        BodyScaleConfig(sample_detection=True)  # needs first_at_once: said, not ignored
+    wants = BodyScaleSearch(BodyScaleConfig(first_at_once=True, sample_detection=True), body)
+    assert wants.wants_detection and not search.wants_detection
+    wants.offer(0, torch.zeros(34), fit)
+    assert not wants.wants_detection  # only before the first sample
     single = BodyScaleSearch(BodyScaleConfig(samples=1, first_at_once=True), body)
     assert single.offer(0, torch.zeros(34), fit) == single.scale == pytest.approx(1.10, abs=1e-6)
 
