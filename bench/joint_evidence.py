@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import torch
 from depthmocap.runtime.api import Tracker
 from depthmocap.runtime.estimator import estimate_frame, make_estimator, prepare_frame
 from depthmocap.runtime.estimator_setup import load_body
@@ -26,6 +27,8 @@ from depthmocap.runtime.segmentation import PersonSegmenter
 from depthmocap.runtime.streams import open_stream
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.config import load_settings, merged_settings
+from depthmocap.shared.image_cut import image_cut_distance_m
+from depthmocap.shared.joint_confidence import FRAME_FEATURES, frame_features
 
 __all__ = ["main", "record_evidence", "track_evidence"]
 
@@ -36,12 +39,15 @@ def track_evidence(recording: Path, config: str | None = None) -> dict[str, np.n
     Returns:
         ``frame`` (F,) indices of the frames with a pose, ``support`` (F, J) confirmed areas
         (cm^2), ``visibility`` (F, 4) of the limbs in the fit, ``joints`` (F, J, 3) output
-        joints, ``observed`` (F, J) bool the area test's flags.
+        joints, ``cut_m`` (F, J) their distances to the person's cut by the image's edge
+        (metres, inf where the person is whole), ``fit`` (F, 5) the frame's fit
+        (``shared.joint_confidence.frame_features``), ``observed`` (F, J) bool the area
+        test's flags.
     """
     # The flags recorded beside the evidence are the tracker's own area test's.
     overlay = merged_settings(load_settings(config) if config else {}, {"joint_confidence": None})
     tracker = Tracker(config=overlay)
-    keys = ("frame", "support", "visibility", "joints", "observed")
+    keys = ("frame", "support", "visibility", "joints", "cut_m", "fit", "observed")
     rows: dict[str, list] = {k: [] for k in keys}
     segment = PersonSegmenter(tracker.segmentation)  # a stream's own, as runtime-track's
     with open_stream(str(recording)) as stream:
@@ -53,8 +59,13 @@ def track_evidence(recording: Path, config: str | None = None) -> dict[str, np.n
             for index, frame in enumerate(stream):
                 prepared = prepare_frame(estimator, frame, segment, tracker.device)
                 est = estimate_frame(estimator, prepared)
+                cut = None
+                if est.joints is not None:  # the mask as the estimate left it
+                    joints = torch.as_tensor(est.joints, dtype=torch.float64)
+                    cut = image_cut_distance_m(prepared.mask.cpu(), joints, stream.intrinsics)
+                fit = frame_features(est.errors, est.status)
                 values = (index, est.joint_support_cm2, est.limb_visibility, est.joints,
-                          est.observed)  # fmt: skip
+                          cut, fit, est.observed)  # fmt: skip
                 if all(v is not None for v in values):  # a frame with a pose and its evidence
                     for key, value in zip(keys, values, strict=True):
                         rows[key].append(value)
@@ -68,6 +79,8 @@ def track_evidence(recording: Path, config: str | None = None) -> dict[str, np.n
         "support": np.asarray(rows["support"], dtype=np.float64).reshape(-1, J),
         "visibility": np.asarray(rows["visibility"], dtype=np.float64).reshape(-1, 4),
         "joints": np.asarray(rows["joints"], dtype=np.float64).reshape(-1, J, 3),
+        "cut_m": np.asarray(rows["cut_m"], dtype=np.float64).reshape(-1, J),
+        "fit": np.asarray(rows["fit"], dtype=np.float64).reshape(-1, len(FRAME_FEATURES)),
         "observed": np.asarray(rows["observed"], dtype=bool).reshape(-1, J),
     }
 

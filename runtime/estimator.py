@@ -121,17 +121,31 @@ class PoseEstimate:
         return np.ones(16, dtype=bool) if self.observed is None else self.observed
 
 
-def observed_of(fit, confidence: JointConfidence | None = None) -> np.ndarray | None:
+def observed_of(
+    fit,
+    confidence: JointConfidence | None = None,
+    frame_fit: np.ndarray | None = None,
+    cut_m: np.ndarray | torch.Tensor | None = None,
+) -> np.ndarray | None:
     """The (16,) bool observed-joint flags of a tracker fit, or None when there is no fit or
     it has none: with ``confidence``, the joints whose confidence reaches its threshold
-    (:mod:`shared.joint_confidence`, read from the fit's support and limb visibility);
-    without, the fit's own area test (``TrackResult.observed``)."""
+    (:mod:`shared.joint_confidence`, read from the fit's support and limb visibility, and for
+    a version 2 model the frame's fit ``frame_fit`` (5,) and the joints' distances to the
+    person's cut by the image's edge ``cut_m`` (16,)); without, the fit's own area test
+    (``TrackResult.observed``)."""
     support = getattr(fit, "joint_support_cm2", None)
     shown = getattr(fit, "limb_visibility", None)
     if confidence is not None and support is not None and shown is not None:
+        import torch
         from depthmocap.shared.joint_confidence import joint_confidence
 
-        p = joint_confidence(confidence, support.detach(), shown.detach())
+        context = {}
+        if confidence.version >= 2:
+            context = {
+                "frame": torch.as_tensor(frame_fit, device=support.device),
+                "cut_m": torch.as_tensor(cut_m, device=support.device),
+            }
+        p = joint_confidence(confidence, support.detach(), shown.detach(), **context)
         return (p >= confidence.threshold).cpu().numpy()
     flags = getattr(fit, "observed", None)
     return None if flags is None else flags.detach().cpu().numpy().astype(bool)

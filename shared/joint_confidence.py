@@ -17,21 +17,40 @@ Per joint ``j`` the model reads three features (:func:`confidence_features`):
 - ``log(1 + a_n)``, ``n`` the joint's neighbour along its limb (wrist -> elbow, elbow ->
   wrist, shoulder -> elbow; the legs alike; the trunk's joints their own area again),
 
-and gives ``p_j = sigmoid(w_g . f_j + b_g)`` with one weight vector per joint group ``g``
+and, in version 2 (:data:`FEATURES`), six more:
+
+- the whole frame's fit, the same for every joint (:func:`frame_features`): its silhouette
+  overlap, depth error (cm) and 97th-percentile surface error (dm), whether Wei's tests
+  failed and the track was kept over a worse detection (or while the detector waited), and
+  whether the pose is a detection. A kept failed track has a mean joint error two and a half
+  times a passed one's (broad protocol: 96 against 38 mm);
+- how far the joint is from where the person leaves the image, capped at
+  :data:`CUT_CAP_M` (:mod:`shared.image_cut`): a limb cut by the image's edge is drawn back
+  onto what the camera sees.
+
+Fitted on the tuning sets and checked on the size tuning set (held out, the same share of
+joints in view, 94.3%): frames with an observed joint over 20 cm 5.41% with version 1's three
+features, 5.00% with the frame's fit added, 4.64% with the cut too (``docs/experiments.md``,
+fortieth session).
+
+It gives ``p_j = sigmoid(w_g . f_j + b_g)`` with one weight vector per joint group ``g``
 (trunk, shoulders, elbows, wrists, hips, knees, ankles; left and right share one). A joint is
 observed when ``p_j >= threshold``. Weights and threshold are fitted on tracked synthetic
 recordings with ground truth (``python -m depthmocap.train.evaluation.joint_confidence_fit``):
 the target is "in view and within 20 cm", the threshold keeps a chosen share (95%) of the
 joints in view. Shipped as ``models/joint_confidence.json``:
 
-    {"format": "depthmocap-joint-confidence", "version": 1, "joint_names": [16 names],
-     "features": "support_visibility_neighbour", "groups": {"wrist": {"weights": [3],
-     "bias": b}, ...}, "threshold": t, "recall": 0.95, "fitted_on": "...", "frames": N}
+    {"format": "depthmocap-joint-confidence", "version": 2, "joint_names": [16 names],
+     "features": "support_visibility_neighbour_frame_cut", "groups": {"wrist": {"weights":
+     [9], "bias": b}, ...}, "threshold": t, "recall": 0.95, "fitted_on": "...", "frames": N}
+
+Version 1 files (``"support_visibility_neighbour"``, three weights a group) are still read.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,8 +61,11 @@ from . import skeleton as sk
 from .json_file import read_json_file, write_json_file
 
 __all__ = [
+    "CUT_CAP_M",
     "FEATURES",
+    "FEATURE_SETS",
     "FORMAT",
+    "FRAME_FEATURES",
     "GROUPS",
     "JOINT_GROUP",
     "NUM_FEATURES",
@@ -51,15 +73,25 @@ __all__ = [
     "JointConfidence",
     "JointConfidenceError",
     "confidence_features",
+    "frame_features",
     "joint_confidence",
     "load_joint_confidence",
     "save_joint_confidence",
 ]
 
 FORMAT = "depthmocap-joint-confidence"
-VERSION = 1
-FEATURES = "support_visibility_neighbour"
-NUM_FEATURES = 3
+VERSION = 2
+# Each version's feature set and its number of features per joint.
+FEATURE_SETS = {
+    1: ("support_visibility_neighbour", 3),
+    2: ("support_visibility_neighbour_frame_cut", 9),
+}
+FEATURES, NUM_FEATURES = FEATURE_SETS[VERSION]
+# The frame's fit as :func:`frame_features` gives it, in order.
+FRAME_FEATURES = ("overlap", "depth_error_cm", "surface_error_q97_dm", "kept_failed", "detected")
+# Distances to the person's cut by the image's edge count up to this (metres): beyond it a
+# joint is as far from the cut as a whole person is.
+CUT_CAP_M = 0.5
 
 
 def _group(name: str) -> str:
@@ -95,16 +127,48 @@ class JointConfidenceError(ValueError):
     inconsistent."""
 
 
-def confidence_features(support_cm2: torch.Tensor, limb_visibility: torch.Tensor) -> torch.Tensor:
-    """The model's features (module docstring).
+def frame_features(errors: Mapping[str, float], status: str) -> np.ndarray:
+    """(5,) float64 the frame's fit (:data:`FRAME_FEATURES`) from an estimate's ``errors``
+    (``PoseEstimate.errors``: the fit's signals and the hybrid's flags) and ``status``. A
+    signal the frame lacks (NaN or absent) counts as 0."""
+
+    def signal(name: str) -> float:
+        value = float(errors.get(name, math.nan))
+        return value if math.isfinite(value) else 0.0
+
+    kept = any(math.isfinite(float(errors.get(k, math.nan)))
+               for k in ("kept_over_detector", "detector_waited"))  # fmt: skip
+    return np.array(
+        [
+            signal("overlap"),
+            signal("depth_error_cm"),
+            signal("surface_error_q97_mm") / 100.0,
+            float(kept),
+            float(status == "detected"),
+        ]
+    )
+
+
+def confidence_features(
+    support_cm2: torch.Tensor,
+    limb_visibility: torch.Tensor,
+    frame: torch.Tensor | None = None,
+    cut_m: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """The model's features (module docstring): version 1's three, or with ``frame`` and
+    ``cut_m`` version 2's nine.
 
     Args:
         support_cm2: (..., J) each named joint's confirmed area, J = ``len(JOINT_NAMES)``;
             NaN counts as none.
         limb_visibility: (..., 4) visible fraction of the left/right arm and leg in the
             model's rendering; NaN counts as hidden.
+        frame: (..., 5) :func:`frame_features` of each frame; NaN counts as 0.
+        cut_m: (..., J) each joint's distance to the person's cut by the image's edge
+            (``shared.image_cut``; inf where the person is whole), capped at
+            :data:`CUT_CAP_M`.
     Returns:
-        (..., J, 3) float64.
+        (..., J, 3) float64, or (..., J, 9) with ``frame`` and ``cut_m``.
     """
     support = torch.nan_to_num(support_cm2.double(), nan=0.0).clamp_min(0.0).log1p()
     shown = torch.nan_to_num(limb_visibility.double(), nan=0.0)
@@ -112,7 +176,15 @@ def confidence_features(support_cm2: torch.Tensor, limb_visibility: torch.Tensor
     padded = torch.cat([shown, shown.new_ones(*shown.shape[:-1], 1)], -1)  # index -1: trunk
     visibility = padded[..., limb]
     neighbour = support[..., _NEIGHBOUR.to(support.device)]
-    return torch.stack([support, visibility, neighbour], -1)
+    f = torch.stack([support, visibility, neighbour], -1)
+    if (frame is None) != (cut_m is None):
+        raise ValueError("version 2's features need both the frame's fit and the cut distances")
+    if frame is None:
+        return f
+    fit = torch.nan_to_num(torch.as_tensor(frame).to(f), nan=0.0)
+    fit = fit[..., None, :].expand(*f.shape[:-1], fit.shape[-1])
+    cut = torch.as_tensor(cut_m).to(f).nan_to_num(nan=0.0).clamp(0.0, CUT_CAP_M)
+    return torch.cat([f, fit, cut[..., None]], -1)
 
 
 @dataclass
@@ -126,6 +198,8 @@ class JointConfidence:
         recall: the share of in-view joints the threshold kept where it was fitted.
         fitted_on: what it was fitted on (free text, for the record).
         frames: how many frames it was fitted on.
+        version: the file version whose feature set the weights read
+            (:data:`FEATURE_SETS`; 1: three features, 2: nine).
     """
 
     weights: np.ndarray
@@ -134,15 +208,19 @@ class JointConfidence:
     recall: float = float("nan")
     fitted_on: str = ""
     frames: int = 0
+    version: int = VERSION
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.weights = np.asarray(self.weights, dtype=np.float64)
         self.bias = np.asarray(self.bias, dtype=np.float64)
         G = len(GROUPS)
-        if self.weights.shape != (G, NUM_FEATURES) or self.bias.shape != (G,):
+        if self.version not in FEATURE_SETS:
+            raise JointConfidenceError(f"no feature set for version {self.version!r}")
+        K = FEATURE_SETS[self.version][1]
+        if self.weights.shape != (G, K) or self.bias.shape != (G,):
             raise JointConfidenceError(
-                f"weights must be ({G}, {NUM_FEATURES}) and bias ({G},), got "
+                f"weights must be ({G}, {K}) and bias ({G},), got "
                 f"{self.weights.shape} and {self.bias.shape}"
             )
         finite = np.isfinite(self.weights).all() and np.isfinite(self.bias).all()
@@ -170,9 +248,9 @@ class JointConfidence:
         }
         return {
             "format": FORMAT,
-            "version": VERSION,
+            "version": self.version,
             "joint_names": list(sk.JOINT_NAMES),
-            "features": FEATURES,
+            "features": FEATURE_SETS[self.version][0],
             "groups": groups,
             "threshold": round(float(self.threshold), 8),
             "recall": None if math.isnan(self.recall) else round(float(self.recall), 6),
@@ -182,11 +260,20 @@ class JointConfidence:
 
 
 def joint_confidence(
-    model: JointConfidence, support_cm2: torch.Tensor, limb_visibility: torch.Tensor
+    model: JointConfidence,
+    support_cm2: torch.Tensor,
+    limb_visibility: torch.Tensor,
+    frame: torch.Tensor | None = None,
+    cut_m: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """(..., J) float64 confidence in [0, 1] of each named joint (module docstring); inputs
-    as :func:`confidence_features`."""
-    f = confidence_features(support_cm2, limb_visibility)
+    as :func:`confidence_features`. A version 2 model needs ``frame`` and ``cut_m``; a
+    version 1 model ignores them."""
+    if model.version >= 2 and (frame is None or cut_m is None):
+        raise ValueError("this joint confidence reads the frame's fit and the cut distances")
+    if model.version == 1:
+        frame = cut_m = None
+    f = confidence_features(support_cm2, limb_visibility, frame, cut_m)
     w, b = model.per_joint(f)
     return torch.sigmoid((f * w).sum(-1) + b)
 
@@ -207,15 +294,18 @@ def load_joint_confidence(path: str | Path) -> JointConfidence:
     data = read_json_file(path, "joint-confidence", JointConfidenceError)
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise JointConfidenceError(f"{path}: not a {FORMAT} file")
-    if data.get("version") != VERSION:
+    version = data.get("version")
+    if version not in FEATURE_SETS:
         raise JointConfidenceError(
-            f"{path}: joint-confidence version {data.get('version')!r}, this build reads {VERSION}"
+            f"{path}: joint-confidence version {version!r}, this build reads "
+            f"{', '.join(map(str, FEATURE_SETS))}"
         )
     if data.get("joint_names") != list(sk.JOINT_NAMES):
         raise JointConfidenceError(f"{path}: its joints are not this build's")
-    if data.get("features") != FEATURES:
+    features = FEATURE_SETS[version][0]
+    if data.get("features") != features:
         raise JointConfidenceError(
-            f"{path}: features {data.get('features')!r}, this build computes {FEATURES!r}"
+            f"{path}: features {data.get('features')!r}, version {version} computes {features!r}"
         )
     groups = data.get("groups")
     if not isinstance(groups, dict) or set(groups) != set(GROUPS):
@@ -229,6 +319,7 @@ def load_joint_confidence(path: str | Path) -> JointConfidence:
             float("nan") if recall is None else float(recall),
             str(data.get("fitted_on", "")),
             int(data.get("frames", 0)),
+            version,
         )
     except (KeyError, TypeError, ValueError) as err:
         raise JointConfidenceError(f"{path}: bad joint-confidence values ({err})") from None

@@ -270,8 +270,9 @@ class HybridConfig:
     joint_confidence: str | None = field_doc(
         "joint_confidence.json",
         "report a joint observed when its learned confidence reaches the file's threshold "
-        "(shared.joint_confidence: its confirmed area, its limb's visibility and its "
-        "neighbour's area; a file, relative paths under the shipped models/ folder); None: "
+        "(shared.joint_confidence: its confirmed area, its limb's visibility, its "
+        "neighbour's area, the frame's fit and its distance to where the person leaves the "
+        "image; a file, relative paths under the shipped models/ folder); None: "
         "the tracker's own area test (tracker.observed_joint_area_cm2). Output only: the "
         "poses do not change",
     )

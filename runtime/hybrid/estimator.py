@@ -41,7 +41,8 @@ from depthmocap.runtime.estimator import PoseEstimate, evidence_of, lost, observ
 from depthmocap.runtime.frame import Frame, LabelSource
 from depthmocap.runtime.tracker.prior_term import velocity_scale
 from depthmocap.runtime.tracker.tracker import Tracker, TrackResult
-from depthmocap.shared.joint_confidence import JointConfidence
+from depthmocap.shared.image_cut import image_cut_distance_m
+from depthmocap.shared.joint_confidence import JointConfidence, frame_features
 from depthmocap.shared.joint_offsets import JointOffsets, apply_offsets
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
 
@@ -251,16 +252,26 @@ class HybridEstimator:
 
     # ---- estimates, each updating the track ----
 
+    def _observed(self, fit, errors: dict, status: str, joints: np.ndarray, frame: Frame):
+        """The (16,) observed flags of ``fit`` (:func:`~runtime.estimator.observed_of`), the
+        output ``joints`` (16, 3) read against where the person leaves ``frame``."""
+        confidence = self.confidence
+        if confidence is None or confidence.version < 2:
+            return observed_of(fit, confidence)
+        cut = image_cut_distance_m(frame.mask, torch.as_tensor(joints), frame.intrinsics)
+        return observed_of(fit, confidence, frame_features(errors, status), cut)
+
     def _tracked(self, res: TrackResult, errors: dict, frame: Frame) -> PoseEstimate:
         q = res.q.detach()
         self.state.q_prev, self.state.q_prev2 = q, self.state.q_prev
         self.state.index_prev, self.state.index_prev2 = frame.index, self.state.index_prev
+        joints = self._joints(q)
         estimate = PoseEstimate(
             q.cpu().double().numpy(),
-            self._joints(q),
+            joints,
             "tracked",
             errors,
-            observed=observed_of(res, self.confidence),
+            observed=self._observed(res, errors, "tracked", joints, frame),
             **evidence_of(res),
         )
         if self.cfg.hold_unseen_limbs:
@@ -357,13 +368,14 @@ class HybridEstimator:
         self.state.q_prev, self.state.q_prev2 = q, None
         self.state.index_prev, self.state.index_prev2 = frame.index, None
         self.state.held = None
+        joints = self._joints(q)
         estimate = PoseEstimate(
             q.cpu().double().numpy(),
-            self._joints(q),
+            joints,
             "detected",
             errors,
             det.labels.cpu().numpy().astype(np.uint8),
-            observed=observed_of(det.refined, self.confidence),
+            observed=self._observed(det.refined, errors, "detected", joints, frame),
             **evidence_of(det.refined),
         )
         if self.scale_search is not None and self.scale_search.wants_detection:

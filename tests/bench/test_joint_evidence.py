@@ -17,6 +17,9 @@ def test_evidence_of_each_posed_frame_is_written_once(two_demo_recordings, tmp_p
         assert list(data["frame"]) == [0, 1]
         assert data["support"].shape == (2, 16) and data["visibility"].shape == (2, 4)
         assert data["joints"].shape == (2, 16, 3) and np.isfinite(data["joints"]).all()
+        assert data["fit"].shape == (2, 5) and data["cut_m"].shape == (2, 16)
+        assert (data["fit"][:, 0] > 0.5).all()  # the demo's fits overlap its silhouette
+        assert (data["cut_m"] > 0).all()  # a distance, or inf where the person is whole
         # the flags beside the evidence are the tracker's own area test, not the confidence's
         area = TrackerConfig().observed_joint_area_cm2
         np.testing.assert_array_equal(data["observed"], data["support"] >= area)

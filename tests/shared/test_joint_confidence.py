@@ -10,11 +10,14 @@ import pytest
 import torch
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.joint_confidence import (
+    CUT_CAP_M,
+    FRAME_FEATURES,
     GROUPS,
     JOINT_GROUP,
     JointConfidence,
     JointConfidenceError,
     confidence_features,
+    frame_features,
     joint_confidence,
     load_joint_confidence,
     save_joint_confidence,
@@ -64,33 +67,83 @@ def test_features_batch_and_missing_values():
     assert (f[..., _index("head"), 1] == 1).all()
 
 
-def _model(threshold=0.5):
-    w = np.tile([1.0, 2.0, 0.5], (len(GROUPS), 1))
+def test_frame_features_golden():
+    errors = {"overlap": 0.8, "depth_error_cm": 1.5, "surface_error_q97_mm": 40.0,
+              "kept_over_detector": 1.0, "ik_rms_m": 0.02}  # fmt: skip
+    f = frame_features(errors, "tracked")
+    assert len(FRAME_FEATURES) == 5
+    np.testing.assert_allclose(f, [0.8, 1.5, 0.4, 1.0, 0.0])
+    # a detection whose refinement gave no signals; a waited track counts as kept too
+    np.testing.assert_allclose(
+        frame_features({"overlap": float("nan")}, "detected"), [0, 0, 0, 0, 1]
+    )
+    np.testing.assert_allclose(frame_features({"detector_waited": 1.0}, "tracked")[3], 1.0)
+
+
+def test_version_2_features_add_the_frame_s_fit_and_the_capped_cut_distance():
+    support = torch.full((2, J), 10.0, dtype=torch.float64)
+    shown = torch.ones(2, 4, dtype=torch.float64)
+    fit = torch.tensor([[0.9, 1.0, 0.3, 0.0, 0.0], [0.5, float("nan"), 0.8, 1.0, 1.0]])
+    cut = torch.full((2, J), float("inf"))
+    cut[1, _index("r_wrist")] = 0.07
+    f = confidence_features(support, shown, fit, cut)
+    assert f.shape == (2, J, 9)
+    torch.testing.assert_close(f[..., :3], confidence_features(support, shown))
+    assert (f[0, :, 3:8] == fit[0].double()).all()
+    assert (f[1, :, 4] == 0).all()  # NaN counts as 0
+    assert (f[0, :, 8] == CUT_CAP_M).all() and f[1, _index("r_wrist"), 8].item() == pytest.approx(
+        0.07
+    )
+    with pytest.raises(ValueError, match="both"):
+        confidence_features(support, shown, fit, None)
+
+
+def _model(threshold=0.5, version=2):
+    per = [1.0, 2.0, 0.5] if version == 1 else [1.0, 2.0, 0.5, 0.1, -0.2, 0.3, -1.0, 0.5, 4.0]
+    w = np.tile(per, (len(GROUPS), 1))
     b = -np.arange(len(GROUPS), dtype=np.float64)
-    return JointConfidence(w, b, threshold, 0.95, "test", 7)
+    return JointConfidence(w, b, threshold, 0.95, "test", 7, version)
 
 
-def test_confidence_is_the_logistic_of_each_group_s_weights():
-    model = _model()
+@pytest.mark.parametrize("version", [1, 2])
+def test_confidence_is_the_logistic_of_each_group_s_weights(version):
+    model = _model(version=version)
     support = torch.rand(3, J, dtype=torch.float64) * 50
     shown = torch.rand(3, 4, dtype=torch.float64)
-    p = joint_confidence(model, support, shown)
-    f = confidence_features(support, shown).numpy()
+    fit = torch.rand(3, 5, dtype=torch.float64)
+    cut = torch.rand(3, J, dtype=torch.float64)
+    p = joint_confidence(model, support, shown, fit, cut)
+    f = confidence_features(support, shown, *((fit, cut) if version == 2 else ())).numpy()
     group = np.array([GROUPS.index(g) for g in JOINT_GROUP])
-    expect = 1 / (1 + np.exp(-(f @ np.array([1.0, 2.0, 0.5]) - group)))
+    expect = 1 / (1 + np.exp(-(f @ model.weights[0] - group)))
     assert p.shape == (3, J)
     np.testing.assert_allclose(p.numpy(), expect, rtol=1e-12)
+    if version == 1:  # reads neither the frame's fit nor the cut, given or not
+        torch.testing.assert_close(joint_confidence(model, support, shown), p)
+    else:
+        with pytest.raises(ValueError, match="cut"):
+            joint_confidence(model, support, shown)
 
 
-def test_round_trip(tmp_path):
-    model = _model(0.42)
+@pytest.mark.parametrize("version", [1, 2])
+def test_round_trip(tmp_path, version):
+    model = _model(0.42, version)
     path = tmp_path / "sub" / "c.json"
     save_joint_confidence(path, model)
     back = load_joint_confidence(path)
     np.testing.assert_allclose(back.weights, model.weights)
     np.testing.assert_allclose(back.bias, model.bias)
     assert (back.threshold, back.recall, back.fitted_on, back.frames) == (0.42, 0.95, "test", 7)
+    assert back.version == version and json.loads(path.read_text())["version"] == version
     assert not list(path.parent.glob("*.tmp"))
+
+
+def test_weights_must_match_the_version_s_feature_set():
+    G = len(GROUPS)
+    with pytest.raises(JointConfidenceError, match=r"\(7, 9\)"):
+        JointConfidence(np.zeros((G, 3)), np.zeros(G), 0.5)
+    with pytest.raises(JointConfidenceError, match="version 5"):
+        JointConfidence(np.zeros((G, 3)), np.zeros(G), 0.5, version=5)
 
 
 @pytest.mark.parametrize(
@@ -128,4 +181,4 @@ def test_the_shipped_file_loads():
     from depthmocap.shared.resources import MODELS_DIR
 
     model = load_joint_confidence(MODELS_DIR / "joint_confidence.json")
-    assert 0 < model.threshold < 1 and model.frames > 1000
+    assert 0 < model.threshold < 1 and model.frames > 1000 and model.version == 2

@@ -8,7 +8,8 @@ shipped hybrid as ``runtime-track`` runs a file (``--config`` lays settings over
 subprocess (``python -m depthmocap.bench.joint_evidence``; ``train`` never imports
 ``runtime``), into ``--evidence``, where a later fit finds it again. Every pose gives each
 joint its evidence (confirmed area, limb visibility; the estimate's ``joint_support_cm2``
-and ``limb_visibility``) and a target: the joint is in view
+and ``limb_visibility``; the frame's fit and the joint's distance to the person's cut by the
+image's edge, ``shared.joint_confidence.confidence_features``) and a target: the joint is in view
 (``train.evaluation.visibility``, from the rendered labels) and its output position is within
 ``--within-m`` of the truth. One logistic regression per joint group fits the targets; the
 threshold then keeps ``--recall`` of the joints in view. ``--validate`` tracks other
@@ -34,6 +35,7 @@ from depthmocap.shared.joint_confidence import (
     GROUPS,
     JOINT_GROUP,
     NUM_FEATURES,
+    VERSION,
     JointConfidence,
     confidence_features,
     joint_confidence,
@@ -47,9 +49,10 @@ def recording_evidence(recording: Path, evidence: Path) -> dict[str, np.ndarray]
     """A recording's evidence file (``bench.joint_evidence``) paired with its ground truth.
 
     Returns:
-        ``support`` (F, J), ``visibility`` (F, 4) of the limbs in the fit, ``in_view`` (F, J)
-        bool, ``error_m`` (F, J) output joints to the truth, ``observed`` (F, J) bool the
-        area test's flags; F the frames with a pose.
+        ``support`` (F, J), ``visibility`` (F, 4) of the limbs in the fit, ``fit`` (F, 5)
+        the frame's fit, ``cut_m`` (F, J) distances to the person's cut by the image's edge,
+        ``in_view`` (F, J) bool, ``error_m`` (F, J) output joints to the truth, ``observed``
+        (F, J) bool the area test's flags; F the frames with a pose.
     """
     from depthmocap.shared.recording import Recording
 
@@ -65,7 +68,8 @@ def recording_evidence(recording: Path, evidence: Path) -> dict[str, np.ndarray]
         raise ValueError(f"{recording}: has no part labels to tell which joints are in view")
     try:
         with np.load(evidence) as data:
-            stored = {k: data[k] for k in ("frame", "support", "visibility", "joints", "observed")}
+            keys = ("frame", "support", "visibility", "fit", "cut_m", "joints", "observed")
+            stored = {k: data[k] for k in keys}
     except (OSError, ValueError, KeyError, zipfile.BadZipFile) as err:
         raise ValueError(
             f"{evidence}: not a readable evidence file ({err}); delete it to track "
@@ -77,6 +81,8 @@ def recording_evidence(recording: Path, evidence: Path) -> dict[str, np.ndarray]
     return {
         "support": stored["support"],
         "visibility": stored["visibility"],
+        "fit": stored["fit"],
+        "cut_m": stored["cut_m"],
         "in_view": in_view[frames],
         "error_m": np.linalg.norm(stored["joints"] - truth.joints[frames], axis=-1),
         "observed": stored["observed"],
@@ -108,15 +114,20 @@ def fit_logistic(x: np.ndarray, y: np.ndarray, l2: float = 1e-3) -> tuple[np.nda
         return raw.numpy(), float(b - (raw * mu).sum())
 
 
+def _inputs(evidence: dict[str, np.ndarray]) -> tuple[torch.Tensor, ...]:
+    """The evidence's (support, visibility, fit, cut_m) as :func:`joint_confidence` reads them."""
+    return tuple(torch.as_tensor(evidence[k]) for k in ("support", "visibility", "fit", "cut_m"))
+
+
 def fit_confidence(
     evidence: dict[str, np.ndarray], recall: float = 0.95, within_m: float = 0.2
 ) -> JointConfidence:
     """The joint confidence fitted to ``evidence`` as :func:`recording_evidence` returns it (its
-    ``support``, ``visibility``, ``in_view`` and ``error_m``; module docstring); its threshold
-    keeps ``recall`` of the joints in view."""
-    support, visibility = evidence["support"], evidence["visibility"]
+    ``support``, ``visibility``, ``fit``, ``cut_m``, ``in_view`` and ``error_m``; module
+    docstring); its threshold keeps ``recall`` of the joints in view."""
+    support = evidence["support"]
     in_view, error_m = evidence["in_view"], evidence["error_m"]
-    f = confidence_features(torch.as_tensor(support), torch.as_tensor(visibility)).numpy()
+    f = confidence_features(*_inputs(evidence)).numpy()
     target = in_view & (error_m <= within_m)
     weights = np.zeros((len(GROUPS), NUM_FEATURES))
     bias = np.zeros(len(GROUPS))
@@ -125,11 +136,11 @@ def fit_confidence(
         weights[k], bias[k] = fit_logistic(
             f[:, cols].reshape(-1, NUM_FEATURES), target[:, cols].reshape(-1).astype(float)
         )
-    model = JointConfidence(weights, bias, 0.5)
-    p = joint_confidence(model, torch.as_tensor(support), torch.as_tensor(visibility)).numpy()
+    model = JointConfidence(weights, bias, 0.5, version=VERSION)
+    p = joint_confidence(model, *_inputs(evidence)).numpy()
     threshold = float(np.quantile(p[in_view], 1.0 - recall)) if in_view.any() else 0.5
     kept = float((p[in_view] >= threshold).mean()) if in_view.any() else float("nan")
-    return JointConfidence(weights, bias, threshold, kept, frames=len(support))
+    return JointConfidence(weights, bias, threshold, kept, frames=len(support), version=VERSION)
 
 
 def flag_figures(
@@ -167,8 +178,7 @@ def _evidence(folders: list[Path], store: Path, config: str | None) -> dict[str,
 
 
 def _report(label: str, data: dict, model: JointConfidence, within_m: float) -> None:
-    support, shown = torch.as_tensor(data["support"]), torch.as_tensor(data["visibility"])
-    p = joint_confidence(model, support, shown)
+    p = joint_confidence(model, *_inputs(data))
     for name, flags in (("fitted flags", p.numpy() >= model.threshold),
                         ("area test", data["observed"])):  # fmt: skip
         f = flag_figures(flags, data["in_view"], data["error_m"], within_m)

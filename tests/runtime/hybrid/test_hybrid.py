@@ -33,6 +33,7 @@ from depthmocap.runtime.tracker.signals import FitSignals
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.image_cut import image_cut_distance_m
 from depthmocap.shared.joint_confidence import GROUPS, JointConfidence
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
 from depthmocap.shared.labels import PART_NAMES
@@ -260,8 +261,8 @@ def test_a_joint_confidence_sets_the_flags_not_the_poses(scene):
     G = len(GROUPS)
     models = {
         "area test": None,
-        "none": JointConfidence(np.zeros((G, 3)), np.full(G, -50.0), 0.5),
-        "all": JointConfidence(np.zeros((G, 3)), np.full(G, 50.0), 0.5),
+        "none": JointConfidence(np.zeros((G, 3)), np.full(G, -50.0), 0.5, version=1),
+        "all": JointConfidence(np.zeros((G, 9)), np.full(G, 50.0), 0.5),
     }
     frames = []
     for i in range(4):  # the right arm rises: a held limb would lag it
@@ -282,6 +283,30 @@ def test_a_joint_confidence_sets_the_flags_not_the_poses(scene):
         for other in (none, every):
             np.testing.assert_array_equal(other.q, plain.q)
             np.testing.assert_array_equal(other.joint_support_cm2, plain.joint_support_cm2)
+
+
+def test_joints_near_the_person_s_cut_by_the_image_edge_are_inferred(scene):
+    """A version 2 confidence reads each output joint's distance to where the person leaves
+    the image: here it alone decides (observed beyond 0.3 m), so the flags are exactly the
+    joints that far from the cut, which the test measures on the frame's own mask."""
+    q, depth, labels, mask = scene
+    G = len(GROUPS)
+    w = np.zeros((G, 9))
+    w[:, 8] = 100.0
+    model = JointConfidence(w, np.full(G, -30.0), 0.5)  # p >= 0.5 iff cut distance >= 0.3 m
+    cut_mask = torch.as_tensor(mask).clone()
+    rows = torch.nonzero(cut_mask.any(1))[:, 0]
+    cut_mask[rows[len(rows) // 2] :, -1] = True  # the person reaches the right edge below the waist
+    est, _ = make_hybrid(scene, Tracker(BODY, INTR), refine_iterations=2)
+    est.confidence = model
+    flags = []
+    for i in range(2):
+        frame = frame_of(depth, i, cut_mask)
+        e = estimate_frame(est, frame)
+        near = image_cut_distance_m(frame.mask, torch.as_tensor(e.joints), INTR).numpy()
+        np.testing.assert_array_equal(e.observed, near >= 0.3)
+        flags.append(e.observed)
+    assert not all(f.all() for f in flags) and any(f.any() for f in flags)
 
 
 def test_no_labelled_pixels_is_lost_and_resets(scene):

@@ -59,13 +59,19 @@ def _evidence(rng, frames=3000):
     return support, visibility, in_view, error
 
 
+def _inputs(evidence):
+    return [torch.as_tensor(evidence[k]) for k in ("support", "visibility", "fit", "cut_m")]
+
+
 def test_fitted_flags_keep_the_recall_and_fail_less_than_the_area_test():
     rng = np.random.default_rng(1)
     support, visibility, in_view, error = _evidence(rng)
-    evidence = {"support": support, "visibility": visibility, "in_view": in_view, "error_m": error}
+    frames = len(support)
+    evidence = {"support": support, "visibility": visibility, "in_view": in_view, "error_m": error,
+                "fit": rng.random((frames, 5)), "cut_m": np.full((frames, J), np.inf)}  # fmt: skip
     model = fit_confidence(evidence, recall=0.9)
-    assert model.recall == pytest.approx(0.9, abs=0.002)
-    p = joint_confidence(model, torch.as_tensor(support), torch.as_tensor(visibility)).numpy()
+    assert model.recall == pytest.approx(0.9, abs=0.002) and model.version == 2
+    p = joint_confidence(model, *_inputs(evidence)).numpy()
     fitted = flag_figures(p >= model.threshold, in_view, error)
     area = np.quantile(support[in_view], 0.1)  # an area test keeping as many joints in view
     plain = flag_figures(support >= area, in_view, error)
@@ -73,6 +79,25 @@ def test_fitted_flags_keep_the_recall_and_fail_less_than_the_area_test():
     assert plain["recall"] == pytest.approx(0.9, abs=0.002)
     assert plain["failure"] > 0.05
     assert fitted["failure"] < 0.5 * plain["failure"]
+
+
+def test_joints_near_the_person_s_cut_are_learned_from_the_cut_distance():
+    """Wrong joints are the ones near where the person leaves the image; nothing else tells
+    them apart, so version 2's cut feature must carry the fit."""
+    rng = np.random.default_rng(2)
+    frames = 3000
+    support = rng.gamma(3.0, 30.0, (frames, J))
+    visibility = rng.uniform(0.3, 1.0, (frames, 4))
+    in_view = np.ones((frames, J), dtype=bool)
+    cut = np.where(rng.random((frames, J)) < 0.1, rng.uniform(0.0, 0.08, (frames, J)), np.inf)
+    error = np.where(cut < 0.08, 0.3, 0.03)
+    evidence = {"support": support, "visibility": visibility, "in_view": in_view, "error_m": error,
+                "fit": np.zeros((frames, 5)), "cut_m": cut}  # fmt: skip
+    model = fit_confidence(evidence, recall=0.85)
+    p = joint_confidence(model, *_inputs(evidence)).numpy()
+    flags = p >= model.threshold
+    assert flag_figures(flags, in_view, error)["failure"] < 0.05
+    assert (model.weights[:, 8] > 0).all()  # further from the cut: more trusted, every group
 
 
 def test_cli_rejects_bad_arguments(tmp_path, capsys):
@@ -107,9 +132,11 @@ def test_recording_evidence_pairs_each_posed_frame_with_its_truth(tmp_path):
     np.savez(
         tmp_path / "rec.npz", frame=np.array([0, 2]), support=np.full((2, J), 7.0),
         visibility=np.ones((2, 4)), joints=joints, observed=np.ones((2, J), bool),
+        fit=np.ones((2, 5)), cut_m=np.full((2, J), np.inf),
     )  # fmt: skip
     e = recording_evidence(tmp_path / "rec", tmp_path / "rec.npz")
     assert e["support"].shape == (2, J) and e["in_view"].shape == (2, J)
+    assert e["fit"].shape == (2, 5) and np.isinf(e["cut_m"]).all()
     assert not e["in_view"].any()  # no depth: no joint is in view
     expect = np.zeros((2, J))
     expect[1, 3] = 0.25
@@ -117,6 +144,7 @@ def test_recording_evidence_pairs_each_posed_frame_with_its_truth(tmp_path):
     np.savez(
         tmp_path / "bad.npz", frame=np.array([5]), support=np.zeros((1, J)),
         visibility=np.ones((1, 4)), joints=truth[:1], observed=np.ones((1, J), bool),
+        fit=np.ones((1, 5)), cut_m=np.ones((1, J)),
     )  # fmt: skip
     with pytest.raises(ValueError, match="frames beyond"):
         recording_evidence(tmp_path / "rec", tmp_path / "bad.npz")
@@ -129,6 +157,6 @@ def test_an_unreadable_evidence_file_is_a_clear_error(tmp_path):
     (tmp_path / "torn.npz").write_bytes(b"PK\x03\x04 torn")
     with pytest.raises(ValueError, match="not a readable evidence file.*delete it"):
         recording_evidence(tmp_path / "rec", tmp_path / "torn.npz")
-    np.savez(tmp_path / "short.npz", frame=np.array([0]))  # a key missing
+    np.savez(tmp_path / "short.npz", frame=np.array([0]))  # keys missing (an older file)
     with pytest.raises(ValueError, match="not a readable evidence file"):
         recording_evidence(tmp_path / "rec", tmp_path / "short.npz")
