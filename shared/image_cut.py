@@ -25,11 +25,20 @@ __all__ = ["cut_pixels", "image_cut_distance_m"]
 def cut_pixels(mask: torch.Tensor) -> torch.Tensor:
     """(K, 2) float (u, v) of the person's pixels on the image's outermost rows and columns
     (``mask`` (H, W) bool); (0, 2) when the person does not reach the edge."""
-    edge = torch.zeros_like(mask)
-    edge[0, :] = edge[-1, :] = True
-    edge[:, 0] = edge[:, -1] = True
-    v, u = torch.nonzero(mask & edge, as_tuple=True)
-    return torch.stack([u, v], -1).to(torch.float64)
+    H, W = mask.shape
+    u = torch.arange(W, device=mask.device, dtype=torch.float64)
+    v = torch.arange(1, H - 1, device=mask.device, dtype=torch.float64)
+    sides = (
+        (u[mask[0]], 0.0),  # top row, then the bottom one
+        (u[mask[-1]], H - 1.0),
+    )
+    columns = (
+        (v[mask[1:-1, 0]], 0.0),  # left column without its corners, then the right one
+        (v[mask[1:-1, -1]], W - 1.0),
+    )
+    parts = [torch.stack([a, torch.full_like(a, c)], -1) for a, c in sides]
+    parts += [torch.stack([torch.full_like(a, c), a], -1) for a, c in columns]
+    return torch.cat(parts)
 
 
 def image_cut_distance_m(
