@@ -139,13 +139,11 @@ def observed_of(
         import torch
         from depthmocap.shared.joint_confidence import joint_confidence
 
-        context = {}
-        if confidence.version >= 2:
-            context = {
-                "frame": torch.as_tensor(frame_fit, device=support.device),
-                "cut_m": torch.as_tensor(cut_m, device=support.device),
-            }
-        p = joint_confidence(confidence, support.detach(), shown.detach(), **context)
+        frame, cut = (
+            None if x is None else torch.as_tensor(x, device=support.device)
+            for x in (frame_fit, cut_m)
+        )  # a version 1 model reads neither; version 2 needs both
+        p = joint_confidence(confidence, support.detach(), shown.detach(), frame, cut)
         return (p >= confidence.threshold).cpu().numpy()
     flags = getattr(fit, "observed", None)
     return None if flags is None else flags.detach().cpu().numpy().astype(bool)

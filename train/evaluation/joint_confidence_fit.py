@@ -35,7 +35,6 @@ from depthmocap.shared.joint_confidence import (
     GROUPS,
     JOINT_GROUP,
     NUM_FEATURES,
-    VERSION,
     JointConfidence,
     confidence_features,
     joint_confidence,
@@ -136,11 +135,11 @@ def fit_confidence(
         weights[k], bias[k] = fit_logistic(
             f[:, cols].reshape(-1, NUM_FEATURES), target[:, cols].reshape(-1).astype(float)
         )
-    model = JointConfidence(weights, bias, 0.5, version=VERSION)
+    model = JointConfidence(weights, bias, 0.5)
     p = joint_confidence(model, *_inputs(evidence)).numpy()
     threshold = float(np.quantile(p[in_view], 1.0 - recall)) if in_view.any() else 0.5
     kept = float((p[in_view] >= threshold).mean()) if in_view.any() else float("nan")
-    return JointConfidence(weights, bias, threshold, kept, frames=len(support), version=VERSION)
+    return JointConfidence(weights, bias, threshold, kept, frames=len(support))
 
 
 def flag_figures(
