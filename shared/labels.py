@@ -13,6 +13,7 @@ from .skeleton import JOINT_NAMES, NUM_SEGMENTS, SEGMENT_NAMES
 
 __all__ = [
     "PART_NAMES",
+    "CLUTTER_CLASSES",
     "NUM_CLASSES",
     "BACKGROUND",
     "PART_SEGMENT",
@@ -32,6 +33,10 @@ PART_NAMES: tuple[str, ...] = (
 )  # fmt: skip
 NUM_CLASSES = len(PART_NAMES)  # 20 including background
 assert NUM_CLASSES == 20
+
+# The person/clutter forest's classes (``runtime.segmentation.clutter``): outside the mask,
+# the person, and furniture the segmentation left attached to them.
+CLUTTER_CLASSES: tuple[str, ...] = ("background", "person", "clutter")
 
 # Segments whose label is split at half their length.
 SPLIT_SEGMENTS: tuple[int, ...] = tuple(

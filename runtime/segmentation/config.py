@@ -113,3 +113,12 @@ class SegmentationConfig:
     continuity_gain: float = field_doc(
         4.0, help="factor on the score of the previous frame's person (choices do not flip)"
     )
+    clutter_model: str = field_doc(
+        "",
+        help="person/clutter forest that takes furniture left attached to the person out of "
+        "the mask (runtime.segmentation.clutter; a bare file name is looked up in the "
+        "package's models/); empty: off",
+    )
+    clutter_threshold: float = field_doc(
+        0.5, help="a mask pixel whose clutter posterior reaches this leaves the mask"
+    )

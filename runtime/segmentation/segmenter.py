@@ -1,11 +1,13 @@
 """The person segmentation of a stream: :func:`segment_person` frame after frame, carrying
-the floor and the person over from one frame to the next (:mod:`.selection`, :mod:`.floor`)."""
+the floor and the person over from one frame to the next (:mod:`.selection`, :mod:`.floor`),
+then, with ``clutter_model``, the furniture left attached taken out (:mod:`.clutter`)."""
 
 from __future__ import annotations
 
 import torch
 from depthmocap.shared.camera import Intrinsics
 
+from .clutter import ClutterFilter
 from .config import SegmentationConfig
 from .person import SegmentationMemory, segment_person_in_stream
 
@@ -23,6 +25,11 @@ class PersonSegmenter:
         self.cfg = cfg or SegmentationConfig()
         self._memory: SegmentationMemory | None = None
         self._intrinsics: Intrinsics | None = None
+        self._clutter = (
+            ClutterFilter(self.cfg.clutter_model, self.cfg.clutter_threshold)
+            if self.cfg.clutter_model
+            else None
+        )
 
     def __call__(self, depth_m: torch.Tensor, intr: Intrinsics) -> torch.Tensor:
         """(H, W) metres -> (H, W) bool person mask on the input's device."""
@@ -30,6 +37,8 @@ class PersonSegmenter:
             self.reset()
             self._intrinsics = intr
         mask, self._memory = segment_person_in_stream(depth_m, intr, self.cfg, self._memory)
+        if self._clutter is not None:
+            mask = self._clutter(depth_m, mask, intr)
         return mask
 
     @property

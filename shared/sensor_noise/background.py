@@ -1,4 +1,5 @@
-"""A simple background scene for rendered body frames: a floor, a back wall, boxes.
+"""A simple background scene for rendered body frames: a floor, a back wall, boxes (and
+vertical cylinders: the round seats and legs of the furniture drawn against people).
 
 :func:`add_floor_and_background` is a pure helper for the renderer: it fills the background of a
 rendered body frame with a floor plane, optionally a back wall and a few boxes standing on the
@@ -22,9 +23,11 @@ from depthmocap.shared.sensor_noise.kinect import check_depth_image
 __all__ = [
     "BackgroundBox",
     "BackgroundConfig",
+    "BackgroundCylinder",
     "BackgroundScene",
     "add_floor_and_background",
     "box_depth",
+    "cylinder_depth",
     "floor_depth",
     "level_from_camera",
     "random_background_scene",
@@ -66,11 +69,25 @@ class BackgroundBox:
 
 
 @dataclass(frozen=True)
+class BackgroundCylinder:
+    """Vertical cylinder in the level floor frame (as :class:`BackgroundBox`): its axis at
+    ``(x, z)``, spanning heights ``bottom`` to ``top`` above the floor (a round seat, a leg)."""
+
+    x: float
+    z: float
+    radius: float
+    bottom: float
+    top: float
+
+
+@dataclass(frozen=True)
 class BackgroundScene:
-    """A background: floor always, an optional back wall (horizontal distance) and boxes."""
+    """A background: floor always, an optional back wall (horizontal distance), boxes and
+    vertical cylinders."""
 
     wall_distance: float | None
     boxes: tuple[BackgroundBox, ...] = ()
+    cylinders: tuple[BackgroundCylinder, ...] = ()
 
 
 def _rays(intr: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
@@ -169,6 +186,39 @@ def box_depth(
     return np.where((t_near <= t_far) & (t_near > 0), t_near, np.inf)
 
 
+def cylinder_depth(
+    intr: Intrinsics,
+    camera_height: float,
+    pitch: float,
+    cyl: BackgroundCylinder,
+    level_rot: np.ndarray | None = None,
+) -> np.ndarray:
+    """Camera depth of the visible surface of one vertical cylinder: its side or its top or
+    bottom disc, whichever a ray meets first.
+
+    Returns:
+        (H, W) float64 metres, ``inf`` where the ray misses it.
+    """
+    dx, dy, dz = _level_rays(intr, pitch, level_rot)
+    # A ray point at parameter t is t (dx, dy, dz) (level frame, y down); heights above the
+    # floor are camera_height - t dy.
+    a = dx * dx + dz * dz
+    b = dx * cyl.x + dz * cyl.z
+    c = cyl.x**2 + cyl.z**2 - cyl.radius**2
+    disc = b * b - a * c
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t_side = np.where((disc >= 0) & (a > 1e-12), (b - np.sqrt(np.maximum(disc, 0))) / a, np.inf)
+    height = camera_height - t_side * dy
+    side = np.where((t_side > 0) & (height >= cyl.bottom) & (height <= cyl.top), t_side, np.inf)
+    best = side
+    for level in (cyl.top, cyl.bottom):  # the two discs
+        safe = np.where(np.abs(dy) > 1e-12, dy, 1e-12)
+        t = (camera_height - level) / safe
+        inside = (t * dx - cyl.x) ** 2 + (t * dz - cyl.z) ** 2 <= cyl.radius**2
+        best = np.minimum(best, np.where((t > 0) & inside, t, np.inf))
+    return best
+
+
 def random_background_scene(rng: np.random.Generator, cfg: BackgroundConfig) -> BackgroundScene:
     """Draw a wall (with ``cfg.wall_prob``) and 0..``cfg.max_boxes`` boxes."""
     wall = None
@@ -237,6 +287,8 @@ def add_floor_and_background(
         bg = np.minimum(bg, wall_depth(intr, pitch, scene.wall_distance, level_rot))
     for box in scene.boxes:
         bg = np.minimum(bg, box_depth(intr, camera_height, pitch, box, level_rot))
+    for cyl in scene.cylinders:
+        bg = np.minimum(bg, cylinder_depth(intr, camera_height, pitch, cyl, level_rot))
     bg = np.where(bg <= cfg.max_distance_m, bg, np.inf)
 
     body = np.where(depth > 0, depth, np.inf)

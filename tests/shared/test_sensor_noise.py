@@ -13,11 +13,13 @@ from depthmocap.shared.config import config_from_dict, config_to_dict
 from depthmocap.shared.sensor_noise import (
     BackgroundBox,
     BackgroundConfig,
+    BackgroundCylinder,
     BackgroundScene,
     KinectNoiseConfig,
     add_floor_and_background,
     apply_kinect_noise,
     box_depth,
+    cylinder_depth,
     floor_depth,
     incidence_angle,
     projector_shadow_mask,
@@ -359,3 +361,38 @@ def test_random_scene_is_drawn_from_rng():
         np.zeros((60, 80), np.float32), None, INTR80, 1.0, 0.2, np.random.default_rng(9), cfg
     )
     assert (d > 0).mean() > 0.5
+
+
+def test_cylinder_side_and_top_by_ray_geometry():
+    """Golden depths of a vertical cylinder against the rays' own geometry: the side at the
+    centre column, the top disc seen from above, misses outside it."""
+    intr = INTR160
+    cam_h = 1.0
+    u = 100
+    dx = (u - intr.cx) / intr.fx
+    # the axis on column u's rays, so they meet the circle at t = 2 - r / sqrt(1 + dx^2)
+    cyl = BackgroundCylinder(x=2.0 * dx, z=2.0, radius=0.3, bottom=0.2, top=0.5)
+    d = cylinder_depth(intr, cam_h, 0.0, cyl)
+    stretch = math.sqrt(1 + dx * dx)
+    t_side = 2.0 - 0.3 / stretch
+    for v in range(intr.height):
+        ry = (v - intr.cy) / intr.fy
+        h_side = cam_h - t_side * ry
+        t_top = (cam_h - 0.5) / ry if ry > 0 else np.inf
+        on_top = ry > 0 and abs(t_top - 2.0) * stretch <= 0.3
+        want = min(t_side if 0.2 <= h_side <= 0.5 else np.inf, t_top if on_top else np.inf)
+        if np.isinf(want):
+            assert np.isinf(d[v, u])
+        else:
+            assert d[v, u] == pytest.approx(want, rel=1e-9)
+    assert np.isinf(d[:, 0]).all()  # nothing far beside it
+    assert np.isfinite(d[:, u]).sum() > 3
+    # composited: it hides what is behind it, as a box does
+    body = plane(intr, 2.5)
+    labels = np.full(body.shape, 5, np.uint8)
+    out, lab = add_floor_and_background(
+        body, labels, intr, cam_h, 0.0, scene=BackgroundScene(None, (), (cyl,))
+    )
+    hit = np.isfinite(d) & (d < 2.5)
+    assert hit.sum() > 50 and (lab[hit] == 0).all()
+    np.testing.assert_allclose(out[hit], d[hit], rtol=1e-6)

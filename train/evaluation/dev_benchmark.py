@@ -136,6 +136,7 @@ def run_config(
     tracker: dict | None = None,
     reuse: bool = False,
     realtime: bool = False,
+    segmentation: Path | None = None,
 ) -> dict:
     """Track ``rec`` with configuration ``name`` and evaluate; returns the report.
 
@@ -144,6 +145,7 @@ def run_config(
     resume an interrupted run of the same code and settings).
     ``realtime``: track as a live camera delivers the recording (``runtime-track
     --realtime``: paced, the newest frame wins), each skipped frame scored with the last pose.
+    ``segmentation``: ``runtime-track --segmentation-config`` (e.g. the person/clutter forest).
     """
     if reuse and _complete_result(out / "result"):
         return evaluate(rec, out / "result", hold_skipped=realtime).report
@@ -167,6 +169,8 @@ def run_config(
         cfg_path.write_text(yaml.safe_dump({**base, **overrides}))
     if cfg_path is not None:
         cmd += ["--config", str(cfg_path)]
+    if segmentation is not None:
+        cmd += ["--segmentation-config", str(segmentation)]
     _run(cmd)
     return evaluate(rec, out / "result", hold_skipped=realtime).report
 
@@ -415,6 +419,11 @@ def main(argv: list[str] | None = None) -> int:
         default=Path("configs/hybrid.yaml"),
         help="YAML of the hybrid's settings (thresholds)",
     )
+    p.add_argument(
+        "--segmentation-config",
+        type=Path,
+        help="runtime-track --segmentation-config (e.g. the person/clutter forest)",
+    )
     p.add_argument("--limit", type=int, help="use only the first N recordings")
     p.add_argument(
         "--trust-regions",
@@ -486,7 +495,7 @@ def main(argv: list[str] | None = None) -> int:
                     reports.append(
                         run_config(name, rec, Path(args.out) / slug / rec.name, args.model,
                                    args.device, args.mode_config, tracker, args.reuse_results,
-                                   args.realtime)
+                                   args.realtime, args.segmentation_config)
                     )  # fmt: skip
             except RuntimeError as err:
                 print(f"| {row} | failed: {str(err).splitlines()[-1][:80]} |||||||")

@@ -259,6 +259,7 @@ def _track(
     device: str | None,
     config: Path | None = None,
     model: Path | None = None,
+    segmentation: Path | None = None,
 ) -> None:
     cmd = [sys.executable, "-m", "depthmocap.runtime.track_cli", "--input", str(rec),
            "--output", str(result), "--threads", str(threads), "--save-overlays", "-q"]  # fmt: skip
@@ -266,6 +267,8 @@ def _track(
         cmd += ["--config", str(config)]
     if model is not None:
         cmd += ["--model", str(model)]
+    if segmentation is not None:
+        cmd += ["--segmentation-config", str(segmentation)]
     if device:
         cmd += ["--device", device]
     run_command(cmd)  # RuntimeError with the end of stderr if it fails
@@ -435,6 +438,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--model", type=Path, help="runtime-track --model (another forest than the shipped one)"
     )
+    p.add_argument(
+        "--segmentation-config",
+        type=Path,
+        help="runtime-track --segmentation-config (e.g. the person/clutter forest)",
+    )
     p.add_argument("--retrack", action="store_true", help="track again even if a result is there")
     p.add_argument(
         "--sheet", type=Path, help="worst-frames contact sheet PNG (default OUT/worst_frames.png)"
@@ -451,7 +459,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _settings_check(
-    out: Path, config: Path | None, retrack: bool, model: Path | None = None
+    out: Path,
+    config: Path | None,
+    retrack: bool,
+    model: Path | None = None,
+    segmentation: Path | None = None,
 ) -> str | None:
     """Record the settings the results in ``out`` are tracked with (``OUT/settings.yaml``: the
     ``--config`` text, empty for the shipped preset, and a comment naming another forest by its
@@ -461,7 +473,11 @@ def _settings_check(
         return f"--config: no such file {config}"
     if model is not None and not model.is_file():
         return f"--model: no such file {model}"
+    if segmentation is not None and not segmentation.is_file():
+        return f"--segmentation-config: no such file {segmentation}"
     text = "" if config is None else config.read_text()
+    if segmentation is not None:
+        text += f"\n# --segmentation-config {segmentation}\n{segmentation.read_text()}"
     if model is not None:
         digest = hashlib.sha256(model.read_bytes()).hexdigest()
         text += f"\n# --model {model} sha256 {digest}\n"
@@ -480,7 +496,9 @@ def _settings_check(
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    problem = _settings_check(args.out, args.config, args.retrack, args.model)
+    problem = _settings_check(
+        args.out, args.config, args.retrack, args.model, args.segmentation_config
+    )
     if problem is not None:
         print(f"error: {problem}", file=sys.stderr)
         return 2
@@ -499,7 +517,10 @@ def main(argv: list[str] | None = None) -> int:
         try:
             frames = len(Recording(rec))
             if args.retrack or not _complete(results / rec.name, frames):
-                _track(rec, results / rec.name, args.threads, args.device, args.config, args.model)
+                _track(
+                    rec, results / rec.name, args.threads, args.device, args.config, args.model,
+                    args.segmentation_config,
+                )  # fmt: skip
             s = score(rec, results / rec.name)
         except (RecordingError, ResultFileError, EvaluationError, RuntimeError) as err:
             print(f"error: {rec.name}: {str(err).splitlines()[-1]}", file=sys.stderr)

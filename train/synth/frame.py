@@ -24,11 +24,23 @@ from depthmocap.shared.sensor_noise import (
     apply_kinect_noise,
     level_from_camera,
 )
+from depthmocap.shared.sensor_noise.background import (
+    box_depth,
+    cylinder_depth,
+    random_background_scene,
+)
 from depthmocap.train.bodies.anny_body import AnnyBody, make_body, sample_phenotype
 from depthmocap.train.bodies.measurements import anatomical_joints
 from depthmocap.train.bodies.posing import pose_anny
 from depthmocap.train.mocap.clip import axis_rotation
 from depthmocap.train.synth.garments import GarmentConfig, dress_body
+from depthmocap.train.synth.props import (
+    PropConfig,
+    attached_prop,
+    chair_under,
+    person_clutter_labels,
+    pixel_heights,
+)
 from depthmocap.train.synth.render import DepthLabelRenderer
 from depthmocap.train.synth.viewpoints import ViewpointConfig, Viewpoints, transform_points
 
@@ -61,6 +73,10 @@ class SceneConfig:
     garments: GarmentConfig = field_doc(
         default_factory=GarmentConfig,
         help="clothing drawn over the bare body (closed leg gaps, cloth thickness); off by default",
+    )
+    props: PropConfig = field_doc(
+        default_factory=PropConfig,
+        help="furniture against the person and the person/clutter labels; off by default",
     )
 
 
@@ -173,33 +189,50 @@ def render_frame(
     cfg: SceneConfig,
     rng: np.random.Generator,
     scene: BackgroundScene | None = None,
+    sitting: bool = False,
 ) -> SynthFrame:
     """Render one placed body from viewpoint ``view`` (N = 1).
 
     Args:
         vertices: (V, 3) world vertices; joints: (J, 3) world; q: (34,) world pose.
         scene: a fixed background (sequences); drawn from ``rng`` when None.
+        sitting: the body is seated (``props.sitting_pose``): a chair is drawn under it.
     """
     cam = view.cam_from_world[0]
     verts_cam = transform_points(cam, vertices).astype(np.float32)
     frame = renderer.render(verts_cam, body.faces, body.labels)
     depth, labels = dress_body(frame.depth, frame.labels, intr, cfg.garments, rng)
+    prop, level_rot, height = None, level_from_camera(cam), float(view.height[0])
     if cfg.floor:
         bg_cfg = scene_behind(cfg.scene, float(view.distance[0]))
-        if scene is None and not cfg.background:
-            scene = BackgroundScene(None, ())
+        if scene is None:
+            scene = (
+                random_background_scene(rng, bg_cfg)
+                if cfg.background
+                else BackgroundScene(None, ())
+            )
+        if sitting:  # a chair under the seated body
+            pelvis = transform_points(cam, joints[None, sk.JOINT_NAMES.index("pelvis")])[0]
+            prop = chair_under(rng, verts_cam @ level_rot.T, level_rot @ pelvis)
+        elif cfg.props.probability > 0 and rng.random() < cfg.props.probability:
+            prop = attached_prop(rng, verts_cam @ level_rot.T, height, cfg.props)
+        if prop is not None:
+            scene = BackgroundScene(
+                scene.wall_distance, scene.boxes + prop.boxes, scene.cylinders + prop.cylinders
+            )
         depth, labels = add_floor_and_background(
-            depth,
-            labels,
-            intr,
-            float(view.height[0]),
-            0.0,
-            rng=rng,
-            cfg=bg_cfg,
-            scene=scene,
-            level_rot=level_from_camera(cam),
-        )
+            depth, labels, intr, height, 0.0, rng=rng, cfg=bg_cfg, scene=scene,
+            level_rot=level_rot,
+        )  # fmt: skip
+        if prop is not None:  # where the prop is the nearest surface
+            near = [box_depth(intr, height, 0.0, b, level_rot) for b in prop.boxes]
+            near += [cylinder_depth(intr, height, 0.0, c, level_rot) for c in prop.cylinders]
+            prop = np.abs(np.min(near, axis=0) - depth) < 1e-4
     depth_mm, labels = apply_kinect_noise(depth, labels, intr, cfg.noise, rng)
+    if cfg.props.person_clutter_labels:
+        prop = np.zeros(depth.shape, bool) if prop is None else prop
+        heights = pixel_heights(depth_mm / 1000.0, intr, level_rot, height)
+        labels = person_clutter_labels(depth_mm, labels, prop, heights)
     rot = torch.as_tensor(cam[:3, :3])
     q_cam = transform_pose(torch.as_tensor(q)[None], rot, torch.as_tensor(cam[:3, 3]))[0]
     return SynthFrame(

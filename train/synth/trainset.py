@@ -24,11 +24,12 @@ from pathlib import Path
 
 import numpy as np
 from depthmocap.shared.camera import Intrinsics
-from depthmocap.shared.labels import PART_NAMES
+from depthmocap.shared.labels import CLUTTER_CLASSES, PART_NAMES
 
 __all__ = [
     "TRAINSET_FORMAT",
     "TRAINSET_VERSION",
+    "CLASS_SETS",
     "TrainSetError",
     "Shard",
     "write_shard",
@@ -42,6 +43,8 @@ __all__ = [
 
 TRAINSET_FORMAT = "depthmocap-trainset"
 TRAINSET_VERSION = 1
+# What a set's labels can mean: body parts (the body-part forest) or person/clutter.
+CLASS_SETS = (PART_NAMES, CLUTTER_CLASSES)
 _SHARD_KEYS = ("depth", "labels", "joints", "q", "body", "intrinsics")
 
 
@@ -137,8 +140,10 @@ def write_manifest(
     seed: int,
     config: dict,
     extra: dict | None = None,
+    class_names: tuple[str, ...] = PART_NAMES,
 ) -> dict:
-    """Write ``manifest.json`` atomically for the finished shards (in order)."""
+    """Write ``manifest.json`` atomically for the finished shards (in order); ``class_names``:
+    what the labels mean (:data:`CLASS_SETS`)."""
     content = _content_hash(shards)
     manifest = {
         "format": TRAINSET_FORMAT,
@@ -146,7 +151,7 @@ def write_manifest(
         "width": intr.width,
         "height": intr.height,
         "intrinsics": {"fx": intr.fx, "fy": intr.fy, "cx": intr.cx, "cy": intr.cy},
-        "class_names": list(PART_NAMES),
+        "class_names": list(class_names),
         "seed": seed,
         "frames": int(sum(s["frames"] for s in shards)),
         "shards": shards,
@@ -179,8 +184,11 @@ class TrainSet:
             raise TrainSetError(
                 f"{path}: version {m.get('version')} is newer than supported ({TRAINSET_VERSION})"
             )
-        if list(m.get("class_names", [])) != list(PART_NAMES):
-            raise TrainSetError(f"{path}: class names differ from this version's part set")
+        if tuple(m.get("class_names", ())) not in CLASS_SETS:
+            raise TrainSetError(
+                f"{path}: class names are neither this version's part set nor the "
+                "person/clutter classes"
+            )
         self.manifest = m
         self.intrinsics = Intrinsics(
             width=int(m["width"]), height=int(m["height"]), **m["intrinsics"]

@@ -29,8 +29,9 @@ import numpy as np
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.camera import Intrinsics
 from depthmocap.shared.config import config_to_dict, field_doc, save_config
-from depthmocap.shared.labels import PART_NAMES
+from depthmocap.shared.labels import CLUTTER_CLASSES, PART_NAMES
 from depthmocap.train.synth.frame import SceneConfig
+from depthmocap.train.synth.props import PropConfig, sitting_pose
 from depthmocap.train.synth.trainset import TrainSetError, file_sha256, write_manifest, write_shard
 
 __all__ = ["SynthConfig", "prepare_poses", "frame_plan", "render_shard", "synthesize_set"]
@@ -75,6 +76,14 @@ class SynthConfig:
         for name in ("frames", "shard_frames", "bodies", "max_poses"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1")
+        self.scene.props.validate()
+        if self.scene.props.probability > 0 and not self.scene.floor:
+            raise ValueError("scene.props stand on the floor: they need scene.floor")
+
+
+def class_names(cfg: SynthConfig) -> tuple[str, ...]:
+    """What the set's labels mean: body parts, or person/clutter (``scene.props``)."""
+    return CLUTTER_CLASSES if cfg.scene.props.person_clutter_labels else PART_NAMES
 
 
 def _worker_count(cfg: SynthConfig) -> int:
@@ -261,7 +270,10 @@ def render_shard(task: dict) -> dict:
         if b not in state["bodies"]:
             state["bodies"][b] = body_for_index(cfg.seed, b)
         body = state["bodies"][b]
-        placed = place_on_floor(body, poses[k][None], per_frame=True)
+        props = cfg.scene.props
+        sitting = props.sitting > 0 and bool(rng.random() < props.sitting)
+        pose = sitting_pose(poses[k], rng) if sitting else poses[k]
+        placed = place_on_floor(body, pose[None], per_frame=True)
         view = None
         for _ in range(8):
             view = sample_viewpoint_in_view(
@@ -279,7 +291,7 @@ def render_shard(task: dict) -> dict:
             )
         frame = render_frame(
             renderer, body, placed.vertices[0], placed.joints[0], placed.q[0], view, intr,
-            cfg.scene, rng,
+            cfg.scene, rng, sitting=sitting,
         )  # fmt: skip
         depth[k], labels[k], joints[k], q_cam[k] = frame
     path = Path(task["out"]) / f"shard_{task['shard']:05d}.npz"
@@ -295,7 +307,7 @@ def render_shard(task: dict) -> dict:
         "file": path.name,
         "frames": n,
         "sha256": sha,
-        "class_pixels": np.bincount(labels.ravel(), minlength=len(PART_NAMES)).tolist(),
+        "class_pixels": np.bincount(labels.ravel(), minlength=len(class_names(cfg))).tolist(),
         "seconds": time.perf_counter() - t0,
     }
 
@@ -311,6 +323,8 @@ def _config_fingerprint(cfg: SynthConfig) -> str:
     data["generator_version"] = GENERATOR_VERSION
     for key in ("procedural_motions", "procedural_jitter_rad"):
         data.pop(key, None)
+    if cfg.scene.props == PropConfig():  # sets made before props existed keep their key
+        data["scene"].pop("props", None)
     data.update(_procedural_options(cfg))
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
 
@@ -359,13 +373,13 @@ def synthesize_set(cfg: SynthConfig, out: Path, progress: bool = True, log=print
         counts = (
             np.sum([e["class_pixels"] for e in entries], axis=0)
             if entries
-            else np.zeros(len(PART_NAMES), np.int64)
+            else np.zeros(len(class_names(cfg)), np.int64)
         )
         return write_manifest(
             out, intr,
             [{k: e[k] for k in ("shard", "file", "frames", "sha256", "class_pixels")}
              for e in entries],
-            counts, cfg.seed, config_to_dict(cfg),
+            counts, cfg.seed, config_to_dict(cfg), class_names=class_names(cfg),
             extra={"config_fingerprint": fingerprint, "complete": len(done) == n_shards,
                    "poses": pose_info, **extra_stats},
         )  # fmt: skip

@@ -275,3 +275,27 @@ def test_procedural_library_restricted_to_the_calibration_pose_with_jitter():
         assert np.allclose(clamp_to_limits(torch.as_tensor(b.q)).numpy(), b.q)
     with pytest.raises(ValueError, match="unknown procedural motions"):
         procedural_library(np.random.default_rng(0), 10.0, 0, motions=["moonwalk"])
+
+
+def test_rendered_props_stay_in_the_runtime_segmentation(tmp_path):
+    """The person/clutter set: the prop flush with the person is what the segmentation keeps
+    with them (what the clutter forest must undo)."""
+    _need_egl()
+    from depthmocap.runtime.segmentation import segment_person
+    from depthmocap.shared.labels import CLUTTER_CLASSES
+    from depthmocap.train.synth.props import PropConfig
+
+    cfg = tiny_config()
+    props = PropConfig(1.0, True, sitting=0.5)
+    cfg = replace(cfg, frames=6, scene=replace(cfg.scene, props=props))
+    synthesize_set(cfg, tmp_path, progress=False, log=lambda *_: None)
+    ts = TrainSet(tmp_path)
+    assert ts.class_names == list(CLUTTER_CLASSES)
+    s = ts.load_frames()
+    assert set(np.unique(s.labels)) <= {0, 1, 2}
+    clutter = s.labels == 2
+    assert (clutter.reshape(6, -1).sum(1) > 50).sum() >= 4  # most frames show their prop
+    mask = segment_person(torch.as_tensor(s.depth.astype(np.float32) / 1000), ts.intrinsics)
+    mask = mask.numpy()
+    assert (mask & clutter).sum() >= 0.8 * clutter.sum()
+    assert (mask & (s.labels == 1)).sum() >= 0.9 * (s.labels == 1).sum()
