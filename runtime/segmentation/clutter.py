@@ -7,7 +7,11 @@ person sits on stays in the mask, and the tracker bends the hips to explain it
 with them (``train/synth/props.py``, ``make train-clutter``), reads each mask pixel's
 neighbourhood with the body-part forest's depth features and says person or clutter; pixels
 whose clutter posterior (smoothed over :data:`SMOOTH_WINDOW` neighbours at the same depth, as
-the part labels are) reaches the threshold leave the mask.
+the part labels are) reaches the threshold leave the mask, if they are connected to the
+mask's outline: furniture the segmentation left attached lies beyond the person and so
+reaches the silhouette's edge (a seat beside the hips, a table beside the body, the legs of a
+chair between the person's legs), while a patch of the body that the forest doubts (a thigh
+seen end-on behind a torso bent forwards) lies inside it and stays.
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ from depthmocap.shared.forest_format import load_forest
 from depthmocap.shared.labels import CLUTTER_CLASSES
 from depthmocap.shared.resources import MODELS_DIR
 
-__all__ = ["SMOOTH_WINDOW", "ClutterFilter", "clutter_model_path"]
+__all__ = ["SMOOTH_WINDOW", "ClutterFilter", "clutter_model_path", "reaching_outline"]
 
 # Posteriors averaged over this box of pixels (the body-part labels' smoothing): a forest
 # decides each pixel alone, so a lone pixel inside the body is not cut out.
@@ -32,6 +36,30 @@ def clutter_model_path(name: str) -> Path:
     """``name`` as given when it names an existing file or a folder, else in ``models/``."""
     path = Path(name)
     return path if path.exists() or path.parent != Path(".") else MODELS_DIR / path
+
+
+def reaching_outline(region: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """The connected parts (8-connected) of ``region`` that touch the outline of ``mask``
+    (mask pixels with a 4-neighbour outside it, image borders included): (H, W) or (B, H, W)
+    bool, like both inputs, on their device."""
+    import cv2
+    import numpy as np
+
+    single = region.dim() == 2
+    reg = region.cpu().numpy()[None] if single else region.cpu().numpy()
+    msk = mask.cpu().numpy()[None] if single else mask.cpu().numpy()
+    out = np.zeros_like(reg)
+    for i in range(len(reg)):
+        if not reg[i].any():
+            continue
+        p = np.pad(msk[i], 1)
+        inner = p[:-2, 1:-1] & p[2:, 1:-1] & p[1:-1, :-2] & p[1:-1, 2:]
+        outline = msk[i] & ~inner
+        count, labels = cv2.connectedComponents(reg[i].astype(np.uint8), connectivity=8)
+        touching = np.unique(labels[reg[i] & outline])
+        out[i] = np.isin(labels, touching[touching > 0])
+    result = torch.from_numpy(out[0] if single else out)
+    return result.to(region.device)
 
 
 class ClutterFilter:
@@ -63,9 +91,11 @@ class ClutterFilter:
         return self._classifiers[key]
 
     def clutter(self, depth_m: torch.Tensor, mask: torch.Tensor, intr: Intrinsics) -> torch.Tensor:
-        """(H, W) or (B, H, W) bool: the ``mask`` pixels called clutter."""
+        """(H, W) or (B, H, W) bool: the ``mask`` pixels called clutter and connected to the
+        mask's outline."""
         posteriors = self._classifier(intr, depth_m.device).posteriors(depth_m, mask)
-        return (posteriors.select(-3, _CLUTTER) >= self.threshold).to(mask.device) & mask
+        called = (posteriors.select(-3, _CLUTTER) >= self.threshold).to(mask.device) & mask
+        return reaching_outline(called, mask)
 
     def __call__(self, depth_m: torch.Tensor, mask: torch.Tensor, intr: Intrinsics) -> torch.Tensor:
         """``mask`` without the clutter (same shape and device)."""
