@@ -5,7 +5,7 @@ SETUP_STAMP := .venv/.setup-stamp
 export PYTHONUNBUFFERED := 1
 
 .PHONY: setup demo test lint format bench bench-broad install-check clean synth dev-recordings dev-recordings-all dev-protocol dev-protocol-eval train-forest train-forest-eval \
-	synth-calib train-forest-calib
+	synth-calib train-forest-calib synth-clutter train-clutter
 
 setup: ## create .venv, install system packages (root), torch and the project with all extras
 	@bash scripts/setup.sh
@@ -63,6 +63,15 @@ synth-calib: $(SETUP_STAMP) ## the calibration-pose training set (T-pose only) i
 train-forest-calib: $(SETUP_STAMP) ## the calibration forest from data/synth_calib into models/
 	$(PY) -m depthmocap.train.forest.train_cli --data data/synth_calib --out models/forest_calib.npz \
 		--config configs/forest_calib.yaml
+
+synth-clutter: $(SETUP_STAMP) ## the person/clutter training set (furniture against people) into data/synth_clutter, and a held-out 500 frames
+	$(PY) -m depthmocap.train.synth.cli --config configs/synth_clutter.yaml --out data/synth_clutter
+	$(PY) -m depthmocap.train.synth.cli --config configs/synth_clutter.yaml --frames 500 --seed 6 \
+		--out data/synth_clutter_eval
+
+train-clutter: $(SETUP_STAMP) ## the person/clutter forest from data/synth_clutter into models/clutter_forest.npz
+	$(PY) -m depthmocap.train.forest.train_cli --data data/synth_clutter --out models/clutter_forest.npz \
+		--config configs/forest_clutter.yaml --eval-data data/synth_clutter_eval
 
 train-forest-eval: $(SETUP_STAMP) ## accuracy of models/forest.npz on the dev recordings
 	$(PY) -m depthmocap.train.forest.eval_cli --model models/forest.npz --data data/dev --out out/forest_eval

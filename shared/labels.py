@@ -14,6 +14,7 @@ from .skeleton import JOINT_NAMES, NUM_SEGMENTS, SEGMENT_NAMES
 __all__ = [
     "PART_NAMES",
     "CLUTTER_CLASSES",
+    "CLUTTER_SMOOTH_WINDOW",
     "NUM_CLASSES",
     "BACKGROUND",
     "PART_SEGMENT",
@@ -37,6 +38,10 @@ assert NUM_CLASSES == 20
 # The person/clutter forest's classes (``runtime.segmentation.clutter``): outside the mask,
 # the person, and furniture the segmentation left attached to them.
 CLUTTER_CLASSES: tuple[str, ...] = ("background", "person", "clutter")
+# Its posteriors are averaged over this box of pixels at the same depth before the threshold
+# (as the part labels are): a forest decides each pixel alone, so a lone doubtful pixel inside
+# the body is not cut out.
+CLUTTER_SMOOTH_WINDOW = 5
 
 # Segments whose label is split at half their length.
 SPLIT_SEGMENTS: tuple[int, ...] = tuple(

@@ -6,12 +6,13 @@ person sits on stays in the mask, and the tracker bends the hips to explain it
 (``docs/real_data.md``). A small forest, trained on rendered people with furniture drawn flush
 with them (``train/synth/props.py``, ``make train-clutter``), reads each mask pixel's
 neighbourhood with the body-part forest's depth features and says person or clutter; pixels
-whose clutter posterior (smoothed over :data:`SMOOTH_WINDOW` neighbours at the same depth, as
-the part labels are) reaches the threshold leave the mask, if they are connected to the
-mask's outline: furniture the segmentation left attached lies beyond the person and so
-reaches the silhouette's edge (a seat beside the hips, a table beside the body, the legs of a
-chair between the person's legs), while a patch of the body that the forest doubts (a thigh
-seen end-on behind a torso bent forwards) lies inside it and stays.
+whose clutter posterior (smoothed over :data:`~shared.labels.CLUTTER_SMOOTH_WINDOW`
+neighbours at the same depth, as the part labels are) reaches the threshold leave the mask,
+if they are connected to the mask's outline: furniture the segmentation left attached lies
+beyond the person and so reaches the silhouette's edge (a seat beside the hips, a table
+beside the body, the legs of a chair between the person's legs), while a patch of the body
+that the forest doubts (a thigh seen end-on behind a torso bent forwards) lies inside it and
+stays.
 """
 
 from __future__ import annotations
@@ -21,14 +22,12 @@ from pathlib import Path
 import torch
 from depthmocap.shared.camera import Intrinsics
 from depthmocap.shared.forest_format import load_forest
-from depthmocap.shared.labels import CLUTTER_CLASSES
+from depthmocap.shared.labels import CLUTTER_CLASSES, CLUTTER_SMOOTH_WINDOW
+from depthmocap.shared.mask_outline import reaching_outline
 from depthmocap.shared.resources import MODELS_DIR
 
-__all__ = ["SMOOTH_WINDOW", "ClutterFilter", "clutter_model_path", "reaching_outline"]
+__all__ = ["ClutterFilter", "clutter_model_path", "reaching_outline"]
 
-# Posteriors averaged over this box of pixels (the body-part labels' smoothing): a forest
-# decides each pixel alone, so a lone pixel inside the body is not cut out.
-SMOOTH_WINDOW = 5
 _CLUTTER = CLUTTER_CLASSES.index("clutter")
 
 
@@ -36,30 +35,6 @@ def clutter_model_path(name: str) -> Path:
     """``name`` as given when it names an existing file or a folder, else in ``models/``."""
     path = Path(name)
     return path if path.exists() or path.parent != Path(".") else MODELS_DIR / path
-
-
-def reaching_outline(region: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """The connected parts (8-connected) of ``region`` that touch the outline of ``mask``
-    (mask pixels with a 4-neighbour outside it, image borders included): (H, W) or (B, H, W)
-    bool, like both inputs, on their device."""
-    import cv2
-    import numpy as np
-
-    single = region.dim() == 2
-    reg = region.cpu().numpy()[None] if single else region.cpu().numpy()
-    msk = mask.cpu().numpy()[None] if single else mask.cpu().numpy()
-    out = np.zeros_like(reg)
-    for i in range(len(reg)):
-        if not reg[i].any():
-            continue
-        p = np.pad(msk[i], 1)
-        inner = p[:-2, 1:-1] & p[2:, 1:-1] & p[1:-1, :-2] & p[1:-1, 2:]
-        outline = msk[i] & ~inner
-        count, labels = cv2.connectedComponents(reg[i].astype(np.uint8), connectivity=8)
-        touching = np.unique(labels[reg[i] & outline])
-        out[i] = np.isin(labels, touching[touching > 0])
-    result = torch.from_numpy(out[0] if single else out)
-    return result.to(region.device)
 
 
 class ClutterFilter:
@@ -86,7 +61,7 @@ class ClutterFilter:
         key = (intr.fx, intr.fy, str(device))
         if key not in self._classifiers:
             self._classifiers[key] = ForestClassifier(
-                self.forest, device=device, intrinsics=intr, smooth_window=SMOOTH_WINDOW
+                self.forest, device=device, intrinsics=intr, smooth_window=CLUTTER_SMOOTH_WINDOW
             )
         return self._classifiers[key]
 

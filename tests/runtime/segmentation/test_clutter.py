@@ -6,11 +6,7 @@ import numpy as np
 import pytest
 import torch
 from depthmocap.runtime.segmentation import PersonSegmenter, SegmentationConfig
-from depthmocap.runtime.segmentation.clutter import (
-    ClutterFilter,
-    clutter_model_path,
-    reaching_outline,
-)
+from depthmocap.runtime.segmentation.clutter import ClutterFilter, clutter_model_path
 from depthmocap.shared.camera import Intrinsics
 from depthmocap.shared.forest_format import ForestFormatError, save_forest
 from depthmocap.shared.labels import CLUTTER_CLASSES
@@ -113,24 +109,3 @@ def test_bad_models_are_refused_clearly(tmp_path):
         ClutterFilter(MODELS_DIR / "forest.npz", threshold=0.0)
     assert clutter_model_path("clutter_forest.npz") == MODELS_DIR / "clutter_forest.npz"
     assert clutter_model_path(str(tmp_path / "x.npz")) == tmp_path / "x.npz"
-
-
-def test_only_clutter_reaching_the_outline_leaves():
-    mask = torch.zeros(12, 14, dtype=torch.bool)
-    mask[1:11, 1:13] = True
-    region = torch.zeros_like(mask)
-    region[5:7, 5:7] = True  # inside the person: a doubtful patch of the body stays
-    region[8:11, 9:11] = True  # reaches the silhouette's bottom edge: furniture
-    region[2, 12] = True  # one pixel on the right edge
-    kept = reaching_outline(region, mask)
-    expected = region.clone()
-    expected[5:7, 5:7] = False
-    assert torch.equal(kept, expected)
-    # batched like single frames; a mask that fills the image has the image border as outline
-    both = reaching_outline(torch.stack([region, region]), torch.stack([mask, mask]))
-    assert torch.equal(both[1], expected)
-    full = torch.ones(4, 4, dtype=torch.bool)
-    corner = torch.zeros_like(full)
-    corner[0, 0] = True
-    assert torch.equal(reaching_outline(corner, full), corner)
-    assert not bool(reaching_outline(torch.zeros_like(full), full).any())
