@@ -48,7 +48,7 @@ class ClutterFilter:
         ForestFormatError: a missing or unreadable file, or a forest of other classes.
     """
 
-    def __init__(self, path: str | Path, threshold: float = 0.5) -> None:
+    def __init__(self, path: str | Path, threshold: float = 0.7) -> None:
         if not 0.0 < threshold <= 1.0:
             raise ValueError(f"clutter_threshold must be in (0, 1], not {threshold}")
         self.forest = load_forest(clutter_model_path(str(path)), CLUTTER_CLASSES)

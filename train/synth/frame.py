@@ -196,7 +196,9 @@ def render_frame(
     Args:
         vertices: (V, 3) world vertices; joints: (J, 3) world; q: (34,) world pose.
         scene: a fixed background (sequences); drawn from ``rng`` when None.
-        sitting: the body is seated (``props.sitting_pose``): a chair is drawn under it.
+        sitting: the body is seated (``props.sitting_pose``): the furniture drawn, if any, is
+            a chair under it (without one, a crouch: the forest must not take a seated
+            posture itself for furniture).
     """
     cam = view.cam_from_world[0]
     verts_cam = transform_points(cam, vertices).astype(np.float32)
@@ -211,11 +213,12 @@ def render_frame(
                 if cfg.background
                 else BackgroundScene(None, ())
             )
-        if sitting:  # a chair under the seated body
-            pelvis = transform_points(cam, joints[None, sk.JOINT_NAMES.index("pelvis")])[0]
-            prop = chair_under(rng, verts_cam @ level_rot.T, level_rot @ pelvis)
-        elif cfg.props.probability > 0 and rng.random() < cfg.props.probability:
-            prop = attached_prop(rng, verts_cam @ level_rot.T, height, cfg.props)
+        if cfg.props.probability > 0 and rng.random() < cfg.props.probability:
+            if sitting:  # a chair under the seated body
+                pelvis = transform_points(cam, joints[None, sk.JOINT_NAMES.index("pelvis")])[0]
+                prop = chair_under(rng, verts_cam @ level_rot.T, level_rot @ pelvis)
+            else:
+                prop = attached_prop(rng, verts_cam @ level_rot.T, height, cfg.props)
         if prop is not None:
             scene = BackgroundScene(
                 scene.wall_distance, scene.boxes + prop.boxes, scene.cylinders + prop.cylinders

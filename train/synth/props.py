@@ -83,8 +83,9 @@ class PropConfig:
     )
     sitting: float = field_doc(
         0.0,
-        "share of all frames whose person sits on a chair: hips and knees bent by "
-        "sitting_pose, the chair under them (the training motions have no sitting)",
+        "share of all frames whose person is seated (hips and knees bent by sitting_pose; "
+        "the training motions have no sitting); the furniture drawn for them (probability) "
+        "is a chair under them, the others crouch without one",
     )
 
     def validate(self) -> None:
