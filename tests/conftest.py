@@ -37,6 +37,34 @@ def one_thread():
     torch.set_num_threads(before)
 
 
+@pytest.fixture(scope="session")
+def write_trainset():
+    """``write(root, depth, labels, intr, class_names=None, shard_frames=12) -> root``: a
+    training set of the given (F, H, W) depth (mm) and labels in shards of ``shard_frames``
+    (joints, poses and bodies zero), readable by ``TrainSet``; class names the part set's
+    unless given."""
+    import numpy as np
+    from depthmocap.shared.labels import PART_NAMES
+    from depthmocap.train.synth.trainset import Shard, write_manifest, write_shard
+
+    def write(root, depth, labels, intr, class_names=None, shard_frames=12):
+        names = tuple(class_names or PART_NAMES)
+        shards = []
+        for k, start in enumerate(range(0, len(depth), shard_frames)):
+            s = slice(start, start + shard_frames)
+            n = len(depth[s])
+            sh = Shard(depth[s], labels[s], np.zeros((n, 16, 3), np.float32),
+                       np.zeros((n, 34), np.float32), np.zeros(n, np.int32),
+                       np.array([intr.fx, intr.fy, intr.cx, intr.cy]))  # fmt: skip
+            sha = write_shard(Path(root) / f"s{k}.npz", sh)
+            shards.append({"file": f"s{k}.npz", "frames": n, "sha256": sha})
+        counts = np.bincount(np.asarray(labels).ravel(), minlength=len(names))
+        write_manifest(Path(root), intr, shards, counts, 0, {}, class_names=names)
+        return Path(root)
+
+    return write
+
+
 @pytest.fixture
 def shared_data() -> Path:
     """../shared/data beside the checkout; skips the test when it is absent."""

@@ -30,7 +30,7 @@ from depthmocap.train.forest.config import ForestConfig
 from depthmocap.train.forest.onnx_export import embedded_graph, export_onnx
 from depthmocap.train.forest.predict import predict_posteriors
 from depthmocap.train.forest.trainer import train_forest
-from depthmocap.train.synth.trainset import Shard, TrainSet, write_manifest, write_shard
+from depthmocap.train.synth.trainset import TrainSet
 
 INTR = Intrinsics(80, 60, 62.0, 62.0, 39.5, 29.5)
 
@@ -54,19 +54,9 @@ def frames(n: int, seed: int):
 
 
 @pytest.fixture(scope="module")
-def forest(tmp_path_factory):
-    root = tmp_path_factory.mktemp("set")
+def forest(tmp_path_factory, write_trainset):
     depth, labels = frames(24, 0)
-    shards = []
-    for k in range(2):
-        s = slice(12 * k, 12 * k + 12)
-        sh = Shard(depth[s], labels[s], np.zeros((12, 16, 3), np.float32),
-                   np.zeros((12, 34), np.float32), np.zeros(12, np.int32),
-                   np.array([INTR.fx, INTR.fy, INTR.cx, INTR.cy]))  # fmt: skip
-        shards.append(
-            {"file": f"s{k}.npz", "frames": 12, "sha256": write_shard(root / f"s{k}.npz", sh)}
-        )
-    write_manifest(root, INTR, shards, np.bincount(labels.ravel(), minlength=20), 0, {})
+    root = write_trainset(tmp_path_factory.mktemp("set"), depth, labels, INTR)
     cfg = ForestConfig(
         trees=3, max_depth=12, min_samples=2, feature_pool=48, candidates_per_node=24,
         thresholds_per_candidate=16, pixels_per_frame=300, threads=1, device="cpu",

@@ -13,7 +13,7 @@ from depthmocap.shared.labels import CLUTTER_CLASSES
 from depthmocap.shared.resources import MODELS_DIR
 from depthmocap.train.forest.config import ForestConfig
 from depthmocap.train.forest.trainer import train_forest
-from depthmocap.train.synth.trainset import Shard, TrainSet, write_manifest, write_shard
+from depthmocap.train.synth.trainset import TrainSet
 
 INTR = Intrinsics(80, 60, 62.0, 62.0, 39.5, 29.5)
 
@@ -40,20 +40,10 @@ def person_with_box(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 @pytest.fixture(scope="module")
-def clutter_forest(tmp_path_factory):
-    root = tmp_path_factory.mktemp("clutter_set")
+def clutter_forest(tmp_path_factory, write_trainset):
     depth, labels = person_with_box(24, 0)
-    shards = []
-    for k in range(2):
-        s = slice(12 * k, 12 * k + 12)
-        sh = Shard(depth[s], labels[s], np.zeros((12, 16, 3), np.float32),
-                   np.zeros((12, 34), np.float32), np.zeros(12, np.int32),
-                   np.array([INTR.fx, INTR.fy, INTR.cx, INTR.cy]))  # fmt: skip
-        shards.append(
-            {"file": f"s{k}.npz", "frames": 12, "sha256": write_shard(root / f"s{k}.npz", sh)}
-        )
-    counts = np.bincount(labels.ravel(), minlength=3)
-    write_manifest(root, INTR, shards, counts, 0, {}, class_names=CLUTTER_CLASSES)
+    root = write_trainset(tmp_path_factory.mktemp("clutter_set"), depth, labels, INTR,
+                          CLUTTER_CLASSES)  # fmt: skip
     cfg = ForestConfig(
         trees=2, max_depth=10, min_samples=2, feature_pool=64, candidates_per_node=32,
         thresholds_per_candidate=16, pixels_per_frame=300, threads=1, device="cpu",

@@ -15,7 +15,7 @@ from depthmocap.train.evaluation.clutter_threshold import (
 )
 from depthmocap.train.forest.config import ForestConfig
 from depthmocap.train.forest.trainer import train_forest
-from depthmocap.train.synth.trainset import Shard, TrainSet, write_manifest, write_shard
+from depthmocap.train.synth.trainset import TrainSet
 
 INTR = Intrinsics(40, 30, 31.0, 31.0, 19.5, 14.5)
 
@@ -35,7 +35,7 @@ def test_shares_and_the_choice():
     assert choose_threshold(strict) == 0.8  # none qualifies: the highest
 
 
-def test_end_to_end_on_a_tiny_set(tmp_path, capsys):
+def test_end_to_end_on_a_tiny_set(tmp_path, capsys, write_trainset):
     rng = np.random.default_rng(0)
     yy, xx = np.mgrid[0:30, 0:40]
     depth = np.zeros((8, 30, 40), np.uint16)
@@ -46,11 +46,7 @@ def test_end_to_end_on_a_tiny_set(tmp_path, capsys):
         d = np.where(person, 2.4 - 0.08 * np.cos((xx - 15) / 4), 2.5) + 0.005 * rng.random((30, 40))
         depth[i] = np.where(person | box, d * 1000, 0).astype(np.uint16)
         labels[i] = np.where(person, 1, np.where(box, 2, 0))
-    sh = Shard(depth, labels, np.zeros((8, 16, 3), np.float32), np.zeros((8, 34), np.float32),
-               np.zeros(8, np.int32), np.array([INTR.fx, INTR.fy, INTR.cx, INTR.cy]))  # fmt: skip
-    entry = {"file": "s.npz", "frames": 8, "sha256": write_shard(tmp_path / "s.npz", sh)}
-    counts = np.bincount(labels.ravel(), minlength=3)
-    write_manifest(tmp_path, INTR, [entry], counts, 0, {}, class_names=CLUTTER_CLASSES)
+    write_trainset(tmp_path, depth, labels, INTR, CLUTTER_CLASSES)
     cfg = ForestConfig(trees=1, max_depth=6, min_samples=2, feature_pool=32,
                        candidates_per_node=16, thresholds_per_candidate=8, pixels_per_frame=200,
                        threads=1, device="cpu")  # fmt: skip
