@@ -123,12 +123,6 @@ class KeepBetterConfig:
         "to two fifths on the tuning and broad sets but not the error, and jog lost 2-5 mm "
         "(docs/experiments.md, twenty-sixth session)",
     )
-    failed_take_margin: float = field_doc(
-        0.0,
-        "the same margin for a track that failed its tests: the detection replaces it only "
-        "when its badness is lower by more than this (0: any better detection, Wei's switch "
-        "with the comparison)",
-    )
     confirm_within_m: float | None = field_doc(
         None,
         "when the detector's IK pose puts every joint within this distance (m) of the track's, "
@@ -142,12 +136,11 @@ class KeepBetterConfig:
         c = self.confirm_within_m
         _check(c is None or (c > 0 and math.isfinite(c)),
                "keep_better.confirm_within_m must be > 0 or None", c)  # fmt: skip
-        for name in ("take_margin", "failed_take_margin"):
-            m = getattr(self, name)
-            _check(m >= 0 and math.isfinite(m), f"keep_better.{name} must be >= 0", m)
-            # The margin is in badness units; the surface-only comparison would ignore it.
-            _check(m == 0 or self.compare_all_tests,
-                   f"keep_better.{name} needs compare_all_tests: true", m)  # fmt: skip
+        m = self.take_margin
+        _check(m >= 0 and math.isfinite(m), "keep_better.take_margin must be >= 0", m)
+        # The margin is in badness units; the surface-only comparison would ignore it.
+        _check(m == 0 or self.compare_all_tests,
+               "keep_better.take_margin needs compare_all_tests: true", m)  # fmt: skip
         b = self.recheck_badness
         _check(b is None or not math.isnan(b), "recheck_badness must be a number or None", b)
 

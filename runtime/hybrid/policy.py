@@ -90,9 +90,9 @@ def choose(
         return Decision(keep_track=True, forget=True)
     worse = detection.signals is not None
     if worse and keep_better.compare_all_tests:
-        # A track that passed its tests (a recheck) and a failed one have their own margins.
-        failed = failure.failed(track)
-        margin = keep_better.failed_take_margin if failed else keep_better.take_margin
+        # The margin guards a track that passed its tests (a recheck): a failed one has no
+        # continuity worth keeping over any better fit.
+        margin = 0.0 if failure.failed(track) else keep_better.take_margin
         worse = failure.badness(detection.signals) >= failure.badness(track) - margin
     elif worse:
         worse = detection.signals.surface_error_q97_mm >= track.surface_error_q97_mm

@@ -67,19 +67,6 @@ WORSE = FitSignals(3.5, 0.6, 90.0)
         ),
         (SUSPECT, Detection(True, BETTER), KeepBetterConfig(True, take_margin=0.9), Decision(True)),
         (FAILED, Detection(True, BETTER), KeepBetterConfig(True, take_margin=0.9), Decision(False)),
-        # A failed track's own margin: better by 0.50 (1.92 - 1.42) passes 0.45, not 0.55.
-        (
-            FAILED,
-            Detection(True, BETTER),
-            KeepBetterConfig(True, failed_take_margin=0.45),
-            Decision(False),
-        ),
-        (
-            FAILED,
-            Detection(True, BETTER),
-            KeepBetterConfig(True, failed_take_margin=0.55),
-            Decision(True),
-        ),
     ],
 )
 def test_choose(track, detection, keep, expected):
@@ -90,8 +77,6 @@ def test_choose(track, detection, keep, expected):
 def test_take_margin_must_be_a_finite_non_negative_number(margin):
     with pytest.raises(ValueError, match="take_margin"):
         KeepBetterConfig(take_margin=margin)
-    with pytest.raises(ValueError, match="failed_take_margin"):
-        KeepBetterConfig(failed_take_margin=margin)
 
 
 def test_take_margin_needs_the_badness_comparison():
