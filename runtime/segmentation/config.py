@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from depthmocap.shared.config import field_doc
+from depthmocap.shared.config import ConfigError, field_doc
 
 __all__ = ["SegmentationConfig"]
 
@@ -125,3 +125,7 @@ class SegmentationConfig:
         "lowest at which the recipe's forest calls at most 0.1%% of a furniture-free person "
         "clutter, python -m depthmocap.train.evaluation.clutter_threshold)",
     )
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.clutter_threshold <= 1.0:
+            raise ConfigError(f"clutter_threshold must be in (0, 1], not {self.clutter_threshold}")

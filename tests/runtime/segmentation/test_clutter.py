@@ -97,5 +97,7 @@ def test_bad_models_are_refused_clearly(tmp_path):
         ClutterFilter(MODELS_DIR / "forest.npz")
     with pytest.raises(ValueError, match="clutter_threshold"):
         ClutterFilter(MODELS_DIR / "forest.npz", threshold=0.0)
+    with pytest.raises(ValueError, match="clutter_threshold"):
+        SegmentationConfig(clutter_threshold=1.5)
     assert clutter_model_path("clutter_forest.npz") == MODELS_DIR / "clutter_forest.npz"
     assert clutter_model_path(str(tmp_path / "x.npz")) == tmp_path / "x.npz"
