@@ -88,10 +88,13 @@ def set_calls(
         raise ValueError(f"{data}: not a person/clutter set (make synth-clutter)")
     scale = forest.offset_scale(ts.intrinsics.fx, ts.intrinsics.fy)
     called, person, clutter = [], [], []
+    shard, first, index = None, 0, 0
     for i in range(0, ts.frames, every):
-        frame = ts.load_frames(np.array([i]))
-        lab = frame.labels[0]
-        depth = torch.from_numpy(frame.depth.astype(np.float32) / 1000.0)
+        while shard is None or i >= first + len(shard.labels):  # each shard read once
+            first += 0 if shard is None else len(shard.labels)
+            shard, index = ts.shard(index), index + 1
+        lab = shard.labels[i - first]
+        depth = torch.from_numpy(shard.depth[i - first][None].astype(np.float32) / 1000.0)
         mask = torch.from_numpy(lab[None] > 0)
         pix, post = predict_posteriors(forest, depth, mask, scale)
         post = smooth_posteriors(pix, post, depth, CLUTTER_SMOOTH_WINDOW, SMOOTH_DEPTH_GATE_M)

@@ -204,7 +204,8 @@ def render_frame(
     verts_cam = transform_points(cam, vertices).astype(np.float32)
     frame = renderer.render(verts_cam, body.faces, body.labels)
     depth, labels = dress_body(frame.depth, frame.labels, intr, cfg.garments, rng)
-    prop, level_rot, height = None, level_from_camera(cam), float(view.height[0])
+    furniture, level_rot, height = None, level_from_camera(cam), float(view.height[0])
+    prop_px = np.zeros(depth.shape, bool)  # where the furniture is the nearest surface
     if cfg.floor:
         bg_cfg = scene_behind(cfg.scene, float(view.distance[0]))
         if scene is None:
@@ -216,26 +217,26 @@ def render_frame(
         if cfg.props.probability > 0 and rng.random() < cfg.props.probability:
             if sitting:  # a chair under the seated body
                 pelvis = transform_points(cam, joints[None, sk.JOINT_NAMES.index("pelvis")])[0]
-                prop = chair_under(rng, verts_cam @ level_rot.T, level_rot @ pelvis)
+                furniture = chair_under(rng, verts_cam @ level_rot.T, level_rot @ pelvis)
             else:
-                prop = attached_prop(rng, verts_cam @ level_rot.T, height, cfg.props)
-        if prop is not None:
+                furniture = attached_prop(rng, verts_cam @ level_rot.T, height, cfg.props)
             scene = BackgroundScene(
-                scene.wall_distance, scene.boxes + prop.boxes, scene.cylinders + prop.cylinders
+                scene.wall_distance,
+                scene.boxes + furniture.boxes,
+                scene.cylinders + furniture.cylinders,
             )
         depth, labels = add_floor_and_background(
             depth, labels, intr, height, 0.0, rng=rng, cfg=bg_cfg, scene=scene,
             level_rot=level_rot,
         )  # fmt: skip
-        if prop is not None:  # where the prop is the nearest surface
-            near = [box_depth(intr, height, 0.0, b, level_rot) for b in prop.boxes]
-            near += [cylinder_depth(intr, height, 0.0, c, level_rot) for c in prop.cylinders]
-            prop = np.abs(np.min(near, axis=0) - depth) < 1e-4
+        if furniture is not None:
+            near = [box_depth(intr, height, 0.0, b, level_rot) for b in furniture.boxes]
+            near += [cylinder_depth(intr, height, 0.0, c, level_rot) for c in furniture.cylinders]
+            prop_px = np.abs(np.min(near, axis=0) - depth) < 1e-4
     depth_mm, labels = apply_kinect_noise(depth, labels, intr, cfg.noise, rng)
     if cfg.props.person_clutter_labels:
-        prop = np.zeros(depth.shape, bool) if prop is None else prop
         heights = pixel_heights(depth_mm / 1000.0, intr, level_rot, height)
-        labels = person_clutter_labels(depth_mm, labels, prop, heights)
+        labels = person_clutter_labels(depth_mm, labels, prop_px, heights)
     rot = torch.as_tensor(cam[:3, :3])
     q_cam = transform_pose(torch.as_tensor(q)[None], rot, torch.as_tensor(cam[:3, 3]))[0]
     return SynthFrame(
