@@ -29,6 +29,7 @@ from depthmocap.shared import skeleton as sk
 from depthmocap.shared.config import load_settings, merged_settings
 from depthmocap.shared.image_cut import image_cut_distance_m
 from depthmocap.shared.joint_confidence import FRAME_FEATURES, frame_features
+from depthmocap.shared.part_evidence import image_part_evidence
 
 __all__ = ["main", "record_evidence", "track_evidence"]
 
@@ -42,12 +43,13 @@ def track_evidence(recording: Path, config: str | None = None) -> dict[str, np.n
         joints, ``cut_m`` (F, J) their distances to the person's cut by the image's edge
         (metres, inf where the person is whole), ``fit`` (F, 5) the frame's fit
         (``shared.joint_confidence.frame_features``), ``observed`` (F, J) bool the area
-        test's flags.
+        test's flags, ``parts`` (F, J, 2) each joint's distance to the forest's pixels of its
+        parts and their count (``shared.part_evidence``).
     """
     # The flags recorded beside the evidence are the tracker's own area test's.
     overlay = merged_settings(load_settings(config) if config else {}, {"joint_confidence": None})
     tracker = Tracker(config=overlay)
-    keys = ("frame", "support", "visibility", "joints", "cut_m", "fit", "observed")
+    keys = ("frame", "support", "visibility", "joints", "cut_m", "fit", "observed", "parts")
     rows: dict[str, list] = {k: [] for k in keys}
     segment = PersonSegmenter(tracker.segmentation)  # a stream's own, as runtime-track's
     with open_stream(str(recording)) as stream:
@@ -59,13 +61,21 @@ def track_evidence(recording: Path, config: str | None = None) -> dict[str, np.n
             for index, frame in enumerate(stream):
                 prepared = prepare_frame(estimator, frame, segment, tracker.device)
                 est = estimate_frame(estimator, prepared)
-                cut = None
+                cut = parts = None
                 if est.joints is not None:  # the mask as the estimate left it
                     joints = torch.as_tensor(est.joints, dtype=torch.float64)
                     cut = image_cut_distance_m(prepared.mask.cpu(), joints, stream.intrinsics)
+                    labels = prepared.labels(estimator.label_source)
+                    parts = (
+                        image_part_evidence(
+                            prepared.depth_m, prepared.mask, labels, stream.intrinsics, joints
+                        )
+                        .cpu()
+                        .numpy()
+                    )
                 fit = frame_features(est.errors, est.status)
                 values = (index, est.joint_support_cm2, est.limb_visibility, est.joints,
-                          cut, fit, est.observed)  # fmt: skip
+                          cut, fit, est.observed, parts)  # fmt: skip
                 if all(v is not None for v in values):  # a frame with a pose and its evidence
                     for key, value in zip(keys, values, strict=True):
                         rows[key].append(value)
@@ -82,6 +92,7 @@ def track_evidence(recording: Path, config: str | None = None) -> dict[str, np.n
         "cut_m": np.asarray(rows["cut_m"], dtype=np.float64).reshape(-1, J),
         "fit": np.asarray(rows["fit"], dtype=np.float64).reshape(-1, len(FRAME_FEATURES)),
         "observed": np.asarray(rows["observed"], dtype=bool).reshape(-1, J),
+        "parts": np.asarray(rows["parts"], dtype=np.float64).reshape(-1, J, 2),
     }
 
 

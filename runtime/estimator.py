@@ -126,24 +126,27 @@ def observed_of(
     confidence: JointConfidence | None = None,
     frame_fit: np.ndarray | None = None,
     cut_m: np.ndarray | torch.Tensor | None = None,
+    joints: np.ndarray | torch.Tensor | None = None,
+    parts: np.ndarray | torch.Tensor | None = None,
 ) -> np.ndarray | None:
     """The (16,) bool observed-joint flags of a tracker fit, or None when there is no fit or
     it has none: with ``confidence``, the joints whose confidence reaches its threshold
-    (:mod:`shared.joint_confidence`, read from the fit's support and limb visibility, and for
-    a version 2 model the frame's fit ``frame_fit`` (5,) and the joints' distances to the
-    person's cut by the image's edge ``cut_m`` (16,)); without, the fit's own area test
-    (``TrackResult.observed``)."""
+    (:mod:`shared.joint_confidence`, read from the fit's support and limb visibility, for
+    a version 2 model also the frame's fit ``frame_fit`` (5,) and the joints' distances to the
+    person's cut by the image's edge ``cut_m`` (16,), for version 3 also the output
+    ``joints`` (16, 3) and their parts' evidence ``parts`` (16, 2)); without, the fit's own
+    area test (``TrackResult.observed``)."""
     support = getattr(fit, "joint_support_cm2", None)
     shown = getattr(fit, "limb_visibility", None)
     if confidence is not None and support is not None and shown is not None:
         import torch
         from depthmocap.shared.joint_confidence import joint_confidence
 
-        frame, cut = (
+        extra = (
             None if x is None else torch.as_tensor(x, device=support.device)
-            for x in (frame_fit, cut_m)
-        )  # a version 1 model reads neither; version 2 needs both
-        p = joint_confidence(confidence, support.detach(), shown.detach(), frame, cut)
+            for x in (frame_fit, cut_m, joints, parts)
+        )  # a version 1 model reads none; version 2 the first two; version 3 all
+        p = joint_confidence(confidence, support.detach(), shown.detach(), *extra)
         return (p >= confidence.threshold).cpu().numpy()
     flags = getattr(fit, "observed", None)
     return None if flags is None else flags.detach().cpu().numpy().astype(bool)

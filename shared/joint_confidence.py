@@ -26,12 +26,23 @@ and, in version 2 (:data:`FEATURES`), six more:
   times a passed one's (broad protocol: 96 against 38 mm);
 - how far the joint is from where the person leaves the image, capped at
   :data:`CUT_CAP_M` (:mod:`shared.image_cut`): a limb cut by the image's edge is drawn back
-  onto what the camera sees.
+  onto what the camera sees;
 
-Fitted on the tuning sets and checked on the size tuning set (held out, the same share of
-joints in view, 94.3%): frames with an observed joint over 20 cm 5.41% with version 1's three
-features, 5.00% with the frame's fit added, 4.64% with the cut too (``docs/experiments.md``,
-fortieth session).
+and, in version 3, six more (:func:`pose_part_features`):
+
+- the joint's offset from the pelvis in the camera frame (x, y, z and its length): where a
+  limb is against the body says how unusual, and so how often wrong, the pose is;
+- where the forest sees the joint's parts (:mod:`shared.part_evidence`): the distance from the
+  joint to the 5th nearest pixel labelled one of its parts (``log(1 + 100 d)``, capped at
+  :data:`PART_CAP_M`), and how many such pixels there are (``log(1 + n)``). The forest labels
+  the pixels without the fit, so a limb laid on the right depth in the wrong place is far from
+  its own parts' pixels.
+
+Fitted on the tuning sets and checked on the size tuning set (held out): frames with an
+observed joint over 20 cm 5.41% with version 1's three features, 5.00% with the frame's fit
+added, 4.64% with the cut too (94.3% of the joints in view flagged; ``docs/experiments.md``,
+fortieth session), 4.15% with version 3's pose and parts (94.6% flagged; forty-second
+session).
 
 It gives ``p_j = sigmoid(w_g . f_j + b_g)`` with one weight vector per joint group ``g``
 (trunk, shoulders, elbows, wrists, hips, knees, ankles; left and right share one). A joint is
@@ -40,11 +51,13 @@ recordings with ground truth (``python -m depthmocap.train.evaluation.joint_conf
 the target is "in view and within 20 cm", the threshold keeps a chosen share (95%) of the
 joints in view. Shipped as ``models/joint_confidence.json``:
 
-    {"format": "depthmocap-joint-confidence", "version": 2, "joint_names": [16 names],
-     "features": "support_visibility_neighbour_frame_cut", "groups": {"wrist": {"weights":
-     [9], "bias": b}, ...}, "threshold": t, "recall": 0.95, "fitted_on": "...", "frames": N}
+    {"format": "depthmocap-joint-confidence", "version": 3, "joint_names": [16 names],
+     "features": "support_visibility_neighbour_frame_cut_pose_parts", "groups": {"wrist":
+     {"weights": [15], "bias": b}, ...}, "threshold": t, "recall": 0.95, "fitted_on": "...",
+     "frames": N}
 
-Version 1 files (``"support_visibility_neighbour"``, three weights a group) are still read.
+Version 1 and 2 files (``"support_visibility_neighbour"``, three weights a group;
+``"..._frame_cut"``, nine) are still read.
 """
 
 from __future__ import annotations
@@ -66,6 +79,7 @@ __all__ = [
     "FEATURE_SETS",
     "FORMAT",
     "FRAME_FEATURES",
+    "PART_CAP_M",
     "GROUPS",
     "JOINT_GROUP",
     "NUM_FEATURES",
@@ -76,15 +90,17 @@ __all__ = [
     "frame_features",
     "joint_confidence",
     "load_joint_confidence",
+    "pose_part_features",
     "save_joint_confidence",
 ]
 
 FORMAT = "depthmocap-joint-confidence"
-VERSION = 2
+VERSION = 3
 # Each version's feature set and its number of features per joint.
 FEATURE_SETS = {
     1: ("support_visibility_neighbour", 3),
     2: ("support_visibility_neighbour_frame_cut", 9),
+    3: ("support_visibility_neighbour_frame_cut_pose_parts", 15),
 }
 FEATURES, NUM_FEATURES = FEATURE_SETS[VERSION]
 # The frame's fit as :func:`frame_features` gives it, in order.
@@ -92,6 +108,10 @@ FRAME_FEATURES = ("overlap", "depth_error_cm", "surface_error_q97_dm", "kept_fai
 # Distances to the person's cut by the image's edge count up to this (metres): beyond it a
 # joint is as far from the cut as a whole person is.
 CUT_CAP_M = 0.5
+# A joint further than this from every pixel of its parts (or with none) is as far as can be
+# told (metres; ``shared.part_evidence``).
+PART_CAP_M = 0.5
+_PELVIS = sk.JOINT_NAMES.index("pelvis")
 
 
 def _group(name: str) -> str:
@@ -154,9 +174,11 @@ def confidence_features(
     limb_visibility: torch.Tensor,
     frame: torch.Tensor | None = None,
     cut_m: torch.Tensor | None = None,
+    joints: torch.Tensor | None = None,
+    parts: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """The model's features (module docstring): version 1's three, or with ``frame`` and
-    ``cut_m`` version 2's nine.
+    """The model's features (module docstring): version 1's three, with ``frame`` and
+    ``cut_m`` version 2's nine, with ``joints`` and ``parts`` too version 3's fifteen.
 
     Args:
         support_cm2: (..., J) each named joint's confirmed area, J = ``len(JOINT_NAMES)``;
@@ -167,8 +189,11 @@ def confidence_features(
         cut_m: (..., J) each joint's distance to the person's cut by the image's edge
             (``shared.image_cut``; inf where the person is whole), capped at
             :data:`CUT_CAP_M`.
+        joints: (..., J, 3) the output joints, camera metres.
+        parts: (..., J, 2) each joint's distance to the forest's pixels of its parts and their
+            count (``shared.part_evidence.part_distances``; inf / NaN: none).
     Returns:
-        (..., J, 3) float64, or (..., J, 9) with ``frame`` and ``cut_m``.
+        (..., J, 3), (..., J, 9) or (..., J, 15) float64.
     """
     support = torch.nan_to_num(support_cm2.double(), nan=0.0).clamp_min(0.0).log1p()
     shown = torch.nan_to_num(limb_visibility.double(), nan=0.0)
@@ -179,12 +204,37 @@ def confidence_features(
     f = torch.stack([support, visibility, neighbour], -1)
     if (frame is None) != (cut_m is None):
         raise ValueError("version 2's features need both the frame's fit and the cut distances")
+    if (joints is None) != (parts is None) or (joints is not None and frame is None):
+        raise ValueError("version 3's features need the joints, their parts and version 2's")
     if frame is None:
         return f
     fit = torch.nan_to_num(torch.as_tensor(frame).to(f), nan=0.0)
     fit = fit[..., None, :].expand(*f.shape[:-1], fit.shape[-1])
     cut = torch.as_tensor(cut_m).to(f).nan_to_num(nan=0.0).clamp(0.0, CUT_CAP_M)
-    return torch.cat([f, fit, cut[..., None]], -1)
+    f = torch.cat([f, fit, cut[..., None]], -1)
+    if joints is None:
+        return f
+    return torch.cat([f, pose_part_features(joints, parts).to(f)], -1)
+
+
+def pose_part_features(joints: torch.Tensor, parts: torch.Tensor) -> torch.Tensor:
+    """(..., J, 6) version 3's added features: each joint's offset from the pelvis in the
+    camera frame (x, y, z, length; where a limb is relative to the body says how unusual the
+    pose is) and its parts' evidence, ``log(1 + 100 near)`` with ``near`` capped at
+    :data:`PART_CAP_M`, and ``log(1 + count)``.
+
+    Args:
+        joints: (..., J, 3) output joints, metres. parts: (..., J, 2) (near_m, count).
+    """
+    joints = torch.as_tensor(joints).double()
+    parts = torch.as_tensor(parts).to(joints)
+    rel = torch.nan_to_num(joints - joints[..., _PELVIS : _PELVIS + 1, :], nan=0.0)
+    near = torch.nan_to_num(parts[..., 0], nan=PART_CAP_M, posinf=PART_CAP_M).clamp(0, PART_CAP_M)
+    count = torch.nan_to_num(parts[..., 1], nan=0.0).clamp_min(0.0)
+    return torch.cat(
+        [rel, rel.norm(dim=-1, keepdim=True), (100.0 * near).log1p()[..., None],
+         count.log1p()[..., None]], -1,
+    )  # fmt: skip
 
 
 @dataclass
@@ -192,14 +242,14 @@ class JointConfidence:
     """Per-group logistic weights and the observed threshold (module docstring).
 
     Attributes:
-        weights: (G, 3) one row per group of :data:`GROUPS`.
+        weights: (G, K) one row per group of :data:`GROUPS`, K the version's features.
         bias: (G,).
         threshold: a joint is observed when its confidence reaches this.
         recall: the share of in-view joints the threshold kept where it was fitted.
         fitted_on: what it was fitted on (free text, for the record).
         frames: how many frames it was fitted on.
         version: the file version whose feature set the weights read
-            (:data:`FEATURE_SETS`; 1: three features, 2: nine).
+            (:data:`FEATURE_SETS`; 1: three features, 2: nine, 3: fifteen).
     """
 
     weights: np.ndarray
@@ -230,7 +280,7 @@ class JointConfidence:
             )
 
     def per_joint(self, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """((J, 3), (J,)) float64 weights and biases of each named joint, on ``like``'s
+        """((J, K), (J,)) float64 weights and biases of each named joint, on ``like``'s
         device (kept, so a stream converts them once)."""
         key = str(like.device)
         if key not in self._cache:
@@ -265,15 +315,22 @@ def joint_confidence(
     limb_visibility: torch.Tensor,
     frame: torch.Tensor | None = None,
     cut_m: torch.Tensor | None = None,
+    joints: torch.Tensor | None = None,
+    parts: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """(..., J) float64 confidence in [0, 1] of each named joint (module docstring); inputs
-    as :func:`confidence_features`. A version 2 model needs ``frame`` and ``cut_m``; a
-    version 1 model ignores them."""
+    as :func:`confidence_features`. A version 2 model needs ``frame`` and ``cut_m``, a
+    version 3 model ``joints`` and ``parts`` too; an older model ignores what it does not
+    read."""
     if model.version >= 2 and (frame is None or cut_m is None):
         raise ValueError("this joint confidence reads the frame's fit and the cut distances")
+    if model.version >= 3 and (joints is None or parts is None):
+        raise ValueError("this joint confidence reads the joints and their parts' evidence")
     if model.version == 1:
         frame = cut_m = None
-    f = confidence_features(support_cm2, limb_visibility, frame, cut_m)
+    if model.version <= 2:
+        joints = parts = None
+    f = confidence_features(support_cm2, limb_visibility, frame, cut_m, joints, parts)
     w, b = model.per_joint(f)
     return torch.sigmoid((f * w).sum(-1) + b)
 

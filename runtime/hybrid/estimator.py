@@ -45,6 +45,7 @@ from depthmocap.shared.image_cut import image_cut_distance_m
 from depthmocap.shared.joint_confidence import JointConfidence, frame_features
 from depthmocap.shared.joint_offsets import JointOffsets, apply_offsets
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions
+from depthmocap.shared.part_evidence import image_part_evidence
 
 from .arm_search import ArmSearch
 from .behind_model import StaticBehindMask
@@ -258,8 +259,14 @@ class HybridEstimator:
         confidence = self.confidence
         if confidence is None or confidence.version < 2:
             return observed_of(fit, confidence)
-        cut = image_cut_distance_m(frame.mask, torch.as_tensor(joints), frame.intrinsics)
-        return observed_of(fit, confidence, frame_features(errors, status), cut)
+        joints_t = torch.as_tensor(joints)
+        cut = image_cut_distance_m(frame.mask, joints_t, frame.intrinsics)
+        if confidence.version < 3:
+            return observed_of(fit, confidence, frame_features(errors, status), cut)
+        parts = image_part_evidence(
+            frame.depth_m, frame.mask, frame.labels(self.label_source), frame.intrinsics, joints_t
+        )
+        return observed_of(fit, confidence, frame_features(errors, status), cut, joints_t, parts)
 
     def _tracked(self, res: TrackResult, errors: dict, frame: Frame) -> PoseEstimate:
         q = res.q.detach()

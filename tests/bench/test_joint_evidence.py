@@ -20,6 +20,10 @@ def test_evidence_of_each_posed_frame_is_written_once(two_demo_recordings, tmp_p
         assert data["fit"].shape == (2, 5) and data["cut_m"].shape == (2, 16)
         assert (data["fit"][:, 0] > 0.5).all()  # the demo's fits overlap its silhouette
         assert (data["cut_m"] > 0).all()  # a distance, or inf where the person is whole
+        parts = data["parts"]
+        assert parts.shape == (2, 16, 2) and (parts[..., 1] >= 0).all()
+        # the demo's forest sees most joints' parts, and near the fitted joints
+        assert np.median(parts[..., 0]) < 0.1 and (parts[..., 1] > 0).mean() > 0.5
         # the flags beside the evidence are the tracker's own area test, not the confidence's
         area = TrackerConfig().observed_joint_area_cm2
         np.testing.assert_array_equal(data["observed"], data["support"] >= area)

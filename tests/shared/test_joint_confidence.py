@@ -100,20 +100,25 @@ def test_version_2_features_add_the_frame_s_fit_and_the_capped_cut_distance():
 
 def _model(threshold=0.5, version=2):
     per = [1.0, 2.0, 0.5] if version == 1 else [1.0, 2.0, 0.5, 0.1, -0.2, 0.3, -1.0, 0.5, 4.0]
+    if version == 3:
+        per = per + [0.2, -0.1, 0.3, 0.4, -0.5, 0.6]
     w = np.tile(per, (len(GROUPS), 1))
     b = -np.arange(len(GROUPS), dtype=np.float64)
     return JointConfidence(w, b, threshold, 0.95, "test", 7, version)
 
 
-@pytest.mark.parametrize("version", [1, 2])
+@pytest.mark.parametrize("version", [1, 2, 3])
 def test_confidence_is_the_logistic_of_each_group_s_weights(version):
     model = _model(version=version)
     support = torch.rand(3, J, dtype=torch.float64) * 50
     shown = torch.rand(3, 4, dtype=torch.float64)
     fit = torch.rand(3, 5, dtype=torch.float64)
     cut = torch.rand(3, J, dtype=torch.float64)
-    p = joint_confidence(model, support, shown, fit, cut)
-    f = confidence_features(support, shown, *((fit, cut) if version == 2 else ())).numpy()
+    joints = torch.rand(3, J, 3, dtype=torch.float64)
+    parts = torch.rand(3, J, 2, dtype=torch.float64) * torch.tensor([0.3, 200.0])
+    p = joint_confidence(model, support, shown, fit, cut, joints, parts)
+    extra = [(), (fit, cut), (fit, cut, joints, parts)][version - 1]
+    f = confidence_features(support, shown, *extra).numpy()
     group = np.array([GROUPS.index(g) for g in JOINT_GROUP])
     expect = 1 / (1 + np.exp(-(f @ model.weights[0] - group)))
     assert p.shape == (3, J)
@@ -123,9 +128,42 @@ def test_confidence_is_the_logistic_of_each_group_s_weights(version):
     else:
         with pytest.raises(ValueError, match="cut"):
             joint_confidence(model, support, shown)
+    if version == 2:  # reads neither the joints nor their parts, given or not
+        torch.testing.assert_close(joint_confidence(model, support, shown, fit, cut), p)
+    if version == 3:
+        with pytest.raises(ValueError, match="parts"):
+            joint_confidence(model, support, shown, fit, cut)
 
 
-@pytest.mark.parametrize("version", [1, 2])
+def test_version_3_features_add_the_pose_and_the_parts_evidence():
+    support = torch.full((2, J), 10.0, dtype=torch.float64)
+    shown = torch.ones(2, 4, dtype=torch.float64)
+    fit = torch.zeros(2, 5, dtype=torch.float64)
+    cut = torch.full((2, J), float("inf"))
+    joints = torch.zeros(2, J, 3, dtype=torch.float64)
+    joints[:, _index("l_wrist")] = torch.tensor([0.3, -0.4, 0.0])  # 0.5 m from the pelvis
+    joints[1] += torch.tensor([1.0, 2.0, 3.0])  # the same pose elsewhere: the same features
+    parts = torch.zeros(2, J, 2, dtype=torch.float64)
+    parts[:, :, 0] = 0.02
+    parts[:, :, 1] = 99.0
+    parts[1, _index("l_wrist")] = torch.tensor([float("inf"), 0.0])  # no forearm pixels
+    parts[1, _index("r_wrist"), 0] = 3.0  # capped
+    f = confidence_features(support, shown, fit, cut, joints, parts)
+    assert f.shape == (2, J, 15)
+    torch.testing.assert_close(f[..., :9], confidence_features(support, shown, fit, cut))
+    w = _index("l_wrist")
+    torch.testing.assert_close(f[:, w, 9:13], torch.tensor([[0.3, -0.4, 0.0, 0.5]] * 2).double())
+    assert f[0, w, 13].item() == pytest.approx(math.log(3.0))  # log(1 + 100 * 0.02)
+    assert f[0, w, 14].item() == pytest.approx(math.log(100.0))
+    assert f[1, w, 13].item() == pytest.approx(math.log(51.0)) and f[1, w, 14].item() == 0.0
+    assert f[1, _index("r_wrist"), 13].item() == pytest.approx(math.log(51.0))
+    with pytest.raises(ValueError, match="version 3"):
+        confidence_features(support, shown, fit, cut, joints, None)
+    with pytest.raises(ValueError, match="version 3"):
+        confidence_features(support, shown, None, None, joints, parts)
+
+
+@pytest.mark.parametrize("version", [1, 2, 3])
 def test_round_trip(tmp_path, version):
     model = _model(0.42, version)
     path = tmp_path / "sub" / "c.json"
@@ -140,7 +178,7 @@ def test_round_trip(tmp_path, version):
 
 def test_weights_must_match_the_version_s_feature_set():
     G = len(GROUPS)
-    with pytest.raises(JointConfidenceError, match=r"\(7, 9\)"):
+    with pytest.raises(JointConfidenceError, match=r"\(7, 15\)"):
         JointConfidence(np.zeros((G, 3)), np.zeros(G), 0.5)
     with pytest.raises(JointConfidenceError, match="version 5"):
         JointConfidence(np.zeros((G, 3)), np.zeros(G), 0.5, version=5)
@@ -181,4 +219,4 @@ def test_the_shipped_file_loads():
     from depthmocap.shared.resources import MODELS_DIR
 
     model = load_joint_confidence(MODELS_DIR / "joint_confidence.json")
-    assert 0 < model.threshold < 1 and model.frames > 1000 and model.version == 2
+    assert 0 < model.threshold < 1 and model.frames > 1000 and model.version == 3

@@ -34,7 +34,6 @@ from depthmocap.shared import skeleton as sk
 from depthmocap.shared.joint_confidence import (
     GROUPS,
     JOINT_GROUP,
-    NUM_FEATURES,
     JointConfidence,
     confidence_features,
     joint_confidence,
@@ -69,6 +68,8 @@ def recording_evidence(recording: Path, evidence: Path) -> dict[str, np.ndarray]
         with np.load(evidence) as data:
             keys = ("frame", "support", "visibility", "fit", "cut_m", "joints", "observed")
             stored = {k: data[k] for k in keys}
+            # Evidence recorded before version 3's features has no parts: it fits version 2.
+            parts = data["parts"] if "parts" in data.files else None
     except (OSError, ValueError, KeyError, zipfile.BadZipFile) as err:
         raise ValueError(
             f"{evidence}: not a readable evidence file ({err}); delete it to track "
@@ -77,15 +78,19 @@ def recording_evidence(recording: Path, evidence: Path) -> dict[str, np.ndarray]
     frames = stored["frame"]
     if len(frames) and (frames.min() < 0 or frames.max() >= len(truth.joints)):
         raise ValueError(f"{evidence}: frames beyond {recording}'s {len(truth.joints)}")
-    return {
+    evidence = {
         "support": stored["support"],
         "visibility": stored["visibility"],
         "fit": stored["fit"],
         "cut_m": stored["cut_m"],
+        "joints": stored["joints"],
         "in_view": in_view[frames],
         "error_m": np.linalg.norm(stored["joints"] - truth.joints[frames], axis=-1),
         "observed": stored["observed"],
     }
+    if parts is not None:
+        evidence["parts"] = parts
+    return evidence
 
 
 def fit_logistic(x: np.ndarray, y: np.ndarray, l2: float = 1e-3) -> tuple[np.ndarray, float]:
@@ -113,9 +118,16 @@ def fit_logistic(x: np.ndarray, y: np.ndarray, l2: float = 1e-3) -> tuple[np.nda
         return raw.numpy(), float(b - (raw * mu).sum())
 
 
-def _inputs(evidence: dict[str, np.ndarray]) -> tuple[torch.Tensor, ...]:
-    """The evidence's (support, visibility, fit, cut_m) as :func:`joint_confidence` reads them."""
-    return tuple(torch.as_tensor(evidence[k]) for k in ("support", "visibility", "fit", "cut_m"))
+def _inputs(evidence: dict[str, np.ndarray], version: int) -> tuple[torch.Tensor, ...]:
+    """The evidence's (support, visibility, fit, cut_m[, joints, parts]) as
+    :func:`joint_confidence` reads them for a model of ``version`` (2 or 3)."""
+    keys = ("support", "visibility", "fit", "cut_m") + (("joints", "parts") if version >= 3 else ())
+    return tuple(torch.as_tensor(evidence[k]) for k in keys)
+
+
+def evidence_version(evidence: dict[str, np.ndarray]) -> int:
+    """The newest model version ``evidence`` has the features for (3 with ``parts``, else 2)."""
+    return 3 if "parts" in evidence else 2
 
 
 def fit_confidence(
@@ -126,20 +138,22 @@ def fit_confidence(
     docstring); its threshold keeps ``recall`` of the joints in view."""
     support = evidence["support"]
     in_view, error_m = evidence["in_view"], evidence["error_m"]
-    f = confidence_features(*_inputs(evidence)).numpy()
+    version = evidence_version(evidence)
+    f = confidence_features(*_inputs(evidence, version)).numpy()
+    K = f.shape[-1]
     target = in_view & (error_m <= within_m)
-    weights = np.zeros((len(GROUPS), NUM_FEATURES))
+    weights = np.zeros((len(GROUPS), K))
     bias = np.zeros(len(GROUPS))
     for k, group in enumerate(GROUPS):
         cols = [j for j, g in enumerate(JOINT_GROUP) if g == group]
         weights[k], bias[k] = fit_logistic(
-            f[:, cols].reshape(-1, NUM_FEATURES), target[:, cols].reshape(-1).astype(float)
+            f[:, cols].reshape(-1, K), target[:, cols].reshape(-1).astype(float)
         )
-    model = JointConfidence(weights, bias, 0.5)
-    p = joint_confidence(model, *_inputs(evidence)).numpy()
+    model = JointConfidence(weights, bias, 0.5, version=version)
+    p = joint_confidence(model, *_inputs(evidence, version)).numpy()
     threshold = float(np.quantile(p[in_view], 1.0 - recall)) if in_view.any() else 0.5
     kept = float((p[in_view] >= threshold).mean()) if in_view.any() else float("nan")
-    return JointConfidence(weights, bias, threshold, kept, frames=len(support))
+    return JointConfidence(weights, bias, threshold, kept, frames=len(support), version=version)
 
 
 def flag_figures(
@@ -173,11 +187,13 @@ def _evidence(folders: list[Path], store: Path, config: str | None) -> dict[str,
             parts.append(recording_evidence(rec, out / f"{rec.name}.npz"))
     if not parts:
         raise ValueError(f"no recordings with ground truth in {', '.join(map(str, folders))}")
-    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    # Version 3's parts only where every recording has them (older evidence fits version 2).
+    keys = set.intersection(*(set(p) for p in parts))
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k in keys}
 
 
 def _report(label: str, data: dict, model: JointConfidence, within_m: float) -> None:
-    p = joint_confidence(model, *_inputs(data))
+    p = joint_confidence(model, *_inputs(data, model.version))
     for name, flags in (("fitted flags", p.numpy() >= model.threshold),
                         ("area test", data["observed"])):  # fmt: skip
         f = flag_figures(flags, data["in_view"], data["error_m"], within_m)

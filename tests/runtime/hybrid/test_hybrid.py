@@ -37,6 +37,7 @@ from depthmocap.shared.image_cut import image_cut_distance_m
 from depthmocap.shared.joint_confidence import GROUPS, JointConfidence
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
 from depthmocap.shared.labels import PART_NAMES
+from depthmocap.shared.part_evidence import image_part_evidence
 
 INTR = Intrinsics.kinect_v1(160)
 BODY = BodyShape.default()
@@ -262,7 +263,7 @@ def test_a_joint_confidence_sets_the_flags_not_the_poses(scene):
     models = {
         "area test": None,
         "none": JointConfidence(np.zeros((G, 3)), np.full(G, -50.0), 0.5, version=1),
-        "all": JointConfidence(np.zeros((G, 9)), np.full(G, 50.0), 0.5),
+        "all": JointConfidence(np.zeros((G, 9)), np.full(G, 50.0), 0.5, version=2),
     }
     frames = []
     for i in range(4):  # the right arm rises: a held limb would lag it
@@ -293,7 +294,8 @@ def test_joints_near_the_person_s_cut_by_the_image_edge_are_inferred(scene):
     G = len(GROUPS)
     w = np.zeros((G, 9))
     w[:, 8] = 100.0
-    model = JointConfidence(w, np.full(G, -30.0), 0.5)  # p >= 0.5 iff cut distance >= 0.3 m
+    # p >= 0.5 iff cut distance >= 0.3 m
+    model = JointConfidence(w, np.full(G, -30.0), 0.5, version=2)
     cut_mask = torch.as_tensor(mask).clone()
     rows = torch.nonzero(cut_mask.any(1))[:, 0]
     cut_mask[rows[len(rows) // 2] :, -1] = True  # the person reaches the right edge below the waist
@@ -307,6 +309,28 @@ def test_joints_near_the_person_s_cut_by_the_image_edge_are_inferred(scene):
         np.testing.assert_array_equal(e.observed, near >= 0.3)
         flags.append(e.observed)
     assert not all(f.all() for f in flags) and any(f.any() for f in flags)
+
+
+def test_joints_far_from_the_forest_s_pixels_of_their_parts_are_inferred(scene):
+    """A version 3 confidence reads each output joint's distance to the labelled pixels of
+    its parts: here it alone decides (observed within 5 cm), so the flags are exactly the
+    joints that close, measured on the frame's own depth, mask and labels."""
+    q, depth, labels, mask = scene
+    G = len(GROUPS)
+    w = np.zeros((G, 15))
+    w[:, 13] = -100.0  # the feature is log(1 + 100 near)
+    model = JointConfidence(w, np.full(G, 100.0 * math.log(6.0)), 0.5, version=3)
+    est, _ = make_hybrid(scene, Tracker(BODY, INTR), refine_iterations=2)
+    est.confidence = model
+    flags = []
+    for i in range(2):
+        frame = frame_of(depth, i, mask)
+        e = estimate_frame(est, frame)
+        ev = image_part_evidence(frame.depth_m, frame.mask, frame.labels(est.label_source), INTR,
+                                 torch.as_tensor(e.joints))  # fmt: skip
+        np.testing.assert_array_equal(e.observed, ev[:, 0].numpy() < 0.05)
+        flags.append(e.observed)
+    assert any(f.any() for f in flags)
 
 
 def test_no_labelled_pixels_is_lost_and_resets(scene):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 from depthmocap.shared import skeleton as sk
-from depthmocap.shared.joint_confidence import joint_confidence
+from depthmocap.shared.joint_confidence import GROUPS, joint_confidence
 from depthmocap.train.evaluation.joint_confidence_fit import (
     fit_confidence,
     fit_logistic,
@@ -98,6 +98,30 @@ def test_joints_near_the_person_s_cut_are_learned_from_the_cut_distance():
     flags = p >= model.threshold
     assert flag_figures(flags, in_view, error)["failure"] < 0.05
     assert (model.weights[:, 8] > 0).all()  # further from the cut: more trusted, every group
+
+
+def test_joints_far_from_their_parts_are_learned_from_the_parts_evidence():
+    """Wrong joints are the ones the forest sees none of their parts near; with ``parts`` in
+    the evidence the fit is version 3 and its nearest-part feature carries it."""
+    rng = np.random.default_rng(3)
+    frames = 3000
+    support = rng.gamma(3.0, 30.0, (frames, J))
+    visibility = rng.uniform(0.3, 1.0, (frames, 4))
+    in_view = np.ones((frames, J), dtype=bool)
+    wrong = rng.random((frames, J)) < 0.05
+    near = np.where(wrong, rng.uniform(0.2, 0.5, (frames, J)), rng.uniform(0.0, 0.05, (frames, J)))
+    parts = np.stack([near, rng.uniform(50, 500, (frames, J))], -1)
+    joints = rng.normal(0.0, 0.3, (frames, J, 3)) + np.array([0.0, 0.0, 3.0])
+    evidence = {"support": support, "visibility": visibility, "in_view": in_view,
+                "error_m": np.where(wrong, 0.3, 0.03), "fit": np.zeros((frames, 5)),
+                "cut_m": np.full((frames, J), np.inf),
+                "joints": joints, "parts": parts}  # fmt: skip
+    model = fit_confidence(evidence, recall=0.9)
+    assert model.version == 3 and model.weights.shape == (len(GROUPS), 15)
+    inputs = _inputs(evidence) + [torch.as_tensor(evidence[k]) for k in ("joints", "parts")]
+    p = joint_confidence(model, *inputs).numpy()
+    assert flag_figures(p >= model.threshold, in_view, evidence["error_m"])["failure"] < 0.02
+    assert (model.weights[:, 13] < 0).all()  # further from its parts: less trusted
 
 
 def test_cli_rejects_bad_arguments(tmp_path, capsys):

@@ -1,0 +1,73 @@
+"""Where the forest sees each joint's parts: the k-th nearest labelled pixel and the count."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from depthmocap.shared import skeleton as sk
+from depthmocap.shared.camera import Intrinsics
+from depthmocap.shared.labels import PART_NAMES
+from depthmocap.shared.part_evidence import (
+    JOINT_PARTS,
+    image_part_evidence,
+    part_distances,
+    part_membership,
+)
+
+J = len(sk.JOINT_NAMES)
+
+
+def test_every_joint_has_parts_the_forest_knows():
+    assert set(JOINT_PARTS) == set(sk.JOINT_NAMES)
+    member = part_membership()
+    assert member.shape == (len(PART_NAMES), J)
+    assert not member[0].any()  # background is nobody's part
+    assert member.any(0).all()
+    assert member[PART_NAMES.index("l_forearm"), sk.JOINT_NAMES.index("l_wrist")]
+    assert not member[PART_NAMES.index("r_forearm"), sk.JOINT_NAMES.index("l_wrist")]
+
+
+def test_the_k_th_nearest_pixel_of_the_joint_s_parts_golden():
+    forearm = PART_NAMES.index("l_forearm")
+    head = PART_NAMES.index("head")
+    # Six l_forearm pixels 0.1..0.6 m along x from the origin; one head pixel at the origin.
+    points = torch.cat([torch.tensor([[0.1 * (i + 1), 0.0, 0.0] for i in range(6)]),
+                        torch.zeros(1, 3)]).double()  # fmt: skip
+    labels = torch.tensor([forearm] * 6 + [head])
+    joints = torch.zeros(J, 3, dtype=torch.float64)
+    near, count = part_distances(points, labels, joints, k=5)
+    wrist, elbow = sk.JOINT_NAMES.index("l_wrist"), sk.JOINT_NAMES.index("l_elbow")
+    assert near[wrist].item() == pytest.approx(0.5) and count[wrist].item() == 6
+    assert near[elbow].item() == pytest.approx(0.5)  # the forearm is one of the elbow's parts
+    h = sk.JOINT_NAMES.index("head")
+    assert math.isinf(near[h].item()) and count[h].item() == 1  # fewer than k head pixels
+    near1, _ = part_distances(points, labels, joints, k=1)
+    assert near1[h].item() == 0.0 and near1[wrist].item() == pytest.approx(0.1)
+    with pytest.raises(ValueError, match="k"):
+        part_distances(points, labels, joints, k=0)
+
+
+def test_no_pixels_at_all_gives_inf_and_zero():
+    near, count = part_distances(torch.zeros(0, 3), torch.zeros(0, dtype=torch.long),
+                                 torch.zeros(J, 3))  # fmt: skip
+    assert torch.isinf(near).all() and (count == 0).all()
+
+
+def test_an_image_s_evidence_reads_only_the_labelled_person_pixels():
+    intr = Intrinsics(fx=100.0, fy=100.0, cx=2.0, cy=2.0, width=5, height=5)
+    depth = torch.full((5, 5), 2.0)
+    depth[0, 0] = 0.0  # no reading
+    labels = torch.full((5, 5), PART_NAMES.index("head"), dtype=torch.long)
+    labels[4] = 0  # background row
+    mask = torch.ones(5, 5, dtype=torch.bool)
+    mask[:, 4] = False  # not the person
+    joints = torch.zeros(J, 3, dtype=torch.float64)
+    joints[sk.JOINT_NAMES.index("head")] = torch.tensor([0.0, 0.0, 2.0])  # the centre pixel
+    ev = image_part_evidence(depth, mask, labels, intr, joints)
+    h = sk.JOINT_NAMES.index("head")
+    assert ev.shape == (J, 2) and ev.dtype == torch.float64
+    assert ev[h, 1].item() == 4 * 4 - 1  # rows 0-3, columns 0-3, less the missing reading
+    # Nearest: the centre pixel itself (0), then its four neighbours (0.02 m): the 5th is one.
+    assert ev[h, 0].item() == pytest.approx(0.02, rel=1e-6)
