@@ -16,10 +16,12 @@ of such pixels. Read by version 3 of the joint confidence (``shared.joint_confid
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 from . import skeleton as sk
 from .camera import Intrinsics, depth_to_points
+from .compiled import compiled_module
 from .labels import PART_NAMES
 
 __all__ = ["JOINT_PARTS", "NEAREST_K", "image_part_evidence", "part_distances", "part_membership"]
@@ -50,13 +52,21 @@ JOINT_PARTS: dict[str, tuple[str, ...]] = {
 NEAREST_K = 5
 
 
-def part_membership(device: torch.device | None = None) -> torch.Tensor:
-    """(C, J) bool: part class c is one of named joint j's parts (:data:`JOINT_PARTS`)."""
-    member = torch.zeros(len(PART_NAMES), len(sk.JOINT_NAMES), dtype=torch.bool, device=device)
+def _membership() -> np.ndarray:
+    member = np.zeros((len(PART_NAMES), len(sk.JOINT_NAMES)), dtype=bool)
     for j, name in enumerate(sk.JOINT_NAMES):
         for part in JOINT_PARTS[name]:
             member[PART_NAMES.index(part), j] = True
     return member
+
+
+# Built once: every frame reads it.
+_MEMBER = _membership()
+
+
+def part_membership(device: torch.device | None = None) -> torch.Tensor:
+    """(C, J) bool: part class c is one of named joint j's parts (:data:`JOINT_PARTS`)."""
+    return torch.as_tensor(_MEMBER, device=device)
 
 
 def part_distances(
@@ -96,7 +106,19 @@ def image_part_evidence(
 ) -> torch.Tensor:
     """:func:`part_distances` of a frame: (J, 2) float64 (near_m, count) of ``joints`` (J, 3)
     against the labelled person pixels of ``depth_m`` (H, W, metres, 0: no reading), ``mask``
-    (H, W) bool and ``labels`` (H, W) int, on the joints' device."""
+    (H, W) bool and ``labels`` (H, W) int, on the depth's device (a compiled pass on the CPU,
+    :mod:`shared.part_evidence_kernel`, where numba is installed)."""
+    if depth_m.device.type == "cpu" and depth_m.dtype == torch.float32:
+        kernel = compiled_module("depthmocap.shared.part_evidence_kernel")
+        if kernel is not None:
+            intr = intrinsics
+            out = kernel.part_evidence_cpu(
+                depth_m.numpy(), mask.bool().numpy(), labels.long().numpy(),
+                _MEMBER,
+                np.array([intr.fx, intr.fy, intr.cx, intr.cy], np.float32),
+                torch.as_tensor(joints, dtype=torch.float64).numpy(), NEAREST_K,
+            )  # fmt: skip
+            return torch.from_numpy(out)
     keep = mask.bool() & (depth_m > 0) & (labels > 0)
     points = depth_to_points(depth_m[None], intrinsics)[0][keep]
     joints = torch.as_tensor(joints, dtype=torch.float64, device=depth_m.device)

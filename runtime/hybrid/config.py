@@ -271,8 +271,9 @@ class HybridConfig:
         "joint_confidence.json",
         "report a joint observed when its learned confidence reaches the file's threshold "
         "(shared.joint_confidence: its confirmed area, its limb's visibility, its "
-        "neighbour's area, the frame's fit and its distance to where the person leaves the "
-        "image; a file, relative paths under the shipped models/ folder); None: "
+        "neighbour's area, the frame's fit, its distance to where the person leaves the "
+        "image, its offset from the pelvis and where the forest sees its parts; a file, "
+        "relative paths under the shipped models/ folder); None: "
         "the tracker's own area test (tracker.observed_joint_area_cm2). Output only: the "
         "poses do not change",
     )

@@ -55,7 +55,14 @@ def test_no_pixels_at_all_gives_inf_and_zero():
     assert torch.isinf(near).all() and (count == 0).all()
 
 
-def test_an_image_s_evidence_reads_only_the_labelled_person_pixels():
+@pytest.mark.parametrize("compiled", [True, False])
+def test_an_image_s_evidence_reads_only_the_labelled_person_pixels(compiled, monkeypatch):
+    if compiled:
+        pytest.importorskip("numba")
+    else:  # the torch path, as on a GPU or without numba
+        import depthmocap.shared.part_evidence as module
+
+        monkeypatch.setattr(module, "compiled_module", lambda name: None)
     intr = Intrinsics(fx=100.0, fy=100.0, cx=2.0, cy=2.0, width=5, height=5)
     depth = torch.full((5, 5), 2.0)
     depth[0, 0] = 0.0  # no reading
@@ -71,3 +78,27 @@ def test_an_image_s_evidence_reads_only_the_labelled_person_pixels():
     assert ev[h, 1].item() == 4 * 4 - 1  # rows 0-3, columns 0-3, less the missing reading
     # Nearest: the centre pixel itself (0), then its four neighbours (0.02 m): the 5th is one.
     assert ev[h, 0].item() == pytest.approx(0.02, rel=1e-6)
+
+
+def test_the_compiled_pass_gives_the_torch_path_s_evidence():
+    pytest.importorskip("numba")
+    from depthmocap.shared.camera import depth_to_points
+
+    intr = Intrinsics.kinect_v1(160)
+    g = torch.Generator().manual_seed(0)
+    depth = torch.zeros(intr.height, intr.width)
+    depth[30:100, 60:90] = 2.5 + 0.3 * torch.rand(70, 30, generator=g)
+    depth[50, 70] = 0.0
+    mask = depth > 0
+    mask[80:85, 60:70] = False
+    labels = torch.randint(0, len(PART_NAMES), depth.shape, generator=g) * mask
+    joints = torch.rand(J, 3, generator=g, dtype=torch.float64) * torch.tensor([0.4, 1.2, 0.3])
+    joints += torch.tensor([0.0, -0.6, 2.5], dtype=torch.float64)
+    labels[labels == PART_NAMES.index("head")] = 0  # a joint with no pixels of its parts
+    compiled = image_part_evidence(depth, mask, labels, intr, joints)
+    keep = mask & (depth > 0) & (labels > 0)
+    points = depth_to_points(depth[None], intr)[0][keep].double()
+    near, count = part_distances(points, labels[keep], joints)
+    torch.testing.assert_close(compiled[:, 0], near, rtol=0, atol=1e-12)
+    torch.testing.assert_close(compiled[:, 1], count)
+    assert math.isinf(compiled[sk.JOINT_NAMES.index("head"), 0].item())

@@ -187,9 +187,13 @@ def run_folder(row: str) -> str:
 
 
 def _complete_result(result: Path) -> bool:
-    """Whether ``result`` holds a finished runtime-track result (summary.json complete)."""
+    """Whether ``result`` holds a finished runtime-track result: its summary.json complete and
+    the run not stopped early (a run stopped by a signal closes its files cleanly, so they are
+    complete, but hold only the frames before the stop: ``extra.stopped``)."""
     try:
-        return json.loads((result / "summary.json").read_text()).get("complete") is True
+        summary = json.loads((result / "summary.json").read_text())
+        stopped = (summary.get("extra") or {}).get("stopped")
+        return summary.get("complete") is True and not stopped
     except (OSError, ValueError, AttributeError):
         return False
 

@@ -277,17 +277,22 @@ def test_reuse_results_evaluates_complete_results_and_tracks_the_rest(tmp_path, 
         bench, "evaluate", lambda rec, result, **kw: type("E", (), {"report": {}})()
     )
     done, partial = tmp_path / "out" / "a", tmp_path / "out" / "b"
-    for out, complete in ((done, True), (partial, False)):
+    stopped = tmp_path / "out" / "c"  # closed cleanly by a signal: complete files, too few frames
+    summaries = ((done, {"complete": True, "extra": {"stopped": None}}),
+                 (partial, {"complete": False}),
+                 (stopped, {"complete": True, "extra": {"stopped": "terminated"}}))  # fmt: skip
+    for out, summary in summaries:
         (out / "result").mkdir(parents=True)
-        (out / "result" / "summary.json").write_text(json.dumps({"complete": complete}))
+        (out / "result" / "summary.json").write_text(json.dumps(summary))
     cfg = tmp_path / "hybrid.yaml"
     cfg.write_text("{}\n")
-    for out in (done, partial):
+    for out in (done, partial, stopped):
         bench.run_config("hybrid, default body", tmp_path / out.name, out, "f.npz", "cpu", cfg,
                          reuse=True)  # fmt: skip
-    assert len(commands) == 1 and str(partial / "result") in commands[0]
+    assert len(commands) == 2
+    assert str(partial / "result") in commands[0] and str(stopped / "result") in commands[1]
     bench.run_config("hybrid, default body", tmp_path / "a", done, "f.npz", "cpu", cfg)
-    assert len(commands) == 2  # without reuse, tracked again
+    assert len(commands) == 3  # without reuse, tracked again
 
 
 def test_realtime_tracks_paced_and_holds_the_skipped_frames(tmp_path, monkeypatch):
