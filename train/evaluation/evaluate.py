@@ -73,6 +73,8 @@ class Evaluation:
         per_joint_mm: (J,) raw mean error per joint; per_joint_norm_mm: offset-normalized.
         norm_errors_m: (F, J) offset-normalized joint errors, metres, NaN without a pose.
         truth: what the result was compared with (ground truth or a reference).
+        observed: (F, J) the result's observed flags (1 observed, 0 inferred, NaN where the
+            frame has none); None: not kept.
     """
 
     report: dict
@@ -83,6 +85,7 @@ class Evaluation:
     per_joint_norm_mm: np.ndarray
     norm_errors_m: np.ndarray
     truth: Truth
+    observed: np.ndarray | None = None
 
 
 def _segment_rotations(q: np.ndarray, joint_names: tuple[str, ...]) -> np.ndarray | None:
@@ -377,5 +380,5 @@ def evaluate(
     if truth.kind == REFERENCE:
         notes.insert(0, REFERENCE_NOTE.format(source=truth.source))
     return Evaluation(
-        report, frame_mm, status, names, per_joint, per_joint_norm, norm_errors, truth
+        report, frame_mm, status, names, per_joint, per_joint_norm, norm_errors, truth, observed
     )

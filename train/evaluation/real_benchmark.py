@@ -86,6 +86,8 @@ class Scored:
         joint_names: the J joints.
         reference_refuted, ours_refuted: (F, J) bool, the joints the depth image refutes
             (:func:`depth_refutation.refuted`; ours False without a pose); None: none.
+        observed: (F, J) the result's observed flags (1, 0, NaN where the frame has none);
+            None: not kept.
     """
 
     name: str
@@ -96,6 +98,7 @@ class Scored:
     joint_names: tuple[str, ...]
     reference_refuted: np.ndarray | None = None
     ours_refuted: np.ndarray | None = None
+    observed: np.ndarray | None = None
 
     def refuted(self, which: str) -> np.ndarray:
         """``reference`` or ``ours``: (F, J) bool, all False when not measured."""
@@ -150,6 +153,13 @@ def pooled(scored: list[Scored], cfg: EvalConfig | None = None) -> dict:
     ours_bad = np.concatenate([s.refuted("ours") for s in scored], 0)
     posed = np.isfinite(norm)
     kept = np.where(ref_bad, np.nan, norm)  # the reference's refuted joints left out
+    flags = [s.observed if s.observed is not None else np.full(s.norm_errors_m.shape, np.nan)
+             for s in scored]  # fmt: skip
+    observed = np.concatenate(flags, 0)
+    said = np.isfinite(observed) & posed
+    # As on synthetic recordings: a joint without a flag counts, only one called inferred
+    # is left out.
+    counted = np.where(np.isfinite(observed), observed > 0.5, True)
     return {
         "recordings": len(scored),
         "frames": int(len(norm)),
@@ -173,6 +183,14 @@ def pooled(scored: list[Scored], cfg: EvalConfig | None = None) -> dict:
         "frames_beyond_20cm_pct_reference_not_refuted": finite(
             m.percent(m.system_failures(norm, beyond, counted=~ref_bad))
         ),
+        "observed_joints_pct": finite(100.0 * (observed[said] > 0.5).mean())
+        if said.any()
+        else None,
+        "frames_beyond_20cm_observed_pct": finite(
+            m.percent(m.system_failures(norm, beyond, counted=counted))
+        )
+        if said.any()
+        else None,
     }
 
 
@@ -314,7 +332,7 @@ def score(rec: Path, result: Path) -> Scored:
     group = rec.name.split("_")[0]
     ref_bad, ours_bad = refuted_joints(rec, result, ev.joint_names)
     return Scored(rec.name, group, ev.report, ev.norm_errors_m, ev.frame_errors_mm,
-                  ev.joint_names, ref_bad, ours_bad)  # fmt: skip
+                  ev.joint_names, ref_bad, ours_bad, ev.observed)  # fmt: skip
 
 
 def _tile(data: Path, results: Path, pick: dict) -> np.ndarray | None:
@@ -363,8 +381,9 @@ def _fmt(v: float | None, digits: int = 1, unit: str = "") -> str:
 
 HEADER = (
     "| action | takes | frames | normalized mm | raw mm | joints within 10 cm | "
-    "frames with a joint > 20 cm | detector frames | lost frames | frames/s |\n"
-    "|---|---|---|---|---|---|---|---|---|---|"
+    "frames with a joint > 20 cm | joints called observed | frames with an observed joint "
+    "> 20 cm | detector frames | lost frames | frames/s |\n"
+    "|---|---|---|---|---|---|---|---|---|---|---|---|"
 )
 
 
@@ -373,7 +392,10 @@ def format_row(label: str, p: dict) -> str:
     return (
         f"| {label} | {p['recordings']} | {p['frames']} | {_fmt(p['normalized_mean_mm'])} | "
         f"{_fmt(p['raw_mean_mm'])} | {_fmt(p['within_10cm_pct'], 1, '%')} | "
-        f"{_fmt(p['frames_beyond_20cm_pct'], 1, '%')} | {_fmt(p['detected_pct'], 1, '%')} | "
+        f"{_fmt(p['frames_beyond_20cm_pct'], 1, '%')} | "
+        f"{_fmt(p.get('observed_joints_pct'), 1, '%')} | "
+        f"{_fmt(p.get('frames_beyond_20cm_observed_pct'), 1, '%')} | "
+        f"{_fmt(p['detected_pct'], 1, '%')} | "
         f"{_fmt(p['lost_pct'], 1, '%')} | {_fmt(p['fps'])} |"
     )
 

@@ -50,6 +50,19 @@ def test_pooling_over_joint_estimates_and_frames_golden():
     assert j["head"]["within_10cm_pct"] == 100.0
 
 
+def test_observed_flags_leave_out_only_the_joints_called_inferred():
+    a = _scored("a05_s1_t1", [[2, 30], [2, 30], [2, 4]])
+    a.observed = np.array([[1.0, 0.0], [1.0, 1.0], [np.nan, np.nan]])  # the 30 cm wrist inferred
+    b = _scored("a05_s2_t1", [[2, 30]])  # no flags at all: every joint counts
+    p = rb.pooled([a, b])
+    assert p["observed_joints_pct"] == pytest.approx(75.0)  # 3 of the 4 flagged joints
+    # a: frame 1 (an observed wrist 30 cm off); b: its frame, unflagged: 2 of 4 frames.
+    assert p["frames_beyond_20cm_observed_pct"] == pytest.approx(50.0)
+    assert p["frames_beyond_20cm_pct"] == pytest.approx(75.0)
+    assert rb.pooled([b])["observed_joints_pct"] is None
+    assert "| 75.0% | 50.0% |" in rb.format_row("all", p)
+
+
 def test_worst_and_typical_frames():
     a = _scored("a05_s1_t1", [[2, 4], [2, 30], [1, 20]])
     b = _scored("a05_s2_t1", [[6, 8], [np.nan, np.nan]])
