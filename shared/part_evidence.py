@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from . import skeleton as sk
-from .camera import Intrinsics, depth_to_points
+from .camera import Intrinsics, masked_points
 from .compiled import compiled_module
 from .labels import PART_NAMES
 
@@ -65,8 +65,9 @@ _MEMBER = _membership()
 
 
 def part_membership(device: torch.device | None = None) -> torch.Tensor:
-    """(C, J) bool: part class c is one of named joint j's parts (:data:`JOINT_PARTS`)."""
-    return torch.as_tensor(_MEMBER, device=device)
+    """(C, J) bool: part class c is one of named joint j's parts (:data:`JOINT_PARTS`); a
+    copy, the module's table stays as it is."""
+    return torch.tensor(_MEMBER, device=device)
 
 
 def part_distances(
@@ -76,8 +77,8 @@ def part_distances(
 
     Args:
         points: (N, 3) camera-frame points of the person's labelled pixels, metres.
-        labels: (N,) int part classes of those pixels (``shared.labels``; 0, background, is
-            nobody's part).
+        labels: (N,) int part classes of those pixels (``shared.labels``; 0, background, and
+            any value outside the classes is nobody's part, as in the compiled pass).
         joints: (J, 3) the named joints (``skeleton.JOINT_NAMES``), same frame.
         k: which nearest pixel to read (>= 1).
     Returns:
@@ -87,7 +88,10 @@ def part_distances(
     if k < 1:
         raise ValueError(f"k must be at least 1, got {k}")
     joints = torch.as_tensor(joints)
-    member = part_membership(points.device)[labels.long().clamp(0, len(PART_NAMES) - 1)]  # (N, J)
+    labels = labels.long()
+    known = (labels >= 0) & (labels < len(PART_NAMES))
+    member = part_membership(points.device)[labels.clamp(0, len(PART_NAMES) - 1)]  # (N, J)
+    member &= known[:, None]
     dist = torch.cdist(joints.to(points.dtype), points)  # (J, N)
     dist = torch.where(member.T, dist, torch.full_like(dist, float("inf")))
     count = member.sum(0).to(joints.dtype)
@@ -120,7 +124,7 @@ def image_part_evidence(
             )  # fmt: skip
             return torch.from_numpy(out)
     keep = mask.bool() & (depth_m > 0) & (labels > 0)
-    points = depth_to_points(depth_m[None], intrinsics)[0][keep]
+    points = masked_points(depth_m, keep, intrinsics)
     joints = torch.as_tensor(joints, dtype=torch.float64, device=depth_m.device)
     near, count = part_distances(points.double(), labels[keep], joints)
     return torch.stack([near, count], -1)

@@ -49,6 +49,16 @@ def test_the_k_th_nearest_pixel_of_the_joint_s_parts_golden():
         part_distances(points, labels, joints, k=0)
 
 
+def test_a_value_outside_the_classes_is_nobody_s_part():
+    forearm = PART_NAMES.index("l_forearm")
+    points = torch.zeros(6, 3, dtype=torch.float64)
+    labels = torch.tensor([forearm] * 5 + [len(PART_NAMES)])
+    near, count = part_distances(points, labels, torch.zeros(J, 3, dtype=torch.float64))
+    r_shank = sk.JOINT_NAMES.index("r_ankle")  # the last class's joint
+    assert count[sk.JOINT_NAMES.index("l_wrist")].item() == 5 and count[r_shank].item() == 0
+    assert math.isinf(near[r_shank].item())
+
+
 def test_no_pixels_at_all_gives_inf_and_zero():
     near, count = part_distances(torch.zeros(0, 3), torch.zeros(0, dtype=torch.long),
                                  torch.zeros(J, 3))  # fmt: skip
@@ -95,6 +105,7 @@ def test_the_compiled_pass_gives_the_torch_path_s_evidence():
     joints = torch.rand(J, 3, generator=g, dtype=torch.float64) * torch.tensor([0.4, 1.2, 0.3])
     joints += torch.tensor([0.0, -0.6, 2.5], dtype=torch.float64)
     labels[labels == PART_NAMES.index("head")] = 0  # a joint with no pixels of its parts
+    labels[40:45, 60:90] = len(PART_NAMES) + 5  # not a class: nobody's part on either path
     compiled = image_part_evidence(depth, mask, labels, intr, joints)
     keep = mask & (depth > 0) & (labels > 0)
     points = depth_to_points(depth[None], intr)[0][keep].double()

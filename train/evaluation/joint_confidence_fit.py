@@ -34,6 +34,7 @@ from depthmocap.shared import skeleton as sk
 from depthmocap.shared.joint_confidence import (
     GROUPS,
     JOINT_GROUP,
+    VERSION,
     JointConfidence,
     confidence_features,
     joint_confidence,
@@ -234,7 +235,16 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     model.fitted_on = ", ".join(map(str, args.recordings))
     save_joint_confidence(args.out, model)
-    print(f"{len(data['support'])} frames -> {args.out} (threshold {model.threshold:.4f})")
+    print(
+        f"{len(data['support'])} frames -> {args.out} (version {model.version}, threshold "
+        f"{model.threshold:.4f})"
+    )
+    if model.version < VERSION:  # evidence recorded before the newest features
+        print(
+            f"note: the evidence lacks version {VERSION}'s features; record it again (delete "
+            f"its files under --evidence) to fit version {VERSION}",
+            file=sys.stderr,
+        )
     _report("fitted on", data, model, args.within_m)
     if held is not None:
         _report("held out", held, model, args.within_m)

@@ -133,6 +133,29 @@ def test_cli_rejects_bad_arguments(tmp_path, capsys):
     assert "no recordings with ground truth" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("with_parts", [True, False])
+def test_cli_says_which_version_it_fitted(tmp_path, capsys, monkeypatch, with_parts):
+    """Evidence recorded before version 3's parts fits version 2, and the command says so."""
+    import depthmocap.train.evaluation.joint_confidence_fit as fit_module
+    from depthmocap.shared.joint_confidence import load_joint_confidence
+
+    rng = np.random.default_rng(4)
+    support, visibility, in_view, error = _evidence(rng, frames=500)
+    evidence = {"support": support, "visibility": visibility, "in_view": in_view, "error_m": error,
+                "fit": rng.random((500, 5)), "cut_m": np.full((500, J), np.inf),
+                "joints": rng.normal(0.0, 0.3, (500, J, 3)),
+                "observed": support >= 5.0}  # fmt: skip
+    if with_parts:
+        evidence["parts"] = np.stack([rng.random((500, J)), rng.random((500, J)) * 100], -1)
+    monkeypatch.setattr(fit_module, "_evidence", lambda *a: evidence)
+    out = tmp_path / "c.json"
+    assert main(["--recordings", str(tmp_path), "--out", str(out)]) == 0
+    version = 3 if with_parts else 2
+    captured = capsys.readouterr()
+    assert f"version {version}," in captured.out and load_joint_confidence(out).version == version
+    assert ("record it again" in captured.err) is not with_parts
+
+
 def _recording_with_truth(path, frames=3):
     from depthmocap.shared.camera import Intrinsics
     from depthmocap.shared.recording import RecordingWriter
