@@ -139,6 +139,16 @@ class TrackerConfig:
         0.05, "prior noise scale of joint angles and root rotation (rad per frame^2)"
     )
     sigma_prior_m: float = field_doc(0.02, "prior noise scale of the root position (m per frame^2)")
+    pose_prior_weight: float = field_doc(
+        0.0,
+        "weight w of the learned pose prior (not in Wei; runtime.tracker.pose_prior_term): "
+        "w^2 times the Mahalanobis distance squared of the joint angles to their most likely "
+        "mixture component; 0 = off",
+    )
+    pose_prior_model: str = field_doc(
+        "pose_prior.json",
+        "the pose prior's file (shared.pose_prior; relative: under the shipped models/)",
+    )
     # ---------------- reporting ----------------
     observed_joint_area_cm2: float = field_doc(
         5.0,
@@ -161,11 +171,14 @@ class TrackerConfig:
             if f.name.startswith("sigma_")
         }
         bad = {k: v for k, v in scales.items() if not (v > 0 and math.isfinite(v))}
+        if not (self.pose_prior_weight >= 0 and math.isfinite(self.pose_prior_weight)):
+            bad["pose_prior_weight"] = self.pose_prior_weight
         area = self.observed_joint_area_cm2
         if not (area >= 0 and math.isfinite(area)):
             bad["observed_joint_area_cm2"] = area
         if bad:
             raise TrackerConfigError(
-                f"noise scales must be positive and finite (the observed-joint area may be 0), "
+                f"noise scales must be positive and finite (the observed-joint area and the pose "
+                f"prior's weight may be 0), "
                 f"got {bad}"
             )

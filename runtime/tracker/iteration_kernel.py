@@ -266,7 +266,7 @@ def _iteration(
     silhouette1, depth1, silhouette, points, distance, distance_grad, labels, use,
     candidates, labelled, flags, ints, floats, centre_px, focal, intr64, rotations,
     origins, dof_axes, dof_origins, rot, origin, depth, prim, segment, good, b1, front,
-    behind, b3, diff, q_out, dq_out, decrease, extra_stats,
+    behind, b3, diff, q_out, dq_out, decrease, extra_stats, use_pose_prior, hess_p, grad_p,
 ):  # fmt: skip  # pragma: no cover - compiled
     """One iteration of ``fit_frames`` at poses ``q`` (B, 34) float32 into ``q_out``,
     ``dq_out`` and ``decrease``; the kinematics, frames, rendering, classes and the extra
@@ -345,6 +345,11 @@ def _iteration(
             grad[b, i] = grad[b, i] + grad_c[b, i]
             for j in range(D):
                 hess[b, i, j] = hess[b, i, j] + hess_c[b, i, j]
+    for b in range(B if use_pose_prior else 0):  # the learned pose prior's, after them
+        for i in range(D):
+            grad[b, i] = grad[b, i] + grad_p[b, i]
+            for j in range(D):
+                hess[b, i, j] = hess[b, i, j] + hess_p[b, i, j]
     q64 = q.astype(np.float64)
     qp64 = q_pred.astype(np.float64)
     q_new = np.empty((B, D), np.float64)
@@ -366,15 +371,17 @@ def iteration_cpu(
     max_angle: float,
     H: int,
     W: int,
+    pose_prior: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> dict:
     """One iteration at poses ``q`` (B, 34) float32 (``q_pred``: the prior's prediction, None:
-    no prior; ``prior_w2`` (34,) its weights squared). Returns, as tensors: ``q`` and ``dq``
-    (B, 34) float32 the new poses and steps, ``decrease`` (B,) float64, and what the
-    iteration was linearized with: the kinematics' fields (``rotations``, ``origins``,
-    ``dof_axes``, ``dof_origins``), the primitives' frames (``rot``, ``origin``), the
-    rendering (``depth``, ``primitive``, ``segment``), the pixel classes (``classes``: good,
-    b1, b2 front, b2 behind, b3, the depth difference) and the extra depth term's
-    ``error_sum`` and ``count`` per pose."""
+    no prior; ``prior_w2`` (34,) its weights squared; ``pose_prior``: the learned pose
+    prior's normal equations (B, 34, 34) and (B, 34) float64 at ``q``, None: none).
+    Returns, as tensors: ``q`` and ``dq`` (B, 34) float32 the new poses and steps,
+    ``decrease`` (B,) float64, and what the iteration was linearized with: the kinematics'
+    fields (``rotations``, ``origins``, ``dof_axes``, ``dof_origins``), the primitives'
+    frames (``rot``, ``origin``), the rendering (``depth``, ``primitive``, ``segment``), the
+    pixel classes (``classes``: good, b1, b2 front, b2 behind, b3, the depth difference) and
+    the extra depth term's ``error_sum`` and ``count`` per pose."""
     a = arrays
     B, D = q.shape
     K, P = sk.NUM_SEGMENTS, a.capsules[0].shape[0]
@@ -396,11 +403,15 @@ def iteration_cpu(
     decrease = np.empty(B, np.float64)
     extra = np.zeros((B, 2), np.float32)
     q_np = q.numpy()
+    if pose_prior is None:
+        hess_p, grad_p = np.zeros((1, D, D)), np.zeros((1, D))
+    else:
+        hess_p, grad_p = (np.ascontiguousarray(t.numpy()) for t in pose_prior)
     _iteration(
         q_np, q_np if q_pred is None else q_pred.numpy(), prior_w2.numpy(), float(damping),
         float(max_angle), *a.body, *a.capsules, *a.arms, *a.observed, a.candidates,
         a.labelled, a.flags, a.ints, a.floats, a.centre, a.focal, a.intr64, *out.values(),
-        *classes, q_out, dq_out, decrease, extra,
+        *classes, q_out, dq_out, decrease, extra, pose_prior is not None, hess_p, grad_p,
     )  # fmt: skip
     t = torch.from_numpy
     result = {name: t(value) for name, value in out.items()}

@@ -279,11 +279,21 @@ def _iteration_by_terms(
         contact, columns = collision_rows(render.kin, geom)
         h, g = normal_equations(render.kin, contact, B, columns)
         hess, grad = hess + h, grad + g
+    if cfg.pose_prior_weight > 0:
+        h, g = _pose_prior_rows(q_cast, cfg)
+        hess, grad = hess + h, grad + g
     q_step, dq, decrease = gauss_newton_step(
         hess, grad, q_cast, q_pred if cfg.use_prior else None, cfg.damping,
         cfg.max_step_rad, cfg.sigma_prior_rad, cfg.sigma_prior_m,
     )  # fmt: skip
     return q_step, dq, decrease, render, regions, extra
+
+
+def _pose_prior_rows(q: torch.Tensor, cfg: TrackerConfig) -> tuple[torch.Tensor, torch.Tensor]:
+    """The learned pose prior's normal equations at ``q`` (B, 34)."""
+    from .pose_prior_term import pose_prior_system, tracker_pose_prior
+
+    return pose_prior_system(q, *tracker_pose_prior(cfg.pose_prior_model, q), cfg.pose_prior_weight)
 
 
 def _fused_iteration(obs: Observation, q: torch.Tensor, body: BodyShape, geom: SegmentGeometry):
@@ -333,9 +343,10 @@ def _fit_arrays(fused, obs: Observation, observed, body, geom, B: int, cfg: Trac
 def _fused_step(fused, arrays, q_cast, q_pred, body, geom, obs, cfg):
     """:func:`_iteration_by_terms` through the compiled iteration (the same results)."""
     w = prior_weights(q_cast[:1], cfg.sigma_prior_rad, cfg.sigma_prior_m)[0]
+    pose_prior = _pose_prior_rows(q_cast, cfg) if cfg.pose_prior_weight > 0 else None
     out = fused.iteration_cpu(
         arrays, q_cast, q_pred if cfg.use_prior else None, w * w, cfg.damping,
-        cfg.max_step_rad, obs.intr.height, obs.intr.width,
+        cfg.max_step_rad, obs.intr.height, obs.intr.width, pose_prior,
     )  # fmt: skip
     lengths = body.lengths.expand(q_cast.shape[0], sk.NUM_SEGMENTS)
     kin = Kinematics(out["rotations"], out["origins"], out["dof_axes"], out["dof_origins"], lengths)

@@ -137,6 +137,18 @@ def test_each_term_off(monkeypatch, make_pose, render_frame, flags):
     _assert_same(ref, fused)
 
 
+def test_with_the_pose_prior(monkeypatch, make_pose, render_frame):
+    """The learned pose prior's equations are added after the collision term's on both paths."""
+    obs, q_true, body = _observation(make_pose, render_frame)
+    starts = torch.cat([_start(q_true, s) for s in (-1.0, 0.7)])
+    cfg = TrackerConfig(iterations=3, pose_prior_weight=3.0)
+    ref, fused, calls = _both(monkeypatch, expand_observation(obs, 2), starts, None, body, cfg)
+    assert calls == ref.iterations
+    _assert_same(ref, fused)
+    plain = fit_frames(expand_observation(obs, 2), starts, None, body, TrackerConfig(iterations=3))
+    assert not torch.equal(plain.q, fused.q)
+
+
 def test_without_labels(monkeypatch, make_pose, render_frame):
     obs, q_true, body = _observation(make_pose, render_frame, labels=False)
     ref, fused, _ = _both(monkeypatch, obs, _start(q_true, 1.0), None, body, TrackerConfig())

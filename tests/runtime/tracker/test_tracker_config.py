@@ -34,3 +34,7 @@ class TestTrackerConfig:
                 TrackerConfig(sigma_extra_m=bad)
         with pytest.raises(TrackerConfigError, match="sigma_prior_rad"):  # replace checks too
             dataclasses.replace(TrackerConfig(), sigma_prior_rad=-1.0)
+        for bad in (-1.0, math.inf, math.nan):
+            with pytest.raises(TrackerConfigError, match="pose_prior_weight"):
+                TrackerConfig(pose_prior_weight=bad)
+        assert TrackerConfig(pose_prior_weight=0.0).pose_prior_weight == 0.0
