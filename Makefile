@@ -5,7 +5,7 @@ SETUP_STAMP := .venv/.setup-stamp
 export PYTHONUNBUFFERED := 1
 
 .PHONY: setup demo test lint format bench bench-broad install-check clean synth dev-recordings dev-recordings-all dev-protocol dev-protocol-eval train-forest train-forest-eval \
-	synth-calib train-forest-calib synth-clutter train-clutter
+	synth-calib train-forest-calib synth-clutter train-clutter pose-prior
 
 setup: ## create .venv, install system packages (root), torch and the project with all extras
 	@bash scripts/setup.sh
@@ -56,6 +56,9 @@ dev-protocol-eval: $(SETUP_STAMP) ## the fully automatic system (hybrid, default
 
 train-forest: $(SETUP_STAMP) ## the body-part forest from data/synth into models/forest.npz
 	$(PY) -m depthmocap.train.forest.train_cli --data data/synth --out models/forest.npz --config configs/forest.yaml
+
+pose-prior: $(SETUP_STAMP) ## the tracker's learned pose prior from the training split's mocap into models/pose_prior.json
+	$(PY) -m depthmocap.train.mocap.pose_prior_fit --out models/pose_prior.json
 
 synth-calib: $(SETUP_STAMP) ## the calibration-pose training set (T-pose only) into data/synth_calib
 	$(PY) -m depthmocap.train.synth.cli --config configs/synth_calib.yaml --out data/synth_calib
