@@ -289,14 +289,6 @@ class HybridConfig:
         "(runtime.hybrid.unseen_limbs; not in Wei). Tuning set, mean of trust regions 0.18, "
         "0.2, 0.22 rad: 48.20 -> 47.44 mm, better in each (docs/experiments.md)",
     )
-    unseen_limb_prior: float = field_doc(
-        0.0,
-        "weight of the learned pose prior (tracker.pose_prior_model, runtime.tracker."
-        "pose_prior_term; not in Wei) on the angles of the limbs whose elbow and wrist (knee "
-        "and ankle; the forearm or shank: the wrist, the ankle) the last tracked pose inferred, "
-        "in the frame's own fit: such a limb is drawn towards the angles the rest of the pose "
-        "makes likely instead of staying where it drifted. 0 = off",
-    )
     catch_up: bool = field_doc(
         True,
         "when frames were skipped since the last pose (a live stream that fell behind), a "

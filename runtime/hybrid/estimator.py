@@ -196,15 +196,12 @@ class HybridEstimator:
         return frame.labels(self.label_source) if self.tracker.cfg.use_labels else None
 
     def _fit(self, frame: Frame, start: torch.Tensor, before: torch.Tensor | None = None,
-             iterations: int | None = None,
-             limb_prior: tuple[float, torch.Tensor] | None = None) -> TrackResult:  # fmt: skip
+             iterations: int | None = None) -> TrackResult:  # fmt: skip
         """The frame's own fit; its prior predicts over the stream frames since the last pose
         (a live stream skips some: :func:`~runtime.tracker.prior_term.velocity_scale`)."""
         obs = frame.observation(self.tracker, self._tracker_labels(frame))
         ahead = velocity_scale(frame.index, self.state.index_prev, self.state.index_prev2)
-        return self.tracker.fit(
-            obs, start, before, iterations, velocity_scale=ahead, limb_prior=limb_prior
-        )
+        return self.tracker.fit(obs, start, before, iterations, velocity_scale=ahead)
 
     def _fit_starts(self, frame: Frame, starts: torch.Tensor,
                     iterations: int | None = None) -> list[TrackResult]:  # fmt: skip
@@ -284,7 +281,7 @@ class HybridEstimator:
             observed=self._observed(res, errors, "tracked", joints, frame),
             **evidence_of(res),
         )
-        if self.cfg.hold_unseen_limbs or self.cfg.unseen_limb_prior > 0:
+        if self.cfg.hold_unseen_limbs:
             self.state.held = held_dofs(observed_of(res))
         self._offer_size(frame, q, estimate.joints)
         return estimate
@@ -401,13 +398,7 @@ class HybridEstimator:
             self._drop_behind(frame)
         if state.q_prev is None:
             return self._detected(self._run_detector(frame), {}, frame)
-        before = state.q_prev2
-        if cfg.hold_unseen_limbs:
-            before = hold_unseen(state.q_prev, state.q_prev2, state.held)
-        limb_prior = None
-        if cfg.unseen_limb_prior > 0 and state.held is not None:
-            limb_prior = (cfg.unseen_limb_prior, state.held)
-        res = self._fit(frame, state.q_prev, before, limb_prior=limb_prior)
+        res = self._fit(frame, state.q_prev, hold_unseen(state.q_prev, state.q_prev2, state.held))
         errors = res.signals.as_errors()
         badness = cfg.failure.badness(res.signals)
         # Behind a live stream, a second opinion on a frame that passed costs more frames

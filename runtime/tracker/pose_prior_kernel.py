@@ -22,7 +22,7 @@ _FIRST_ANGLE = 6
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
-def _pose_prior(q, means, precisions, log_norms, w2, mask, hess, grad):  # pragma: no cover
+def _pose_prior(q, means, precisions, log_norms, w2, hess, grad):  # pragma: no cover - compiled
     B = q.shape[0]
     C, A = means.shape
     a = np.empty(A, np.float64)
@@ -46,15 +46,12 @@ def _pose_prior(q, means, precisions, log_norms, w2, mask, hess, grad):  # pragm
         for i in range(A):
             r[i] = means[best, i] - a[i]
         for i in range(A):
-            mi = mask[b, _FIRST_ANGLE + i]
             row = 0.0
             for j in range(A):
                 p = precisions[best, i, j]
-                hess[b, _FIRST_ANGLE + i, _FIRST_ANGLE + j] = (
-                    w2 * p * mi * mask[b, _FIRST_ANGLE + j]
-                )
+                hess[b, _FIRST_ANGLE + i, _FIRST_ANGLE + j] = w2 * p
                 row += p * r[j]
-            grad[b, _FIRST_ANGLE + i] = w2 * row * mi
+            grad[b, _FIRST_ANGLE + i] = w2 * row
 
 
 def pose_prior_system_cpu(
@@ -63,16 +60,14 @@ def pose_prior_system_cpu(
     precisions: torch.Tensor,
     log_norms: torch.Tensor,
     weight: float,
-    dofs: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`~runtime.tracker.pose_prior_term.pose_prior_system` on the CPU: (B, 34, 34) and
-    (B, 34) float64 for poses ``q`` (B, 34), only the ``dofs`` (B, 34) bool (None: all)."""
+    (B, 34) float64 for poses ``q`` (B, 34)."""
     B, D = q.shape
     hess = np.zeros((B, D, D), np.float64)
     grad = np.zeros((B, D), np.float64)
-    mask = np.ones((B, D)) if dofs is None else np.broadcast_to(dofs.numpy(), (B, D)) * 1.0
     _pose_prior(
         q.detach().numpy().astype(np.float64), means.numpy(), precisions.numpy(),
-        log_norms.numpy(), float(weight) ** 2, np.ascontiguousarray(mask), hess, grad,
+        log_norms.numpy(), float(weight) ** 2, hess, grad,
     )  # fmt: skip
     return torch.from_numpy(hess), torch.from_numpy(grad)

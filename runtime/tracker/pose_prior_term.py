@@ -68,21 +68,14 @@ def pose_prior_system(
     precisions: torch.Tensor,
     log_norms: torch.Tensor,
     weight: float,
-    dofs: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The prior's normal equations at poses ``q`` (B, 34): (B, 34, 34) and (B, 34) float64,
     zero outside the 28 angles (on the CPU without autograd: one compiled call,
-    :mod:`runtime.tracker.pose_prior_kernel`).
-
-    ``dofs`` (B, 34) bool: only these angles' rows and columns (the energy minimized over them
-    alone, the other angles as they are); None: all angles. The component is chosen on the
-    whole pose either way: the angles it leaves free are drawn to the values the others make
-    likely.
-    """
+    :mod:`runtime.tracker.pose_prior_kernel`)."""
     if q.device.type == "cpu" and not q.requires_grad:
         kernel = compiled_module("depthmocap.runtime.tracker.pose_prior_kernel")
         if kernel is not None:
-            return kernel.pose_prior_system_cpu(q, means, precisions, log_norms, weight, dofs)
+            return kernel.pose_prior_system_cpu(q, means, precisions, log_norms, weight)
     c = pose_prior_components(q, means, precisions, log_norms)
     B, D = q.shape
     w2 = float(weight) ** 2
@@ -92,8 +85,4 @@ def pose_prior_system(
     grad = q.new_zeros(B, D, dtype=torch.float64)
     hess[:, sk.ANGLE_DOFS, sk.ANGLE_DOFS] = w2 * prec
     grad[:, sk.ANGLE_DOFS] = w2 * torch.einsum("bae,be->ba", prec, r)
-    if dofs is not None:
-        m = dofs.to(device=q.device, dtype=torch.float64).expand(B, D)
-        hess = hess * m[:, :, None] * m[:, None, :]
-        grad = grad * m
     return hess, grad

@@ -165,7 +165,6 @@ def fit_frames(
     geom: SegmentGeometry | None = None,
     velocity_scale: float = 1.0,
     signals: bool = True,
-    limb_prior: tuple[float, torch.Tensor] | None = None,
 ) -> FrameFit:
     """Gauss-Newton fit of B poses to B observed frames.
 
@@ -188,10 +187,6 @@ def fit_frames(
             the two (1: consecutive frames, Wei's prior).
         signals: compute the failure signals; False: only the overlaps (the size search
             reads nothing else), ``FrameFit.signals`` None.
-        limb_prior: (weight, dofs (34,) bool): the learned pose prior
-            (``cfg.pose_prior_model``) at this weight on these angles only, on top of
-            ``cfg.pose_prior_weight``'s on all of them (the hybrid's prior on the limbs the
-            last pose did not see); None: none.
     """
     B = q_prev.shape[0]
     if SHOULDER_BRANCH_TURN_RAD > 0:
@@ -212,11 +207,11 @@ def fit_frames(
     for _ in range(cfg.iterations):
         if arrays is not None:  # the same iteration as below, in one compiled call
             q_step, dq, decrease, render, regions, extra = _fused_step(
-                fused, arrays, q_cast, q_pred, body, geom, obs, cfg, limb_prior
+                fused, arrays, q_cast, q_pred, body, geom, obs, cfg
             )
         else:
             q_step, dq, decrease, render, regions, extra = _iteration_by_terms(
-                q_cast, q_pred, observed, body, geom, obs, cfg, limb_prior
+                q_cast, q_pred, observed, body, geom, obs, cfg
             )
         q = torch.where(converged[:, None], q, q_step)
         iterations += 1
@@ -258,7 +253,6 @@ def _iteration_by_terms(
     geom: SegmentGeometry,
     obs: Observation,
     cfg: TrackerConfig,
-    limb_prior: tuple[float, torch.Tensor] | None = None,
 ):
     """One Gauss-Newton iteration at ``q_cast`` (B, 34), term by term (any device, dtype,
     autograd): the new poses, the steps, their predicted decreases, and the rendering, pixel
@@ -285,9 +279,9 @@ def _iteration_by_terms(
         contact, columns = collision_rows(render.kin, geom)
         h, g = normal_equations(render.kin, contact, B, columns)
         hess, grad = hess + h, grad + g
-    pose_prior = _pose_prior_rows(q_cast, cfg, limb_prior)
-    if pose_prior is not None:
-        hess, grad = hess + pose_prior[0], grad + pose_prior[1]
+    if cfg.pose_prior_weight > 0:
+        h, g = _pose_prior_rows(q_cast, cfg)
+        hess, grad = hess + h, grad + g
     q_step, dq, decrease = gauss_newton_step(
         hess, grad, q_cast, q_pred if cfg.use_prior else None, cfg.damping,
         cfg.max_step_rad, cfg.sigma_prior_rad, cfg.sigma_prior_m,
@@ -295,24 +289,11 @@ def _iteration_by_terms(
     return q_step, dq, decrease, render, regions, extra
 
 
-def _pose_prior_rows(
-    q: torch.Tensor, cfg: TrackerConfig, limb_prior: tuple[float, torch.Tensor] | None
-) -> tuple[torch.Tensor, torch.Tensor] | None:
-    """The learned pose prior's normal equations at ``q`` (B, 34): ``cfg.pose_prior_weight``'s
-    on every angle plus ``limb_prior``'s on its angles; None when both are off."""
+def _pose_prior_rows(q: torch.Tensor, cfg: TrackerConfig) -> tuple[torch.Tensor, torch.Tensor]:
+    """The learned pose prior's normal equations at ``q`` (B, 34)."""
     from .pose_prior_term import pose_prior_system, tracker_pose_prior
 
-    on_limbs = limb_prior is not None and limb_prior[0] > 0 and bool(limb_prior[1].any())
-    if not (cfg.pose_prior_weight > 0 or on_limbs):
-        return None
-    prior = tracker_pose_prior(cfg.pose_prior_model, q)
-    out = None
-    if cfg.pose_prior_weight > 0:
-        out = pose_prior_system(q, *prior, cfg.pose_prior_weight)
-    if on_limbs:
-        h, g = pose_prior_system(q, *prior, limb_prior[0], limb_prior[1])
-        out = (h, g) if out is None else (out[0] + h, out[1] + g)
-    return out
+    return pose_prior_system(q, *tracker_pose_prior(cfg.pose_prior_model, q), cfg.pose_prior_weight)
 
 
 def _fused_iteration(obs: Observation, q: torch.Tensor, body: BodyShape, geom: SegmentGeometry):
@@ -359,10 +340,10 @@ def _fit_arrays(fused, obs: Observation, observed, body, geom, B: int, cfg: Trac
     return fused.fit_arrays(obs, observed, body, geom, B, cfg, labels_on, sampling)
 
 
-def _fused_step(fused, arrays, q_cast, q_pred, body, geom, obs, cfg, limb_prior=None):
+def _fused_step(fused, arrays, q_cast, q_pred, body, geom, obs, cfg):
     """:func:`_iteration_by_terms` through the compiled iteration (the same results)."""
     w = prior_weights(q_cast[:1], cfg.sigma_prior_rad, cfg.sigma_prior_m)[0]
-    pose_prior = _pose_prior_rows(q_cast, cfg, limb_prior)
+    pose_prior = _pose_prior_rows(q_cast, cfg) if cfg.pose_prior_weight > 0 else None
     out = fused.iteration_cpu(
         arrays, q_cast, q_pred if cfg.use_prior else None, w * w, cfg.damping,
         cfg.max_step_rad, obs.intr.height, obs.intr.width, pose_prior,
@@ -505,13 +486,11 @@ class Tracker:
         q_prev2: torch.Tensor | None = None,
         iterations: int | None = None,
         velocity_scale: float = 1.0,
-        limb_prior: tuple[float, torch.Tensor] | None = None,
     ) -> TrackResult:
         """Fit one frame's observation (from :meth:`observe`, batch 1) from ``q_prev`` (34,)
         and ``q_prev2`` (34,) or None, with at most ``iterations`` Gauss-Newton steps
         (default: the config's), the prior predicting ``velocity_scale`` times the last
-        step's motion ahead (:func:`fit_frames`), the learned pose prior on ``limb_prior``'s
-        angles at its weight (:func:`fit_frames`). The frame's refits share one observation
+        step's motion ahead (:func:`fit_frames`). The frame's refits share one observation
         this way."""
         for name, q in (("q_prev", q_prev), ("q_prev2", q_prev2)):
             if q is not None and tuple(q.shape) != (sk.NUM_DOFS,):
@@ -521,11 +500,7 @@ class Tracker:
         )
         qp = q_prev.to(device=self.device, dtype=self.dtype)[None]
         qp2 = None if q_prev2 is None else q_prev2.to(device=self.device, dtype=self.dtype)[None]
-        if limb_prior is not None:
-            limb_prior = (limb_prior[0], limb_prior[1].to(self.device)[None])
-        fit = fit_frames(
-            obs, qp, qp2, self.body, cfg, self.geometry, velocity_scale, limb_prior=limb_prior
-        )
+        fit = fit_frames(obs, qp, qp2, self.body, cfg, self.geometry, velocity_scale)
         return self._result(fit, 0, _host_scalars(fit))
 
     def fit_starts(

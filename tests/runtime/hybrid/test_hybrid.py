@@ -137,16 +137,14 @@ class ScriptedTracker:
     def __init__(self) -> None:
         self.real = Tracker(BODY, INTR)
         self.velocity_scales: list[float] = []  # of the frame's own fits
-        self.limb_priors: list = []  # of the frame's own fits
 
     def observe(self, depth, mask, labels=None):
         return self.real.observe(depth, mask, labels), (labels if self.cfg.use_labels else None)
 
-    def fit(self, obs, q_prev, q_prev2=None, iterations=None, velocity_scale=1.0, limb_prior=None):
+    def fit(self, obs, q_prev, q_prev2=None, iterations=None, velocity_scale=1.0):
         if iterations is not None:
             return self.real.fit(obs[0], q_prev, q_prev2, iterations, velocity_scale)
         self.velocity_scales.append(velocity_scale)
-        self.limb_priors.append(limb_prior)
         return self.step(None, None, q_prev, q_prev2, labels=obs[1])
 
     def fit_starts(self, obs, starts, iterations=None):
@@ -1066,13 +1064,13 @@ class _UnseenLeftArm(FakeTracker):
         return res
 
 
-def _given(scene, hold: bool, **settings) -> list:
+def _given(scene, hold: bool) -> list:
     q, depth, labels, mask = scene
     tracker = _UnseenLeftArm()
-    est, _ = make_hybrid(scene, tracker, hold_unseen_limbs=hold, **settings)
+    est, _ = make_hybrid(scene, tracker, hold_unseen_limbs=hold)
     statuses = [estimate_frame(est, frame_of(depth, i, mask)).status for i in range(4)]
     assert statuses == ["detected", "tracked", "tracked", "tracked"]
-    return tracker.given, tracker.limb_priors
+    return tracker.given
 
 
 def test_the_hybrid_holds_an_unseen_arm(scene):
@@ -1083,29 +1081,13 @@ def test_the_hybrid_holds_an_unseen_arm(scene):
     rest = torch.ones(sk.NUM_DOFS, dtype=torch.bool)
     rest[arm] = False
     elbow = sk.DOF_NAMES.index("l_radius_flex")
-    (held, priors), (plain, _) = _given(scene, True), _given(scene, False)
-    assert priors == [None] * 3  # the pose prior on unseen limbs is off by default
+    held, plain = _given(scene, True), _given(scene, False)
     assert held[0][1] is None and plain[0][1] is None  # after the detection: no pose before
     for (prev, before), (prev_p, before_p) in zip(held[1:], plain[1:]):
         assert torch.equal(prev, prev_p)  # the fake tracker's poses do not depend on it
         assert torch.equal(before[arm], prev[arm])
         assert torch.equal(before[rest], before_p[rest])
         assert float(prev_p[elbow] - before_p[elbow]) > 0.05  # off: the velocity carried on
-
-
-def test_the_pose_prior_on_an_unseen_arm(scene):
-    """``unseen_limb_prior``: the frame's own fit gets the learned prior's weight and the
-    unseen left arm's angles (none before the first tracked pose has called it unseen), with
-    or without ``hold_unseen_limbs``."""
-    arm = [sk.DOF_NAMES.index(n) for n in
-           ("l_humerus_abd", "l_humerus_flex", "l_humerus_twist", "l_radius_flex")]  # fmt: skip
-    for hold in (True, False):
-        given, priors = _given(scene, hold, unseen_limb_prior=3.0)
-        assert priors[0] is None  # the first track after the detection: nothing called unseen
-        for weight, dofs in priors[1:]:
-            assert weight == 3.0 and sorted(torch.nonzero(dofs).flatten().tolist()) == arm
-        if not hold:  # the prior alone does not hold the angles' velocity
-            assert not torch.equal(given[2][1][arm], given[2][0][arm])
 
 
 def test_a_still_chair_behind_the_legs_leaves_the_mask(scene):

@@ -149,21 +149,6 @@ def test_with_the_pose_prior(monkeypatch, make_pose, render_frame):
     assert not torch.equal(plain.q, fused.q)
 
 
-def test_with_the_pose_prior_on_some_limbs(monkeypatch, make_pose, render_frame):
-    """The hybrid's prior on unseen limbs: one pose, its left arm's angles only."""
-    obs, q_true, body = _observation(make_pose, render_frame)
-    dofs = torch.zeros(1, sk.NUM_DOFS, dtype=torch.bool)
-    dofs[0, [D[n] for n in ("l_humerus_abd", "l_humerus_flex", "l_radius_flex")]] = True
-    q_prev, q_prev2 = _start(q_true, 1.0), _start(q_true, 1.6)
-    cfg = TrackerConfig(iterations=3)
-    ref, fused, calls = _both(monkeypatch, obs, q_prev, q_prev2, body, cfg, limb_prior=(4.0, dofs))
-    assert calls == ref.iterations
-    _assert_same(ref, fused)
-    plain = fit_frames(obs, q_prev, q_prev2, body, cfg)
-    moved = (plain.q - fused.q).abs()[0]
-    assert moved[dofs[0]].max() > 0
-
-
 def test_without_labels(monkeypatch, make_pose, render_frame):
     obs, q_true, body = _observation(make_pose, render_frame, labels=False)
     ref, fused, _ = _both(monkeypatch, obs, _start(q_true, 1.0), None, body, TrackerConfig())

@@ -87,32 +87,6 @@ def test_the_compiled_equations_match_torch_s():
         torch.testing.assert_close(a, b.detach(), rtol=1e-12, atol=1e-12)
 
 
-def test_a_dof_mask_keeps_only_those_rows_and_columns():
-    """On a subset of the angles: the full system's rows and columns there, zero elsewhere; a
-    step on it moves those angles to the component's conditional mean given the others."""
-    means, precisions, log_norms = _prior_tensors()
-    gen = torch.Generator().manual_seed(5)
-    q = torch.randn(3, sk.NUM_DOFS, dtype=torch.float64, generator=gen)
-    dofs = torch.zeros(3, sk.NUM_DOFS, dtype=torch.bool)
-    dofs[:, [18, 19, 20, 24]] = True  # the left arm
-    dofs[1] = False  # a pose with nothing unseen
-    for grad_path in (False, True):
-        qq = q.clone().requires_grad_(grad_path)
-        full_h, full_g = pose_prior_system(qq, means, precisions, log_norms, 1.5)
-        h, g = pose_prior_system(qq, means, precisions, log_norms, 1.5, dofs)
-        m = dofs.double()
-        torch.testing.assert_close(h.detach(), (full_h * m[:, :, None] * m[:, None, :]).detach())
-        torch.testing.assert_close(g.detach(), (full_g * m).detach())
-    idx = [18, 19, 20, 24]
-    dq = torch.linalg.solve(h[0][idx][:, idx], g[0, idx])
-    c = int(pose_prior_components(q[:1], means, precisions, log_norms)[0])
-    a = q[0, sk.ANGLE_DOFS].clone()
-    a[[i - 6 for i in idx]] += dq
-    # the gradient of the component's energy in those angles vanishes there
-    rest = precisions[c] @ (a - means[c])
-    torch.testing.assert_close(rest[[i - 6 for i in idx]], torch.zeros(4, dtype=torch.float64))
-
-
 def test_float32_poses_give_float64_equations():
     means, precisions, log_norms = _prior_tensors()
     hess, grad = pose_prior_system(torch.zeros(1, sk.NUM_DOFS), means, precisions, log_norms, 1.0)
