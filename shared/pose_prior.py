@@ -71,6 +71,8 @@ class PosePrior:
     frames: int = 0
 
     def __post_init__(self) -> None:
+        if np.ndim(self.means) != 2:
+            raise PosePriorError(f"pose prior means must be (C, A), got {np.shape(self.means)}")
         C, A = np.shape(self.means)
         if (
             A != len(ANGLE_NAMES)

@@ -67,6 +67,7 @@ def _write(path, **changes):
         ({"dof_names": list(ANGLE_NAMES[::-1])}, "angles are not this build's"),
         ({"weights": [0.3, 0.3]}, "sum to 1"),
         ({"means": [[0.0] * 5] * 2}, "means"),
+        ({"means": [0.0] * 28}, r"means must be \(C, A\)"),
         ({"covariances": (-np.repeat(np.eye(A)[None], 2, 0)).tolist()}, "positive definite"),
     ],
 )
