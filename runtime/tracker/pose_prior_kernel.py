@@ -15,10 +15,11 @@ from __future__ import annotations
 import numba
 import numpy as np
 import torch
+from depthmocap.shared import skeleton as sk
 
 __all__ = ["pose_prior_system_cpu"]
 
-_FIRST_ANGLE = 6
+_FIRST_ANGLE = sk.ANGLE_DOFS.start
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)

@@ -33,7 +33,8 @@ def _load(path: str) -> PosePrior:
 def tracker_pose_prior(
     model: str, like: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The pose prior file ``model`` (relative: under the shipped ``models/``) as means
+    """The pose prior file ``model`` (relative: under the shipped ``models/``, as the hybrid's
+    model files) as means
     (C, A), precisions (C, A, A) and constant costs (C,), float64 on ``like``'s device; read
     once per process.
 
@@ -43,9 +44,7 @@ def tracker_pose_prior(
     from depthmocap.shared.resources import MODELS_DIR
 
     path = Path(model)
-    if not path.is_absolute() and not path.exists():
-        path = MODELS_DIR / path
-    return _tensors(str(path), like.device)
+    return _tensors(str(path if path.is_absolute() else MODELS_DIR / path), like.device)
 
 
 @lru_cache(maxsize=8)

@@ -32,7 +32,7 @@ from depthmocap.shared.kinematics import Kinematics
 from depthmocap.shared.labels import PART_SEGMENT
 
 from .collision_term import collision_rows
-from .config import TrackerConfig
+from .config import TrackerConfig, TrackerConfigError
 from .depth_term import depth_rows
 from .extra_depth_term import MAX_CANDIDATES, ExtraResult, extra_rows, observed_candidates
 from .gauss_newton import cat_rows, gauss_newton_step, normal_equations
@@ -418,6 +418,15 @@ class Tracker:
         self.body = body.to(dtype=dtype, device=self.device)
         # The capsules' shape depends on the body alone: made once, not per fit.
         self.geometry = segment_geometry(self.body, self.body.lengths)
+        if self.cfg.pose_prior_weight > 0:  # a bad prior file fails here, not mid-stream
+            from depthmocap.shared.pose_prior import PosePriorError
+
+            from .pose_prior_term import tracker_pose_prior
+
+            try:
+                tracker_pose_prior(self.cfg.pose_prior_model, self.geometry.basis)
+            except PosePriorError as err:
+                raise TrackerConfigError(f"pose_prior_model: {err}") from None
 
     def observe(
         self, depth_m: torch.Tensor, mask: torch.Tensor, labels: torch.Tensor | None = None

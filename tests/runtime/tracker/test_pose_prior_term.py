@@ -99,6 +99,21 @@ def test_the_tracker_reads_the_shipped_prior():
     assert means.dtype == torch.float64 and torch.isfinite(log_norms).all()
 
 
+def test_a_tracker_with_a_bad_prior_file_fails_when_made(tmp_path):
+    from depthmocap.runtime.tracker import Tracker, TrackerConfig, TrackerConfigError
+    from depthmocap.shared.body import BodyShape
+    from depthmocap.shared.camera import Intrinsics
+
+    body, intr = BodyShape.default(torch.float32), Intrinsics.kinect_v1()
+    (tmp_path / "bad.json").write_text("{not json")
+    cfg = TrackerConfig(pose_prior_weight=2.0, pose_prior_model=str(tmp_path / "bad.json"))
+    with pytest.raises(TrackerConfigError, match="pose_prior_model: .*not a readable pose-prior"):
+        Tracker(body, intr, cfg)
+    off = TrackerConfig(pose_prior_model=str(tmp_path / "bad.json"))  # weight 0: never read
+    Tracker(body, intr, off)
+    Tracker(body, intr, TrackerConfig(pose_prior_weight=2.0))  # the shipped file
+
+
 def test_a_missing_prior_file_is_a_clear_error(tmp_path):
     from depthmocap.shared.pose_prior import PosePriorError
 
