@@ -29,6 +29,7 @@ from .config import (
     HybridError,
     KeepBetterConfig,
     MisplacedArmConfig,
+    SuspectPriorConfig,
 )
 from .estimator import HybridEstimator, TrackState
 from .policy import Decision, Detection, TrackVerdict, choose, judge_track
@@ -43,6 +44,7 @@ __all__ = [
     "HybridEstimator",
     "KeepBetterConfig",
     "MisplacedArmConfig",
+    "SuspectPriorConfig",
     "TrackState",
     "TrackVerdict",
     "choose",
