@@ -29,7 +29,6 @@ __all__ = [
     "HybridError",
     "KeepBetterConfig",
     "MisplacedArmConfig",
-    "SuspectPriorConfig",
 ]
 
 
@@ -211,29 +210,6 @@ class ArmSearchConfig:
         _check(s is None or s >= 0, "arm_search.agreement_slack must be >= 0 or None", s)
 
 
-@dataclass
-class SuspectPriorConfig:
-    """A questioned fit (failed tests, or a badness over ``keep_better.recheck_badness``) is
-    refitted from the same start with the tracker's learned pose prior on: where the depth
-    does not explain the frame, plausible poses are worth more (not in Wei)."""
-
-    weight: float = field_doc(
-        2.0, "the prior's weight w in the refit (runtime.tracker.pose_prior_term; > 0)"
-    )
-    max_badness_rise: float | None = field_doc(
-        None,
-        "take the refit only when its badness exceeds the first fit's by at most this (None: "
-        "always take it)",
-    )
-
-    def __post_init__(self) -> None:
-        w = self.weight
-        _check(w > 0 and math.isfinite(w), "suspect_prior.weight must be > 0", w)
-        r = self.max_badness_rise
-        _check(r is None or (r >= 0 and math.isfinite(r)),
-               "suspect_prior.max_badness_rise must be >= 0 or None", r)  # fmt: skip
-
-
 def _shipped_failure() -> FailureThresholds:
     return FailureThresholds(epsilon1_cm=3.0, epsilon2=0.7, epsilon3_mm=80.0, lost_overlap=0.3)
 
@@ -322,11 +298,6 @@ class HybridConfig:
         "protocol live, two runs alternated per recording: 57.4 -> 56.2 and 55.1 -> 53.5 "
         "mm, frames skipped 21.5 -> 18.6% and 16.4 -> 14.0% (docs/experiments.md, thirtieth "
         "session)",
-    )
-    suspect_prior: SuspectPriorConfig | None = field_doc(
-        None,
-        "refit a questioned fit with the learned pose prior before the detector weighs it "
-        "(the prior's file: tracker.pose_prior_model; None: off)",
     )
     detector: DetectorConfig = field_doc(help="detector settings", default_factory=DetectorConfig)
     tracker: TrackerConfig = field_doc(

@@ -50,7 +50,7 @@ from depthmocap.shared.part_evidence import image_part_evidence
 from .arm_search import ArmSearch
 from .behind_model import StaticBehindMask
 from .body_scale import BodyScaleSearch
-from .config import HybridConfig, HybridError
+from .config import HybridConfig
 from .pieces import PiecesInFlight
 from .policy import Detection, behind, choose, judge_track
 from .split_refits import SplitRefits
@@ -103,18 +103,6 @@ def overlaps_of(sizes: Tracker, obs, starts: torch.Tensor, iterations: int) -> n
         return sizes.fit_overlaps(obs, starts, iterations).numpy()
 
 
-def _check_pose_prior(path: str, tracker: Tracker) -> None:
-    """Load the suspect refits' pose prior now: a bad file fails at start-up, not
-    mid-stream."""
-    from depthmocap.runtime.tracker.pose_prior_term import tracker_pose_prior
-    from depthmocap.shared.pose_prior import PosePriorError
-
-    try:
-        tracker_pose_prior(path, tracker.geometry.basis)
-    except PosePriorError as err:
-        raise HybridError(f"suspect_prior: pose_prior_model: {err}") from None
-
-
 class HybridEstimator:
     """Tracker with detector (re)initialization for one stream (a ``PoseEstimator``).
 
@@ -154,8 +142,6 @@ class HybridEstimator:
             None if cfg.body_scale is None else BodyScaleSearch(cfg.body_scale, tracker.body)
         )
         self._behind = None if cfg.behind_model is None else StaticBehindMask(cfg.behind_model)
-        if cfg.suspect_prior is not None:
-            _check_pose_prior(tracker.cfg.pose_prior_model, tracker)
         self._refits = SplitRefits(background)
         # The size search's trackers of its candidate bodies, in SIZE_SEARCH_PIECES pieces.
         self._sizes: list[Tracker] | None = None
@@ -210,27 +196,12 @@ class HybridEstimator:
         return frame.labels(self.label_source) if self.tracker.cfg.use_labels else None
 
     def _fit(self, frame: Frame, start: torch.Tensor, before: torch.Tensor | None = None,
-             iterations: int | None = None,
-             pose_prior_weight: float | None = None) -> TrackResult:  # fmt: skip
+             iterations: int | None = None) -> TrackResult:  # fmt: skip
         """The frame's own fit; its prior predicts over the stream frames since the last pose
         (a live stream skips some: :func:`~runtime.tracker.prior_term.velocity_scale`)."""
         obs = frame.observation(self.tracker, self._tracker_labels(frame))
         ahead = velocity_scale(frame.index, self.state.index_prev, self.state.index_prev2)
-        return self.tracker.fit(
-            obs, start, before, iterations, velocity_scale=ahead,
-            pose_prior_weight=pose_prior_weight,
-        )  # fmt: skip
-
-    def _refit_with_prior(self, frame: Frame, before: torch.Tensor | None, res: TrackResult,
-                          badness: float) -> tuple[TrackResult, float, bool]:  # fmt: skip
-        """The questioned fit ``res`` (its ``badness``) refitted from the same start with the
-        learned pose prior (``cfg.suspect_prior``): the fit to go on with, its badness, and
-        whether it is the refit."""
-        sp = self.cfg.suspect_prior
-        refit = self._fit(frame, self.state.q_prev, before, pose_prior_weight=sp.weight)
-        refit_badness = self.cfg.failure.badness(refit.signals)
-        taken = sp.max_badness_rise is None or refit_badness <= badness + sp.max_badness_rise
-        return (refit, refit_badness, True) if taken else (res, badness, False)
+        return self.tracker.fit(obs, start, before, iterations, velocity_scale=ahead)
 
     def _fit_starts(self, frame: Frame, starts: torch.Tensor,
                     iterations: int | None = None) -> list[TrackResult]:  # fmt: skip
@@ -427,8 +398,7 @@ class HybridEstimator:
             self._drop_behind(frame)
         if state.q_prev is None:
             return self._detected(self._run_detector(frame), {}, frame)
-        before = hold_unseen(state.q_prev, state.q_prev2, state.held)
-        res = self._fit(frame, state.q_prev, before)
+        res = self._fit(frame, state.q_prev, hold_unseen(state.q_prev, state.q_prev2, state.held))
         errors = res.signals.as_errors()
         badness = cfg.failure.badness(res.signals)
         # Behind a live stream, a second opinion on a frame that passed costs more frames
@@ -438,14 +408,6 @@ class HybridEstimator:
             and behind(frame.index, state.index_prev)
             and not cfg.failure.failed(res.signals)
         )
-        if (
-            cfg.suspect_prior is not None
-            and not hurry
-            and judge_track(res.signals, badness, cfg.failure, cfg.keep_better).run_detector
-        ):
-            res, badness, refitted = self._refit_with_prior(frame, before, res, badness)
-            flag = "prior_refit" if refitted else "prior_refit_refused"
-            errors = {**res.signals.as_errors(), flag: 1.0}
         if hurry:
             errors["hurried"] = 1.0
         elif self.arm_search is not None and self.arm_search.wanted(badness):

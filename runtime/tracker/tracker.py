@@ -495,21 +495,18 @@ class Tracker:
         q_prev2: torch.Tensor | None = None,
         iterations: int | None = None,
         velocity_scale: float = 1.0,
-        pose_prior_weight: float | None = None,
     ) -> TrackResult:
         """Fit one frame's observation (from :meth:`observe`, batch 1) from ``q_prev`` (34,)
         and ``q_prev2`` (34,) or None, with at most ``iterations`` Gauss-Newton steps
         (default: the config's), the prior predicting ``velocity_scale`` times the last
-        step's motion ahead (:func:`fit_frames`), and the learned pose prior at
-        ``pose_prior_weight`` (default: the config's). The frame's refits share one
-        observation this way."""
+        step's motion ahead (:func:`fit_frames`). The frame's refits share one observation
+        this way."""
         for name, q in (("q_prev", q_prev), ("q_prev2", q_prev2)):
             if q is not None and tuple(q.shape) != (sk.NUM_DOFS,):
                 raise TrackerError(f"{name} must have shape ({sk.NUM_DOFS},), got {q.shape}")
-        changes = {} if iterations is None else {"iterations": iterations}
-        if pose_prior_weight is not None:
-            changes["pose_prior_weight"] = pose_prior_weight
-        cfg = dataclasses.replace(self.cfg, **changes) if changes else self.cfg
+        cfg = (
+            self.cfg if iterations is None else dataclasses.replace(self.cfg, iterations=iterations)
+        )
         qp = q_prev.to(device=self.device, dtype=self.dtype)[None]
         qp2 = None if q_prev2 is None else q_prev2.to(device=self.device, dtype=self.dtype)[None]
         fit = fit_frames(obs, qp, qp2, self.body, cfg, self.geometry, velocity_scale)

@@ -141,21 +141,11 @@ class ScriptedTracker:
     def observe(self, depth, mask, labels=None):
         return self.real.observe(depth, mask, labels), (labels if self.cfg.use_labels else None)
 
-    @property
-    def geometry(self):
-        return self.real.geometry
-
-    def fit(self, obs, q_prev, q_prev2=None, iterations=None, velocity_scale=1.0,
-            pose_prior_weight=None):  # fmt: skip
+    def fit(self, obs, q_prev, q_prev2=None, iterations=None, velocity_scale=1.0):
         if iterations is not None:
             return self.real.fit(obs[0], q_prev, q_prev2, iterations, velocity_scale)
         self.velocity_scales.append(velocity_scale)
-        if pose_prior_weight is not None:
-            return self.prior_refit(q_prev, pose_prior_weight)
         return self.step(None, None, q_prev, q_prev2, labels=obs[1])
-
-    def prior_refit(self, q_prev, weight):
-        raise AssertionError("this scenario expects no refit with the pose prior")
 
     def fit_starts(self, obs, starts, iterations=None):
         if iterations is not None:
@@ -569,63 +559,6 @@ def test_with_real_tracker_and_detector(scene):
         errs.append(np.linalg.norm(out.joints - true, axis=-1).mean())
     assert statuses == ["detected", "tracked", "tracked"]
     assert max(errs) < 0.03
-
-
-class PriorRefitTracker(FakeTracker):
-    """A :class:`FakeTracker` whose refits with the pose prior pass with ``prior_error`` cm
-    of depth error; it records each refit's weight."""
-
-    def __init__(self, prior_error, **kw):
-        super().__init__(**kw)
-        self.prior_error, self.weights = prior_error, []
-
-    def prior_refit(self, q_prev, weight):
-        self.weights.append(weight)
-        return FakeResult(q_prev.clone(), self.prior_error, 0.95, self.surface_mm)
-
-
-@pytest.mark.parametrize(
-    "prior_error, rise, taken", [(1.0, None, True), (9.0, None, True), (9.0, 0.5, False),
-                                 (5.0, 0.0, True)],
-)  # fmt: skip
-def test_a_questioned_fit_is_refitted_with_the_pose_prior(scene, prior_error, rise, taken):
-    """Only the failed fit (call 2; 5 cm) is refitted; the refit replaces it unless its badness
-    rises by more than ``max_badness_rise``, and a passing refit asks no detector."""
-    from depthmocap.runtime.hybrid import SuspectPriorConfig
-
-    q, depth, labels, mask = scene
-    tracker = PriorRefitTracker(prior_error, fail_calls={2})
-    prior = SuspectPriorConfig(weight=1.5, max_badness_rise=rise)
-    est, calls = make_hybrid(scene, tracker, suspect_prior=prior)
-    got = [estimate_frame(est, frame_of(depth, i, mask)) for i in range(4)]
-    assert tracker.weights == [1.5]  # frame 2's fit alone (frame 0 is the detector's)
-    passed = taken and prior_error < 2.5
-    pre = "" if passed else "tracker_"  # a detection reports the failed fit's errors so
-    assert (f"{pre}prior_refit" in got[2].errors) == taken
-    assert (f"{pre}prior_refit_refused" in got[2].errors) == (not taken)
-    assert not any("prior_refit" in k for g in (got[1], got[3]) for k in g.errors)
-    statuses = ["detected", "tracked", "tracked" if passed else "detected", "tracked"]
-    assert [g.status for g in got] == statuses
-    if passed:
-        assert got[2].errors["depth_error_cm"] == prior_error
-    else:  # the detector was asked: the errors are the failed fit's, as the tracker's
-        assert got[2].errors["tracker_depth_error_cm"] == (prior_error if taken else 5.0)
-    assert len(calls) == (1 if passed else 2)  # the forest's labels: the detector's frames
-
-
-def test_a_bad_pose_prior_for_the_suspect_refits_fails_when_made(scene, tmp_path):
-    from depthmocap.runtime.hybrid import SuspectPriorConfig
-
-    (tmp_path / "bad.json").write_text("{not json")
-    tracker = FakeTracker()
-    tracker.cfg = TrackerConfig(pose_prior_model=str(tmp_path / "bad.json"))
-    with pytest.raises(HybridError, match="suspect_prior: pose_prior_model"):
-        make_hybrid(scene, tracker, suspect_prior=SuspectPriorConfig())
-    make_hybrid(scene, tracker)  # off: the file is never read
-    for bad in ({"weight": 0.0}, {"weight": math.nan}, {"max_badness_rise": -0.1}):
-        with pytest.raises(HybridError, match="suspect_prior"):
-            config_from_mapping({"suspect_prior": bad})
-    assert config_from_mapping({"suspect_prior": {"weight": 3}}).suspect_prior.weight == 3
 
 
 def test_config_and_factory_errors(tmp_path):

@@ -119,26 +119,3 @@ def test_a_missing_prior_file_is_a_clear_error(tmp_path):
 
     with pytest.raises(PosePriorError, match="no such pose-prior file"):
         tracker_pose_prior(str(tmp_path / "none.json"), torch.empty(0))
-
-
-def test_a_fit_can_override_the_prior_s_weight(make_pose, render_frame):
-    """``Tracker.fit(pose_prior_weight=w)`` is the fit of a tracker configured with w, bit for
-    bit, and leaves the tracker's own settings alone (the hybrid's suspect refits)."""
-    from depthmocap.runtime.tracker import Tracker, TrackerConfig, TrackerConfigError
-    from depthmocap.shared.body import BodyShape
-    from depthmocap.shared.camera import Intrinsics
-
-    body, intr = BodyShape.default(torch.float32), Intrinsics.kinect_v1(320)
-    q = make_pose(torch.float32)
-    obs = render_frame(q, body)
-    start = q[0].clone()
-    start[sk.DOF_NAMES.index("l_radius_flex")] += 0.3
-    plain = Tracker(body, intr, TrackerConfig(iterations=4))
-    with_prior = Tracker(body, intr, TrackerConfig(iterations=4, pose_prior_weight=3.0))
-    want = with_prior.fit(obs, start).q
-    got = plain.fit(obs, start, pose_prior_weight=3.0).q
-    assert torch.equal(got, want)
-    assert not torch.equal(plain.fit(obs, start).q, want)  # the override changed the fit
-    assert plain.cfg.pose_prior_weight == 0.0
-    with pytest.raises(TrackerConfigError, match="pose_prior_weight"):
-        plain.fit(obs, start, pose_prior_weight=-1.0)
