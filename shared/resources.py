@@ -17,6 +17,13 @@ CONFIGS_DIR = PACKAGE_ROOT / "configs"
 MODELS_DIR = PACKAGE_ROOT / "models"
 
 
+def model_file(name: str | Path) -> Path:
+    """The path of a model file setting: ``name`` itself when absolute, else under the shipped
+    ``models/`` folder (the rule of every model file a preset names)."""
+    path = Path(name)
+    return path if path.is_absolute() else MODELS_DIR / path
+
+
 def is_checkout() -> bool:
     """True when running from a source checkout (editable install or ``python -m``)."""
     return (PACKAGE_ROOT / "pyproject.toml").is_file()

@@ -119,11 +119,10 @@ def load_confidence(name: str) -> JointConfidence:
 def _load_model_file(name: str, key: str, load, error: type[Exception]):
     """``load`` of the file ``name`` under the shipped models/ folder (or absolute), its
     ``error`` reported as a :class:`HybridError` naming the setting ``key``."""
-    from depthmocap.shared.resources import MODELS_DIR
+    from depthmocap.shared.resources import model_file
 
-    path = Path(name)
     try:
-        return load(path if path.is_absolute() else MODELS_DIR / path)
+        return load(model_file(name))
     except error as err:
         raise HybridError(f"{key}: {err}") from None
 

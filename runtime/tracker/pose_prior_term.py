@@ -15,7 +15,6 @@ rest of the pose makes likely instead of staying wherever it drifted.
 from __future__ import annotations
 
 from functools import lru_cache
-from pathlib import Path
 
 import torch
 from depthmocap.shared import skeleton as sk
@@ -34,17 +33,15 @@ def tracker_pose_prior(
     model: str, like: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The pose prior file ``model`` (relative: under the shipped ``models/``, as the hybrid's
-    model files) as means
-    (C, A), precisions (C, A, A) and constant costs (C,), float64 on ``like``'s device; read
-    once per process.
+    model files; ``shared.resources.model_file``) as means (C, A), precisions (C, A, A) and
+    constant costs (C,), float64 on ``like``'s device; read once per process.
 
     Raises:
         shared.pose_prior.PosePriorError: a missing or unusable file.
     """
-    from depthmocap.shared.resources import MODELS_DIR
+    from depthmocap.shared.resources import model_file
 
-    path = Path(model)
-    return _tensors(str(path if path.is_absolute() else MODELS_DIR / path), like.device)
+    return _tensors(str(model_file(model)), like.device)
 
 
 @lru_cache(maxsize=8)

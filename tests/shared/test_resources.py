@@ -22,3 +22,10 @@ def test_cache_root(monkeypatch, tmp_path):
     assert resources.cache_root() == tmp_path / "xdg" / "depthmocap"
     monkeypatch.delenv("XDG_CACHE_HOME")
     assert resources.cache_root() == Path.home() / ".cache" / "depthmocap"
+
+
+def test_model_file_is_absolute_or_under_the_shipped_models(tmp_path):
+    assert resources.model_file("forest.npz") == resources.MODELS_DIR / "forest.npz"
+    assert resources.model_file("sub/x.json") == resources.MODELS_DIR / "sub" / "x.json"
+    assert resources.model_file(tmp_path / "x.json") == tmp_path / "x.json"
+    assert resources.model_file(str(tmp_path / "x.json")) == tmp_path / "x.json"
