@@ -29,6 +29,7 @@ from .config import (
     HybridError,
     KeepBetterConfig,
     MisplacedArmConfig,
+    RunnerUpConfig,
 )
 from .estimator import HybridEstimator, TrackState
 from .policy import Decision, Detection, TrackVerdict, choose, judge_track
@@ -43,6 +44,7 @@ __all__ = [
     "HybridEstimator",
     "KeepBetterConfig",
     "MisplacedArmConfig",
+    "RunnerUpConfig",
     "TrackState",
     "TrackVerdict",
     "choose",

@@ -20,6 +20,7 @@ from depthmocap.shared.config import ConfigError, field_doc
 
 from .behind_model import BehindModelConfig
 from .body_scale import BodyScaleConfig
+from .runner_up import RunnerUpConfig
 
 __all__ = [
     "ArmSearchConfig",
@@ -29,6 +30,7 @@ __all__ = [
     "HybridError",
     "KeepBetterConfig",
     "MisplacedArmConfig",
+    "RunnerUpConfig",
 ]
 
 
@@ -246,6 +248,12 @@ class HybridConfig:
     arm_search: ArmSearchConfig | None = field_doc(
         help="refit a hidden or misplaced arm on suspect frames (None: off, as in Wei)",
         default_factory=_shipped_arm_search,
+    )
+    runner_up: RunnerUpConfig | None = field_doc(
+        None,
+        "fit the pose a choice between track and detection did not take on for a few frames, "
+        "and switch to it when it keeps explaining the frames better (runtime.hybrid."
+        "runner_up; None: off, as in Wei)",
     )
     behind_model: BehindModelConfig | None = field_doc(
         help="drop mask pixels that stay still far behind the tracked body (furniture touching "
