@@ -168,6 +168,12 @@ class MisplacedArmConfig:
         "a refit is taken only if the points of its arm labelled otherwise are at most this "
         "fraction of the track's (0-1)",
     )
+    forearm: bool = field_doc(
+        False,
+        "also apply the conflict test to the points the forearm alone explains (and measure "
+        "a refit's relief on them): a forearm folded onto the body while the upper arm is in "
+        "place is outvoted by the upper arm's points in the whole arm's share",
+    )
 
     def __post_init__(self) -> None:
         _check(0 <= self.conflict <= 1, "misplaced.conflict must be in [0, 1]", self.conflict)
@@ -297,6 +303,13 @@ class HybridConfig:
         "(runtime.hybrid.unseen_limbs; not in Wei). Tuning set, mean of trust regions 0.18, "
         "0.2, 0.22 rad: 48.20 -> 47.44 mm, better in each (docs/experiments.md)",
     )
+    unseen_limb_prior: float | None = field_doc(
+        None,
+        "weight of the learned pose prior (tracker.pose_prior_model) on the angles of the "
+        "limbs the last tracked pose did not see (the angles hold_unseen_limbs holds), the "
+        "rest of the pose held: such a limb takes the angles the visible body makes likely "
+        "(runtime.tracker.pose_prior_term; None: off)",
+    )
     catch_up: bool = field_doc(
         True,
         "when frames were skipped since the last pose (a live stream that fell behind), a "
@@ -312,3 +325,8 @@ class HybridConfig:
         help="tracker settings (shipped: the label and collision terms on)",
         default_factory=_shipped_tracker,
     )
+
+    def __post_init__(self) -> None:
+        w = self.unseen_limb_prior
+        _check(w is None or (w > 0 and math.isfinite(w)),
+               "unseen_limb_prior must be > 0 or None", w)  # fmt: skip

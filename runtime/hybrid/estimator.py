@@ -107,6 +107,19 @@ def overlaps_of(sizes: Tracker, obs, starts: torch.Tensor, iterations: int) -> n
         return sizes.fit_overlaps(obs, starts, iterations).numpy()
 
 
+def _check_pose_prior(tracker: Tracker) -> None:
+    """Load the tracker's pose prior file (``unseen_limb_prior``), or raise HybridError."""
+    from depthmocap.runtime.tracker.pose_prior_term import tracker_pose_prior
+    from depthmocap.shared.pose_prior import PosePriorError
+
+    from .config import HybridError
+
+    try:
+        tracker_pose_prior(tracker.cfg.pose_prior_model, tracker.body.lengths)
+    except PosePriorError as err:
+        raise HybridError(f"unseen_limb_prior: pose_prior_model: {err}") from None
+
+
 class HybridEstimator:
     """Tracker with detector (re)initialization for one stream (a ``PoseEstimator``).
 
@@ -142,6 +155,8 @@ class HybridEstimator:
             None if cfg.arm_search is None else ArmSearch(cfg.arm_search, tracker.body)
         )
         self.state = TrackState()
+        if cfg.unseen_limb_prior is not None:  # a bad prior file fails here, not mid-stream
+            _check_pose_prior(tracker)
         self.scale_search = (
             None if cfg.body_scale is None else BodyScaleSearch(cfg.body_scale, tracker.body)
         )
@@ -205,7 +220,10 @@ class HybridEstimator:
         (a live stream skips some: :func:`~runtime.tracker.prior_term.velocity_scale`)."""
         obs = frame.observation(self.tracker, self._tracker_labels(frame))
         ahead = velocity_scale(frame.index, self.state.index_prev, self.state.index_prev2)
-        return self.tracker.fit(obs, start, before, iterations, velocity_scale=ahead)
+        w, held = self.cfg.unseen_limb_prior, self.state.held
+        prior = None if w is None or held is None or not bool(held.any()) else (w, held)
+        return self.tracker.fit(obs, start, before, iterations, velocity_scale=ahead,
+                                pose_prior=prior)  # fmt: skip
 
     def _fit_starts(self, frame: Frame, starts: torch.Tensor,
                     iterations: int | None = None) -> list[TrackResult]:  # fmt: skip
