@@ -29,7 +29,6 @@ from .config import (
     HybridError,
     KeepBetterConfig,
     MisplacedArmConfig,
-    RunnerUpConfig,
 )
 from .estimator import HybridEstimator, TrackState
 from .policy import Decision, Detection, TrackVerdict, choose, judge_track
@@ -44,7 +43,6 @@ __all__ = [
     "HybridEstimator",
     "KeepBetterConfig",
     "MisplacedArmConfig",
-    "RunnerUpConfig",
     "TrackState",
     "TrackVerdict",
     "choose",

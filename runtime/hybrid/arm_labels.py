@@ -126,7 +126,6 @@ def arm_label_conflict(
     margin_m: float,
     other_arm_counts: bool = True,
     geom: SegmentGeometry | None = None,
-    forearm_only: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """How much of what the ``side`` arm explains the forest calls something else.
 
@@ -142,17 +141,12 @@ def arm_label_conflict(
     kicking thigh, 40-60 cm from the real one): the depth data fit, the failure signals
     pass, and only the forest, which labels those pixels leg or torso, says the arm is not
     there (dev takes: the forest labels 80-95% of a well placed visible arm's points as
-    that arm). ``geom``: the body's ``segment_geometry``, when the caller keeps it. With
-    ``forearm_only``, the arm's points are those its forearm explains: a forearm folded
-    onto the belly while the upper arm is in place (hop, frontal: the forest labels the
-    points it explains belly) is outvoted by the upper arm's well labelled points.
+    that arm). ``geom``: the body's ``segment_geometry``, when the caller keeps it.
     """
     ref = kin.origins
     flat = points.to(ref).expand(ref.shape[0], -1, -1)
     signed = segment_distances(flat, kin, body.to(dtype=ref.dtype, device=ref.device), geom)
-    return label_conflict_from_distances(
-        signed, labels, side, margin_m, other_arm_counts, forearm_only=forearm_only
-    )
+    return label_conflict_from_distances(signed, labels, side, margin_m, other_arm_counts)
 
 
 def label_conflict_from_distances(
@@ -162,14 +156,12 @@ def label_conflict_from_distances(
     margin_m: float,
     other_arm_counts: bool = True,
     nearest: tuple[torch.Tensor, torch.Tensor] | None = None,
-    forearm_only: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`arm_label_conflict` from the points' signed distances to every model part,
     ``signed`` (B, N, P) from :func:`runtime.raycast.segment_distances`: one evaluation
     serves both arms. ``nearest``: ``signed.min(-1)`` (values, indices), when the caller
     keeps it for both arms."""
-    upper, fore = LIMB_SEGMENTS[0 if side == "l" else 1]
-    segs = torch.as_tensor([fore] if forearm_only else [upper, fore], device=signed.device)
+    segs = torch.as_tensor(list(LIMB_SEGMENTS[0 if side == "l" else 1]), device=signed.device)
     values, indices = signed.min(-1) if nearest is None else nearest
     own = torch.isin(indices, segs) & (values < margin_m)  # (B, N)
     mine = _ARM_CLASSES[side] if other_arm_counts else (*_ARM_CLASSES["l"], *_ARM_CLASSES["r"])

@@ -93,7 +93,6 @@ class _Suspect:
     arm_points: torch.Tensor  # (N, 3) the forest's pixels of the arm not near the other arm
     agreement_floor: float | None  # a refit keeps at least this share of them near the arm
     conflicts: float | None  # the track's labelled-otherwise points (misplaced arms), or None
-    forearm_only: bool  # the conflicts are the forearm's alone (MisplacedArmConfig.forearm)
     points: torch.Tensor  # (M, 3) all the person's points, for the conflict of a refit
     point_labels: torch.Tensor  # (M,) their part labels
 
@@ -181,21 +180,17 @@ class ArmSearch:
                     points[None].to(kin.origins), kin, self.body, self.geometry
                 )
                 nearest = signed.min(-1)
-            conflicts, forearm_only = None, False
+            conflicts = None
             last = self.misplaced_failed_at.get(side)
             if misplaced is not None and (
                 last is None or frame.index - last > misplaced.cooldown_frames
             ):
-                # The whole arm first, then (with misplaced.forearm) the forearm alone.
-                for fore in (False, True)[: 1 + misplaced.forearm]:
-                    share, count = label_conflict_from_distances(
-                        signed, point_labels, side, CONFLICT_MARGIN_M, OTHER_ARM_COUNTS,
-                        nearest, fore,
-                    )  # fmt: skip
-                    share, count = float(share[0]), int(count[0])
-                    if count >= MISPLACED_MIN_POINTS and share > misplaced.conflict:
-                        conflicts, forearm_only = share * count, fore
-                        break
+                share, count = label_conflict_from_distances(
+                    signed, point_labels, side, CONFLICT_MARGIN_M, OTHER_ARM_COUNTS, nearest
+                )
+                share, count = float(share[0]), int(count[0])
+                if count >= MISPLACED_MIN_POINTS and share > misplaced.conflict:
+                    conflicts = share * count
             if not hidden and conflicts is None:
                 continue
             explained = torch.zeros_like(mask)
@@ -215,7 +210,7 @@ class ArmSearch:
             # No forest pixels of the arm (NaN agreement): nothing to keep the refit near.
             check = cfg.agreement_slack is not None and math.isfinite(mine)
             floor = mine - cfg.agreement_slack if check else None
-            yield _Suspect(side, arm_points, floor, conflicts, forearm_only, points, point_labels)
+            yield _Suspect(side, arm_points, floor, conflicts, points, point_labels)
 
     def _accepts(self, suspect: _Suspect, q: torch.Tensor) -> bool:
         """Whether a refit's pose ``q`` keeps the arm's labelled pixels near it and, for a
@@ -232,7 +227,7 @@ class ArmSearch:
             return True
         share, count = arm_label_conflict(
             suspect.points, suspect.point_labels, pose, self.body, side, CONFLICT_MARGIN_M,
-            OTHER_ARM_COUNTS, self.geometry, suspect.forearm_only,
+            OTHER_ARM_COUNTS, self.geometry,
         )  # fmt: skip
         theirs = float(share[0]) * int(count[0]) if int(count[0]) else 0.0
         return theirs <= self.cfg.misplaced.relief * suspect.conflicts

@@ -20,7 +20,6 @@ from depthmocap.shared.config import ConfigError, field_doc
 
 from .behind_model import BehindModelConfig
 from .body_scale import BodyScaleConfig
-from .runner_up import RunnerUpConfig
 
 __all__ = [
     "ArmSearchConfig",
@@ -30,7 +29,6 @@ __all__ = [
     "HybridError",
     "KeepBetterConfig",
     "MisplacedArmConfig",
-    "RunnerUpConfig",
 ]
 
 
@@ -168,12 +166,6 @@ class MisplacedArmConfig:
         "a refit is taken only if the points of its arm labelled otherwise are at most this "
         "fraction of the track's (0-1)",
     )
-    forearm: bool = field_doc(
-        False,
-        "also apply the conflict test to the points the forearm alone explains (and measure "
-        "a refit's relief on them): a forearm folded onto the body while the upper arm is in "
-        "place is outvoted by the upper arm's points in the whole arm's share",
-    )
 
     def __post_init__(self) -> None:
         _check(0 <= self.conflict <= 1, "misplaced.conflict must be in [0, 1]", self.conflict)
@@ -255,12 +247,6 @@ class HybridConfig:
         help="refit a hidden or misplaced arm on suspect frames (None: off, as in Wei)",
         default_factory=_shipped_arm_search,
     )
-    runner_up: RunnerUpConfig | None = field_doc(
-        None,
-        "fit the pose a choice between track and detection did not take on for a few frames, "
-        "and switch to it when it keeps explaining the frames better (runtime.hybrid."
-        "runner_up; None: off, as in Wei)",
-    )
     behind_model: BehindModelConfig | None = field_doc(
         help="drop mask pixels that stay still far behind the tracked body (furniture touching "
         "the person: runtime.hybrid.behind_model; None: off, as in Wei). Shipped on: real "
@@ -303,13 +289,6 @@ class HybridConfig:
         "(runtime.hybrid.unseen_limbs; not in Wei). Tuning set, mean of trust regions 0.18, "
         "0.2, 0.22 rad: 48.20 -> 47.44 mm, better in each (docs/experiments.md)",
     )
-    unseen_limb_prior: float | None = field_doc(
-        None,
-        "weight of the learned pose prior (tracker.pose_prior_model) on the angles of the "
-        "limbs the last tracked pose did not see (the angles hold_unseen_limbs holds), the "
-        "rest of the pose held: such a limb takes the angles the visible body makes likely "
-        "(runtime.tracker.pose_prior_term; None: off)",
-    )
     catch_up: bool = field_doc(
         True,
         "when frames were skipped since the last pose (a live stream that fell behind), a "
@@ -325,8 +304,3 @@ class HybridConfig:
         help="tracker settings (shipped: the label and collision terms on)",
         default_factory=_shipped_tracker,
     )
-
-    def __post_init__(self) -> None:
-        w = self.unseen_limb_prior
-        _check(w is None or (w > 0 and math.isfinite(w)),
-               "unseen_limb_prior must be > 0 or None", w)  # fmt: skip

@@ -53,7 +53,6 @@ from .body_scale import BodyScaleSearch
 from .config import HybridConfig
 from .pieces import PiecesInFlight
 from .policy import Detection, behind, choose, judge_track
-from .runner_up import RunnerUp, runner_up_verdict
 from .split_refits import SplitRefits
 from .unseen_limbs import held_dofs, hold_unseen
 
@@ -71,8 +70,6 @@ class TrackState:
         refused_at: the frame whose detection was last refused (None: none since the reset).
         held: (34,) bool angles of the limbs the last tracked pose did not see
             (``cfg.hold_unseen_limbs``; None: none held).
-        runner_up: the pose the last choice did not take, fitted on (``cfg.runner_up``;
-            None: none).
     """
 
     q_prev: torch.Tensor | None = None
@@ -81,7 +78,6 @@ class TrackState:
     index_prev2: int | None = None
     refused_at: int | None = None
     held: torch.Tensor | None = None
-    runner_up: RunnerUp | None = None
 
 
 def _lower_priority() -> None:
@@ -105,19 +101,6 @@ def overlaps_of(sizes: Tracker, obs, starts: torch.Tensor, iterations: int) -> n
     it runs on the size search's worker thread too)."""
     with torch.inference_mode():
         return sizes.fit_overlaps(obs, starts, iterations).numpy()
-
-
-def _check_pose_prior(tracker: Tracker) -> None:
-    """Load the tracker's pose prior file (``unseen_limb_prior``), or raise HybridError."""
-    from depthmocap.runtime.tracker.pose_prior_term import tracker_pose_prior
-    from depthmocap.shared.pose_prior import PosePriorError
-
-    from .config import HybridError
-
-    try:
-        tracker_pose_prior(tracker.cfg.pose_prior_model, tracker.body.lengths)
-    except PosePriorError as err:
-        raise HybridError(f"unseen_limb_prior: pose_prior_model: {err}") from None
 
 
 class HybridEstimator:
@@ -155,8 +138,6 @@ class HybridEstimator:
             None if cfg.arm_search is None else ArmSearch(cfg.arm_search, tracker.body)
         )
         self.state = TrackState()
-        if cfg.unseen_limb_prior is not None:  # a bad prior file fails here, not mid-stream
-            _check_pose_prior(tracker)
         self.scale_search = (
             None if cfg.body_scale is None else BodyScaleSearch(cfg.body_scale, tracker.body)
         )
@@ -220,10 +201,7 @@ class HybridEstimator:
         (a live stream skips some: :func:`~runtime.tracker.prior_term.velocity_scale`)."""
         obs = frame.observation(self.tracker, self._tracker_labels(frame))
         ahead = velocity_scale(frame.index, self.state.index_prev, self.state.index_prev2)
-        w, held = self.cfg.unseen_limb_prior, self.state.held
-        prior = None if w is None or held is None or not bool(held.any()) else (w, held)
-        return self.tracker.fit(obs, start, before, iterations, velocity_scale=ahead,
-                                pose_prior=prior)  # fmt: skip
+        return self.tracker.fit(obs, start, before, iterations, velocity_scale=ahead)
 
     def _fit_starts(self, frame: Frame, starts: torch.Tensor,
                     iterations: int | None = None) -> list[TrackResult]:  # fmt: skip
@@ -413,43 +391,6 @@ class HybridEstimator:
             self._offer_size(frame, q, estimate.joints)
         return estimate
 
-    def _runner_up_taken(self, frame: Frame, badness: float, errors: dict) -> PoseEstimate | None:
-        """Fit the runner-up (if any) on ``frame`` and weigh it against the track's fit of
-        ``badness``: the frame's estimate from the runner-up when the track switches to it,
-        else None, the fit noted in the track's ``errors`` (:mod:`~runtime.hybrid.runner_up`)."""
-        state, cfg = self.state, self.cfg.runner_up
-        runner = state.runner_up
-        if cfg is None or runner is None:
-            return None
-        if runner.expired(frame.index, cfg):
-            state.runner_up = None
-            return None
-        obs = frame.observation(self.tracker, self._tracker_labels(frame))
-        ahead = velocity_scale(frame.index, runner.index, runner.index_prev)
-        fit = self.tracker.fit(obs, runner.q, runner.q_prev, velocity_scale=ahead)
-        wins, switch = runner_up_verdict(
-            badness, self.cfg.failure.badness(fit.signals), runner.wins, cfg
-        )
-        if not switch:
-            state.runner_up = runner.moved_on(fit.q.detach(), frame.index, wins)
-            errors["runner_up_fitted"] = 1.0
-            return None
-        # The track goes on from the runner-up's history, not the pose it replaces.
-        state.runner_up, state.held = None, None
-        state.q_prev, state.index_prev = runner.q, runner.index
-        return self._tracked(fit, {**fit.signals.as_errors(), "runner_up_taken": 1.0}, frame)
-
-    def _runner_up_of(self, keep_track: bool, res: TrackResult, det: DetectionResult,
-                      frame: Frame) -> RunnerUp | None:  # fmt: skip
-        """The pose a choice between the track ``res`` and the detection ``det`` did not
-        take, before the state moves on (None: nothing refined to carry)."""
-        if self.cfg.runner_up is None or det.refined is None:
-            return None
-        if keep_track:
-            return RunnerUp(det.q.detach(), None, frame.index, None, frame.index)
-        state = self.state
-        return RunnerUp(res.q.detach(), state.q_prev, frame.index, state.index_prev, frame.index)
-
     def estimate(self, frame: Frame) -> PoseEstimate:
         """Pose of the person in ``frame`` (module docstring)."""
         state, cfg = self.state, self.cfg
@@ -485,13 +426,11 @@ class HybridEstimator:
                 errors["arms_searched"] = float(found.arms_searched)
         verdict = judge_track(res.signals, badness, cfg.failure, cfg.keep_better)
         if not verdict.run_detector or hurry:  # a hurried fit passed: res is unchanged
-            taken = None if hurry else self._runner_up_taken(frame, badness, errors)
-            return taken or self._tracked(res, errors, frame)
+            return self._tracked(res, errors, frame)
         wait = 0 if cfg.keep_better is None else cfg.keep_better.wait_frames
         if state.refused_at is not None and frame.index - state.refused_at <= wait:
             # The detector was just refused: the track is kept without asking it again.
-            taken = self._runner_up_taken(frame, badness, errors)
-            return taken or self._keep(res, errors, {"detector_waited": 1.0}, frame)
+            return self._keep(res, errors, {"detector_waited": 1.0}, frame)
         failed = {f"tracker_{k}": v for k, v in errors.items()}
         det = self._run_detector(frame, res.q.detach())
         if cfg.keep_better is None:
@@ -502,8 +441,6 @@ class HybridEstimator:
         decision = choose(res.signals, detection, cfg.failure, cfg.keep_better)
         if decision.forget and self.arm_search is not None:
             self.arm_search.reset()
-        # The choice replaces the runner-up of an earlier one: it is the newer disagreement.
-        state.runner_up = self._runner_up_of(decision.keep_track, res, det, frame)
         if decision.keep_track:
             state.refused_at = frame.index
             kept = {"kept_over_detector": 1.0} if verdict.failed else {"rechecked": 1.0}

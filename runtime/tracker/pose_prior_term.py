@@ -64,23 +64,10 @@ def pose_prior_system(
     precisions: torch.Tensor,
     log_norms: torch.Tensor,
     weight: float,
-    dofs: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The prior's normal equations at poses ``q`` (B, 34): (B, 34, 34) and (B, 34) float64,
     zero outside the 28 angles (on the CPU without autograd: one compiled call,
-    :mod:`runtime.tracker.pose_prior_kernel`).
-
-    ``dofs`` (B, 34) bool: the angles the prior may move, the others held at their value in
-    the energy. Keeping only those rows and columns is the Gauss-Newton step of the
-    *conditional* prior: the most likely angles of a limb given the rest of the pose."""
-    hess, grad = _pose_prior_system(q, means, precisions, log_norms, weight)
-    if dofs is None:
-        return hess, grad
-    on = dofs.to(device=hess.device, dtype=hess.dtype)
-    return hess * on[:, :, None] * on[:, None, :], grad * on
-
-
-def _pose_prior_system(q, means, precisions, log_norms, weight):
+    :mod:`runtime.tracker.pose_prior_kernel`)."""
     if q.device.type == "cpu" and not q.requires_grad:
         kernel = compiled_module("depthmocap.runtime.tracker.pose_prior_kernel")
         if kernel is not None:

@@ -165,7 +165,6 @@ def fit_frames(
     geom: SegmentGeometry | None = None,
     velocity_scale: float = 1.0,
     signals: bool = True,
-    prior_dofs: torch.Tensor | None = None,
 ) -> FrameFit:
     """Gauss-Newton fit of B poses to B observed frames.
 
@@ -188,8 +187,6 @@ def fit_frames(
             the two (1: consecutive frames, Wei's prior).
         signals: compute the failure signals; False: only the overlaps (the size search
             reads nothing else), ``FrameFit.signals`` None.
-        prior_dofs: (B, 34) bool, the angles the learned pose prior acts on
-            (:func:`~runtime.tracker.pose_prior_term.pose_prior_system`); None: all.
     """
     B = q_prev.shape[0]
     if SHOULDER_BRANCH_TURN_RAD > 0:
@@ -210,11 +207,11 @@ def fit_frames(
     for _ in range(cfg.iterations):
         if arrays is not None:  # the same iteration as below, in one compiled call
             q_step, dq, decrease, render, regions, extra = _fused_step(
-                fused, arrays, q_cast, q_pred, body, geom, obs, cfg, prior_dofs
+                fused, arrays, q_cast, q_pred, body, geom, obs, cfg
             )
         else:
             q_step, dq, decrease, render, regions, extra = _iteration_by_terms(
-                q_cast, q_pred, observed, body, geom, obs, cfg, prior_dofs
+                q_cast, q_pred, observed, body, geom, obs, cfg
             )
         q = torch.where(converged[:, None], q, q_step)
         iterations += 1
@@ -256,7 +253,6 @@ def _iteration_by_terms(
     geom: SegmentGeometry,
     obs: Observation,
     cfg: TrackerConfig,
-    prior_dofs: torch.Tensor | None = None,
 ):
     """One Gauss-Newton iteration at ``q_cast`` (B, 34), term by term (any device, dtype,
     autograd): the new poses, the steps, their predicted decreases, and the rendering, pixel
@@ -284,7 +280,7 @@ def _iteration_by_terms(
         h, g = normal_equations(render.kin, contact, B, columns)
         hess, grad = hess + h, grad + g
     if cfg.pose_prior_weight > 0:
-        h, g = _pose_prior_rows(q_cast, cfg, prior_dofs)
+        h, g = _pose_prior_rows(q_cast, cfg)
         hess, grad = hess + h, grad + g
     q_step, dq, decrease = gauss_newton_step(
         hess, grad, q_cast, q_pred if cfg.use_prior else None, cfg.damping,
@@ -293,15 +289,11 @@ def _iteration_by_terms(
     return q_step, dq, decrease, render, regions, extra
 
 
-def _pose_prior_rows(
-    q: torch.Tensor, cfg: TrackerConfig, dofs: torch.Tensor | None = None
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """The learned pose prior's normal equations at ``q`` (B, 34), on the angles ``dofs``
-    (B, 34) bool (None: all)."""
+def _pose_prior_rows(q: torch.Tensor, cfg: TrackerConfig) -> tuple[torch.Tensor, torch.Tensor]:
+    """The learned pose prior's normal equations at ``q`` (B, 34)."""
     from .pose_prior_term import pose_prior_system, tracker_pose_prior
 
-    prior = tracker_pose_prior(cfg.pose_prior_model, q)
-    return pose_prior_system(q, *prior, cfg.pose_prior_weight, dofs)
+    return pose_prior_system(q, *tracker_pose_prior(cfg.pose_prior_model, q), cfg.pose_prior_weight)
 
 
 def _fused_iteration(obs: Observation, q: torch.Tensor, body: BodyShape, geom: SegmentGeometry):
@@ -348,11 +340,10 @@ def _fit_arrays(fused, obs: Observation, observed, body, geom, B: int, cfg: Trac
     return fused.fit_arrays(obs, observed, body, geom, B, cfg, labels_on, sampling)
 
 
-def _fused_step(fused, arrays, q_cast, q_pred, body, geom, obs, cfg, prior_dofs=None):
+def _fused_step(fused, arrays, q_cast, q_pred, body, geom, obs, cfg):
     """:func:`_iteration_by_terms` through the compiled iteration (the same results)."""
     w = prior_weights(q_cast[:1], cfg.sigma_prior_rad, cfg.sigma_prior_m)[0]
-    on = cfg.pose_prior_weight > 0
-    pose_prior = _pose_prior_rows(q_cast, cfg, prior_dofs) if on else None
+    pose_prior = _pose_prior_rows(q_cast, cfg) if cfg.pose_prior_weight > 0 else None
     out = fused.iteration_cpu(
         arrays, q_cast, q_pred if cfg.use_prior else None, w * w, cfg.damping,
         cfg.max_step_rad, obs.intr.height, obs.intr.width, pose_prior,
@@ -504,28 +495,21 @@ class Tracker:
         q_prev2: torch.Tensor | None = None,
         iterations: int | None = None,
         velocity_scale: float = 1.0,
-        pose_prior: tuple[float, torch.Tensor] | None = None,
     ) -> TrackResult:
         """Fit one frame's observation (from :meth:`observe`, batch 1) from ``q_prev`` (34,)
         and ``q_prev2`` (34,) or None, with at most ``iterations`` Gauss-Newton steps
         (default: the config's), the prior predicting ``velocity_scale`` times the last
         step's motion ahead (:func:`fit_frames`). The frame's refits share one observation
-        this way. ``pose_prior``: (weight, (34,) bool angles), the learned pose prior on
-        those angles alone at that weight for this fit, instead of the config's."""
+        this way."""
         for name, q in (("q_prev", q_prev), ("q_prev2", q_prev2)):
             if q is not None and tuple(q.shape) != (sk.NUM_DOFS,):
                 raise TrackerError(f"{name} must have shape ({sk.NUM_DOFS},), got {q.shape}")
         cfg = (
             self.cfg if iterations is None else dataclasses.replace(self.cfg, iterations=iterations)
         )
-        dofs = None
-        if pose_prior is not None:
-            cfg = dataclasses.replace(cfg, pose_prior_weight=float(pose_prior[0]))
-            dofs = pose_prior[1].to(device=self.device, dtype=torch.bool)[None]
         qp = q_prev.to(device=self.device, dtype=self.dtype)[None]
         qp2 = None if q_prev2 is None else q_prev2.to(device=self.device, dtype=self.dtype)[None]
-        fit = fit_frames(obs, qp, qp2, self.body, cfg, self.geometry, velocity_scale,
-                         prior_dofs=dofs)  # fmt: skip
+        fit = fit_frames(obs, qp, qp2, self.body, cfg, self.geometry, velocity_scale)
         return self._result(fit, 0, _host_scalars(fit))
 
     def fit_starts(

@@ -179,10 +179,6 @@ def test_arm_label_conflict_is_the_share_of_the_arm_s_points_labelled_otherwise(
     )
     forgiven = arm_label_conflict(points, swapped, kin, body, "l", 0.03, other_arm_counts=False)
     assert float(forgiven[0][0]) == 0.0 and forgiven[1].tolist() == [3]
-    # The forearm alone explains the wrist and the forearm's middle, where the elbow's point
-    # is nearest the upper arm: one chest label of two.
-    share, count = arm_label_conflict(points, labels, kin, body, "l", 0.03, forearm_only=True)
-    assert count.tolist() == [2] and float(share[0]) == pytest.approx(1 / 2)
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
@@ -215,11 +211,3 @@ def test_one_distance_evaluation_serves_every_arm_test(dtype):
             got = label_conflict_from_distances(signed, labels, side, 0.03, counts, nearest)
             assert int(got[1][0]) > 10 and torch.equal(got[1], want[1])
             torch.testing.assert_close(got[0], want[0], rtol=0, atol=0)
-            fore_want = arm_label_conflict(
-                points, labels, kin, body, side, 0.03, counts, geom, forearm_only=True
-            )
-            fore = label_conflict_from_distances(
-                signed, labels, side, 0.03, counts, nearest, forearm_only=True
-            )
-            assert 0 < int(fore[1][0]) < int(got[1][0]) and torch.equal(fore[1], fore_want[1])
-            torch.testing.assert_close(fore[0], fore_want[0], rtol=0, atol=0)

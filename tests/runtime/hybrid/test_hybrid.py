@@ -24,7 +24,6 @@ from depthmocap.runtime.hybrid import (
 from depthmocap.runtime.hybrid import arm_search as arm_search_module
 from depthmocap.runtime.hybrid import hybrid_config as config_from_mapping
 from depthmocap.runtime.hybrid import policy as policy_module
-from depthmocap.runtime.hybrid.arm_labels import arm_label_conflict
 from depthmocap.runtime.hybrid.behind_model import BehindModelConfig
 from depthmocap.runtime.raycast import part_labels, render_body
 from depthmocap.runtime.streams.base import DepthFrame
@@ -33,7 +32,7 @@ from depthmocap.runtime.tracker.prior_term import MAX_VELOCITY_SCALE, velocity_s
 from depthmocap.runtime.tracker.signals import FitSignals
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.body import BodyShape
-from depthmocap.shared.camera import Intrinsics, depth_to_points
+from depthmocap.shared.camera import Intrinsics
 from depthmocap.shared.image_cut import image_cut_distance_m
 from depthmocap.shared.joint_confidence import GROUPS, JointConfidence
 from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
@@ -82,8 +81,7 @@ def cfg_of(**flat) -> HybridConfig:
         arm["agreement_slack"] = _off(flat.pop("arm_agreement_slack"))
     misplaced_names = {"misplaced_arm_conflict": "conflict",
                        "misplaced_arm_cooldown": "cooldown_frames",
-                       "misplaced_arm_relief": "relief",
-                       "misplaced_arm_forearm": "forearm"}  # fmt: skip
+                       "misplaced_arm_relief": "relief"}  # fmt: skip
     misplaced = {new: flat.pop(old) for old, new in misplaced_names.items() if old in flat}
     badness = _off(flat.pop("arm_search_badness", None))
     if _off(misplaced.get("conflict", math.inf)) is None:
@@ -139,17 +137,14 @@ class ScriptedTracker:
     def __init__(self) -> None:
         self.real = Tracker(BODY, INTR)
         self.velocity_scales: list[float] = []  # of the frame's own fits
-        self.pose_priors: list = []  # of the frame's own fits: (weight, angles) or None
 
     def observe(self, depth, mask, labels=None):
         return self.real.observe(depth, mask, labels), (labels if self.cfg.use_labels else None)
 
-    def fit(self, obs, q_prev, q_prev2=None, iterations=None, velocity_scale=1.0,
-            pose_prior=None):  # fmt: skip
+    def fit(self, obs, q_prev, q_prev2=None, iterations=None, velocity_scale=1.0):
         if iterations is not None:
-            return self.real.fit(obs[0], q_prev, q_prev2, iterations, velocity_scale, pose_prior)
+            return self.real.fit(obs[0], q_prev, q_prev2, iterations, velocity_scale)
         self.velocity_scales.append(velocity_scale)
-        self.pose_priors.append(pose_prior)
         return self.step(None, None, q_prev, q_prev2, labels=obs[1])
 
     def fit_starts(self, obs, starts, iterations=None):
@@ -898,32 +893,6 @@ def test_an_arm_shown_on_pixels_the_forest_calls_something_else_is_searched(
     assert (flex == pytest.approx(ArmHidingTracker.GOOD[0], abs=1e-6)) == searched
 
 
-@pytest.mark.parametrize("forearm", [False, True])
-def test_a_forearm_on_pixels_the_forest_calls_something_else_is_searched_with_forearm(
-    scene, forearm
-):
-    """Only the forearm's pixels are called chest (a forearm folded onto the belly): the
-    whole arm's share stays under the threshold, the forearm's alone is over it."""
-    q, depth, labels, mask = scene
-    seen = labels.clone()
-    seen[labels == PART_NAMES.index("l_forearm")] = PART_NAMES.index("chest")
-    kin = forward_kinematics(q[None], BODY)
-    points = depth_to_points(depth, INTR)[mask]
-    arm_share = float(arm_label_conflict(points, seen[mask], kin, BODY, "l", 0.03)[0][0])
-    fore_share = float(
-        arm_label_conflict(points, seen[mask], kin, BODY, "l", 0.03, forearm_only=True)[0][0]
-    )
-    assert arm_share < 0.7 < fore_share  # the premise
-    # No agreement test: the refits move the upper arm off its (still labelled) pixels.
-    cfg = cfg_of(arm_search_badness=1.0, misplaced_arm_conflict=0.7,
-                 misplaced_arm_forearm=forearm, arm_agreement_slack=math.inf)  # fmt: skip
-    tracker = ArmHidingTracker(shown=1.0)
-    out = _second_frame_with_labels(scene, tracker, cfg, seen)
-    assert len(tracker.starts) == (8 if forearm else 0)
-    # The refit from the good start leaves the chest pixels: its forearm's relief is taken.
-    assert ("arm_searched" in out.errors) == forearm
-
-
 class ArmShowingTracker(ArmHidingTracker):
     """Shows both arms fully on every frame; its refits (the arm search's starts, whose left
     abduction is zero, unlike the scene's) are counted per frame in ``refits``."""
@@ -1119,27 +1088,6 @@ def test_the_hybrid_holds_an_unseen_arm(scene):
         assert torch.equal(before[arm], prev[arm])
         assert torch.equal(before[rest], before_p[rest])
         assert float(prev_p[elbow] - before_p[elbow]) > 0.05  # off: the velocity carried on
-
-
-@pytest.mark.parametrize("weight", [None, 2.5])
-def test_the_pose_prior_acts_on_an_unseen_arm_alone(scene, weight):
-    """With ``unseen_limb_prior`` the frame's fit gets the learned prior at that weight on
-    the angles the unseen-limb hold holds (the left arm's), none after a detection."""
-    q, depth, labels, mask = scene
-    tracker = _UnseenLeftArm()
-    est, _ = make_hybrid(scene, tracker, unseen_limb_prior=weight)
-    for i in range(3):
-        estimate_frame(est, frame_of(depth, i, mask))
-    assert len(tracker.pose_priors) == 2 and tracker.pose_priors[0] is None  # no pose held yet
-    got = tracker.pose_priors[1]
-    if weight is None:
-        assert got is None
-        return
-    arm = [sk.DOF_NAMES.index(n) for n in
-           ("l_humerus_abd", "l_humerus_flex", "l_humerus_twist", "l_radius_flex")]  # fmt: skip
-    assert got[0] == weight and got[1].nonzero()[:, 0].tolist() == sorted(arm)
-    with pytest.raises(HybridError, match="unseen_limb_prior"):
-        config_from_mapping({"unseen_limb_prior": 0.0})
 
 
 def test_a_still_chair_behind_the_legs_leaves_the_mask(scene):

@@ -149,28 +149,6 @@ def test_with_the_pose_prior(monkeypatch, make_pose, render_frame):
     assert not torch.equal(plain.q, fused.q)
 
 
-def test_with_the_pose_prior_on_some_angles(monkeypatch, make_pose, render_frame):
-    """``prior_dofs`` reaches both paths alike: none of the angles is the fit without the
-    prior, all of them the fit with it everywhere, and the left arm's alone neither."""
-    obs, q_true, body = _observation(make_pose, render_frame)
-    starts = torch.cat([_start(q_true, s) for s in (-1.0, 0.7)])
-    obs2 = expand_observation(obs, 2)
-    cfg = TrackerConfig(iterations=3, pose_prior_weight=3.0)
-    everywhere = fit_frames(obs2, starts, None, body, cfg)
-    plain = fit_frames(obs2, starts, None, body, TrackerConfig(iterations=3))
-    none = torch.zeros(2, sk.NUM_DOFS, dtype=torch.bool)
-    arm = none.clone()
-    arm[:, [sk.DOF_NAMES.index(f"l_{n}") for n in ("humerus_abd", "humerus_flex")]] = True
-    for dofs, same_as in ((none, plain), (~none, everywhere), (arm, None)):
-        ref, fused, calls = _both(monkeypatch, obs2, starts, None, body, cfg, prior_dofs=dofs)
-        assert calls == ref.iterations
-        _assert_same(ref, fused)
-        if same_as is not None:
-            _assert_same(same_as, fused)
-        else:
-            assert not torch.equal(fused.q, plain.q) and not torch.equal(fused.q, everywhere.q)
-
-
 def test_without_labels(monkeypatch, make_pose, render_frame):
     obs, q_true, body = _observation(make_pose, render_frame, labels=False)
     ref, fused, _ = _both(monkeypatch, obs, _start(q_true, 1.0), None, body, TrackerConfig())

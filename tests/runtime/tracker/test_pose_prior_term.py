@@ -76,34 +76,6 @@ def test_a_step_on_the_prior_alone_reaches_the_mean():
     torch.testing.assert_close(q[0, sk.ANGLE_DOFS] + dq, means[c])
 
 
-def test_a_step_on_some_angles_reaches_their_conditional_mean():
-    """With ``dofs``, a step moves those angles alone, to the component's mean of them given
-    the others: mu_h + S_ho S_oo^-1 (a_o - mu_o) with S the covariance (golden, from the
-    covariance rather than the precision the equations use)."""
-    means, precisions, log_norms = _prior_tensors()
-    gen = torch.Generator().manual_seed(5)
-    q = torch.zeros(2, sk.NUM_DOFS, dtype=torch.float64)
-    q[:, sk.ANGLE_DOFS] = means[1] + 0.1 * torch.randn(2, A, generator=gen, dtype=torch.float64)
-    dofs = torch.zeros(2, sk.NUM_DOFS, dtype=torch.bool)
-    held = [sk.DOF_NAMES.index(f"l_{n}") for n in ("humerus_abd", "humerus_flex", "radius_flex")]
-    dofs[0, held] = True  # the second pose: no angle at all
-    full = pose_prior_system(q, means, precisions, log_norms, 1.5)
-    hess, grad = pose_prior_system(q, means, precisions, log_norms, 1.5, dofs)
-    on = dofs[0]
-    torch.testing.assert_close(hess[0][on][:, on], full[0][0][on][:, on])
-    torch.testing.assert_close(grad[0][on], full[1][0][on])
-    assert hess[0][~on].abs().max() == 0 and hess[0][:, ~on].abs().max() == 0
-    assert grad[0][~on].abs().max() == 0 and hess[1].abs().max() == grad[1].abs().max() == 0
-    c = int(pose_prior_components(q, means, precisions, log_norms)[0])
-    dq = torch.linalg.solve(hess[0][on][:, on], grad[0][on])
-    h = [d - sk.ANGLE_DOFS.start for d in held]
-    o = [i for i in range(A) if i not in h]
-    cov = torch.linalg.inv(precisions[c])
-    a = q[0, sk.ANGLE_DOFS]
-    want = means[c][h] + cov[h][:, o] @ torch.linalg.solve(cov[o][:, o], a[o] - means[c][o])
-    torch.testing.assert_close(q[0, held] + dq, want)
-
-
 def test_the_compiled_equations_match_torch_s():
     pytest.importorskip("numba")
     means, precisions, log_norms = _prior_tensors()
