@@ -23,7 +23,11 @@ from depthmocap.shared.sensor_noise.background import (
     random_background_scene,
     wall_depth,
 )
-from depthmocap.shared.sensor_noise.disparity import add_disparity_noise, quantize_depth
+from depthmocap.shared.sensor_noise.disparity import (
+    add_disparity_noise,
+    quantize_depth,
+    smooth_disparity,
+)
 from depthmocap.shared.sensor_noise.dropout import (
     edge_erosion_mask,
     grazing_dropout_mask,
@@ -43,6 +47,7 @@ __all__ = [
     "cylinder_depth",
     "apply_kinect_noise",
     "quantize_depth",
+    "smooth_disparity",
     "add_disparity_noise",
     "projector_shadow_mask",
     "incidence_angle",

@@ -47,7 +47,11 @@ from typing import Literal
 import numpy as np
 from depthmocap.shared.camera import Intrinsics
 from depthmocap.shared.config import field_doc
-from depthmocap.shared.sensor_noise.disparity import add_disparity_noise, quantize_depth
+from depthmocap.shared.sensor_noise.disparity import (
+    add_disparity_noise,
+    quantize_depth,
+    smooth_disparity,
+)
 from depthmocap.shared.sensor_noise.dropout import (
     edge_erosion_mask,
     grazing_dropout_mask,
@@ -73,6 +77,19 @@ class KinectNoiseConfig:
     )
     baseline_m: float = field_doc(0.075, "projector-camera baseline (m)")
     disparity_subpixel_steps: int = field_doc(8, "disparity steps per pixel (Kinect v1: 8)")
+    correlation_smoothing: bool = field_doc(
+        False,
+        "smooth disparity as the sensor's correlation window does (small steps on one body "
+        "become gradual, as real Kinect v1 depth shows them); off by default",
+    )
+    correlation_sigma_px: float = field_doc(
+        1.3,
+        "the window's Gaussian standard deviation in pixels at 320 px width (scaled with the "
+        "width): a 9-pixel window of the native 640 x 480 image",
+    )
+    correlation_gate_m: float = field_doc(
+        0.2, "depth steps larger than this (m) keep their edge under the smoothing"
+    )
     noise: bool = field_doc(True, "add Gaussian disparity noise (sigma_z = noise_k * z^2)")
     noise_k: float = field_doc(
         1.5e-3, "depth noise coefficient (1/m): sigma_z = noise_k * z^2, drawn in disparity"
@@ -136,6 +153,8 @@ class KinectNoiseConfig:
             raise ValueError("hole_rate must be >= 0 and 0 < hole_radius_px[0] <= [1]")
         if not 0.0 <= self.edge_erosion_prob <= 1.0 or self.edge_jump_m <= 0:
             raise ValueError("edge_erosion_prob must be in [0, 1] and edge_jump_m > 0")
+        if self.correlation_sigma_px < 0 or self.correlation_gate_m <= 0:
+            raise ValueError("correlation_sigma_px must be >= 0 and correlation_gate_m > 0")
         if not 0.0 <= self.min_depth_m < self.max_depth_m:
             raise ValueError("need 0 <= min_depth_m < max_depth_m")
         if self.projector_side not in ("right", "left"):
@@ -185,6 +204,14 @@ def apply_kinect_noise(
 
     # 2. Measurement: noisy, then quantized disparity (the sensor rounds its noisy estimate).
     z = clean
+    if cfg.correlation_smoothing:
+        z = smooth_disparity(
+            z,
+            cfg.correlation_sigma_px * intr.width / 320.0,
+            cfg.correlation_gate_m,
+            cfg.disparity_focal_px,
+            cfg.baseline_m,
+        )
     if cfg.noise and cfg.noise_k > 0:
         z = add_disparity_noise(
             z,

@@ -26,6 +26,7 @@ from depthmocap.shared.sensor_noise import (
     quantize_depth,
     random_background_scene,
     random_holes_mask,
+    smooth_disparity,
     wall_depth,
 )
 
@@ -217,6 +218,60 @@ def test_grazing_dropout_removes_slanted_plane_not_frontal():
     d = box_on_wall(INTR80, 1.5, 3.0, rows=(15, 35), cols=(30, 50))
     out, _ = apply_kinect_noise(d, None, INTR80, only(grazing=True), rng)
     assert (out > 0).all()
+
+
+def _smooth_reference(z, sigma, gate, fb=580.0 * 0.075):
+    """smooth_disparity by its definition, one pixel at a time."""
+    out = np.zeros_like(z)
+    r = math.ceil(2.5 * sigma)
+    for y, x in zip(*np.nonzero(z > 0), strict=True):
+        num = den = 0.0
+        for v in range(max(0, y - r), min(z.shape[0], y + r + 1)):
+            for u in range(max(0, x - r), min(z.shape[1], x + r + 1)):
+                if z[v, u] > 0 and abs(z[v, u] - z[y, x]) <= gate:
+                    g = math.exp(-((v - y) ** 2 + (u - x) ** 2) / (2 * sigma * sigma))
+                    num, den = num + g * fb / z[v, u], den + g
+        out[y, x] = fb / (num / den)
+    return out
+
+
+def test_correlation_smoothing_matches_its_definition():
+    rng = np.random.default_rng(3)
+    z = rng.uniform(1.8, 2.3, (12, 15)).astype(np.float32)
+    z[rng.random(z.shape) < 0.2] = 0.0
+    got = smooth_disparity(z, 1.1, 0.2)
+    np.testing.assert_allclose(got, _smooth_reference(z, 1.1, 0.2), rtol=1e-5)
+    assert np.array_equal(got == 0, z == 0)  # no reading stays none, none is averaged in
+
+
+def test_correlation_smoothing_blends_small_steps_and_keeps_large_ones():
+    z = plane(INTR80, 2.0)
+    z[:, :10] = 0.0  # no reading: never pulls the body's edge
+    z[20:40, 30:45] = 1.92  # a forearm 8 cm in front of the belly
+    z[20:40, 60:70] = 1.6  # a hand 40 cm in front
+    out = smooth_disparity(z, 1.3, 0.2)
+    assert np.array_equal(out == 0, z == 0)
+    np.testing.assert_allclose(out[5, 15:25], 2.0, rtol=1e-6)  # a flat surface is unchanged
+    row = out[30, 24:36]  # across the 8 cm step: gradual, between the two depths
+    assert np.all(np.diff(row) <= 1e-6) and row[0] > 1.999 and row[-1] < 1.921
+    assert ((row > 1.925) & (row < 1.995)).sum() >= 3
+    # Across the 40 cm step each side keeps its own depth (the body beside it still
+    # averages with the body only).
+    np.testing.assert_allclose(out[30, 62:68], 1.6, rtol=1e-6)
+    np.testing.assert_allclose(out[30, 52:59], 2.0, rtol=1e-6)
+    assert np.array_equal(smooth_disparity(z, 0.0, 0.2), z)
+
+
+def test_correlation_smoothing_in_the_pipeline_scales_with_width():
+    z = plane(INTR160, 2.0)
+    z[40:80, 60:90] = 1.92
+    cfg = only(correlation_smoothing=True)
+    out, _ = apply_kinect_noise(z, None, INTR160, cfg, RNG)
+    want = smooth_disparity(z, cfg.correlation_sigma_px * 160 / 320, cfg.correlation_gate_m)
+    assert np.array_equal(out, np.rint(want * 1000).astype(np.uint16))
+    assert not np.array_equal(out, np.rint(z * 1000).astype(np.uint16))
+    with pytest.raises(ValueError, match="correlation"):
+        apply_kinect_noise(z, None, INTR160, only(correlation_gate_m=0.0), RNG)
 
 
 # --------------------------------------------------------------------------------------------
