@@ -90,6 +90,13 @@ class KinectNoiseConfig:
     correlation_gate_m: float = field_doc(
         0.2, "depth steps larger than this (m) keep their edge under the smoothing"
     )
+    correlation_noise_gain: float = field_doc(
+        3.0,
+        "with the smoothing on, the disparity noise is drawn before the window (which makes it "
+        "spatially correlated, as real depth's is) and this much larger, so that what is left "
+        "after the window is still sigma_z = noise_k * z^2 (3.0 for the default window and "
+        "correlated fraction)",
+    )
     noise: bool = field_doc(True, "add Gaussian disparity noise (sigma_z = noise_k * z^2)")
     noise_k: float = field_doc(
         1.5e-3, "depth noise coefficient (1/m): sigma_z = noise_k * z^2, drawn in disparity"
@@ -153,8 +160,15 @@ class KinectNoiseConfig:
             raise ValueError("hole_rate must be >= 0 and 0 < hole_radius_px[0] <= [1]")
         if not 0.0 <= self.edge_erosion_prob <= 1.0 or self.edge_jump_m <= 0:
             raise ValueError("edge_erosion_prob must be in [0, 1] and edge_jump_m > 0")
-        if self.correlation_sigma_px < 0 or self.correlation_gate_m <= 0:
-            raise ValueError("correlation_sigma_px must be >= 0 and correlation_gate_m > 0")
+        if (
+            self.correlation_sigma_px < 0
+            or self.correlation_gate_m <= 0
+            or self.correlation_noise_gain <= 0
+        ):
+            raise ValueError(
+                "correlation_sigma_px must be >= 0, correlation_gate_m and "
+                "correlation_noise_gain > 0"
+            )
         if not 0.0 <= self.min_depth_m < self.max_depth_m:
             raise ValueError("need 0 <= min_depth_m < max_depth_m")
         if self.projector_side not in ("right", "left"):
@@ -203,23 +217,26 @@ def apply_kinect_noise(
         lost |= grazing_dropout_mask(clean, intr, rng, cfg.grazing_start_deg, cfg.grazing_full_deg)
 
     # 2. Measurement: noisy, then quantized disparity (the sensor rounds its noisy estimate).
+    # With the correlation window the noise is drawn first: the window averages the matching
+    # errors of its pixels along with the surface, so neighbouring errors come out alike.
     z = clean
-    if cfg.correlation_smoothing:
+    window = cfg.correlation_smoothing
+    if cfg.noise and cfg.noise_k > 0:
+        z = add_disparity_noise(
+            z,
+            cfg.noise_k * (cfg.correlation_noise_gain if window else 1.0),
+            rng,
+            cfg.disparity_focal_px,
+            cfg.baseline_m,
+            cfg.noise_correlated_fraction,
+        )
+    if window:
         z = smooth_disparity(
             z,
             cfg.correlation_sigma_px * intr.width / 320.0,
             cfg.correlation_gate_m,
             cfg.disparity_focal_px,
             cfg.baseline_m,
-        )
-    if cfg.noise and cfg.noise_k > 0:
-        z = add_disparity_noise(
-            z,
-            cfg.noise_k,
-            rng,
-            cfg.disparity_focal_px,
-            cfg.baseline_m,
-            cfg.noise_correlated_fraction,
         )
     if cfg.quantize:
         z = quantize_depth(z, cfg.disparity_focal_px, cfg.baseline_m, cfg.disparity_subpixel_steps)

@@ -131,6 +131,25 @@ def test_correlated_noise_keeps_std_and_correlates_neighbours():
     assert abs(corr(e0)) < 0.1 and corr(e1) > 0.6
 
 
+def test_window_noise_keeps_sigma_and_spreads_over_the_window():
+    """Noise drawn before the correlation window: the same sigma_z = k z^2 per pixel (the gain
+    makes up for the averaging), alike over a few pixels rather than within 2x2 blocks."""
+    z0, intr = 2.8, Intrinsics.kinect_v1(320)
+    cfg = only(noise=True)
+    e0 = apply_kinect_noise(plane(intr, z0), None, intr, cfg, np.random.default_rng(5))[0]
+    cfg = only(noise=True, correlation_smoothing=True)
+    e1 = apply_kinect_noise(plane(intr, z0), None, intr, cfg, np.random.default_rng(5))[0]
+    e0, e1 = (e[10:-10, 10:-10] / 1000.0 - z0 for e in (e0, e1))
+    assert e1.std() == pytest.approx(cfg.noise_k * z0**2, rel=0.1)
+
+    def corr(e, lag):
+        return np.corrcoef(e[:, :-lag].ravel(), e[:, lag:].ravel())[0, 1]
+
+    # Alike over the window's width (lag 1: 0.88, lag 2: 0.59), unrelated beyond it.
+    assert corr(e1, 1) > 0.8 and corr(e1, 2) > 0.45 and abs(corr(e1, 6)) < 0.1
+    assert abs(corr(e0, 2)) < 0.1
+
+
 # --------------------------------------------------------------------------------------------
 # Projector shadows
 
