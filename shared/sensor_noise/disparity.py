@@ -17,6 +17,17 @@ import numpy as np
 __all__ = ["add_disparity_noise", "quantize_depth", "smooth_disparity"]
 
 
+def _to_disparity(z: np.ndarray, fb: np.float32) -> tuple[np.ndarray, np.ndarray]:
+    """(disparity ``f b / z`` in px, where ``z`` is a reading); no reading gives ``f b``."""
+    valid = z > 0
+    return fb / np.where(valid, z, np.float32(1.0)), valid
+
+
+def _to_depth(d: np.ndarray, ok: np.ndarray, fb: np.float32) -> np.ndarray:
+    """Depth ``f b / d`` where ``ok``, 0 (no reading) elsewhere."""
+    return np.where(ok, fb / np.where(ok, d, np.float32(1.0)), np.float32(0.0))
+
+
 def quantize_depth(
     depth: np.ndarray, focal_px: float = 580.0, baseline_m: float = 0.075, steps: int = 8
 ) -> np.ndarray:
@@ -28,14 +39,11 @@ def quantize_depth(
     Returns:
         (H, W) float32 metres, 0 where ``depth`` was 0. Step ``z^2 / (steps f b)``.
     """
-    z = np.asarray(depth, dtype=np.float32)
-    valid = z > 0
     fb = np.float32(focal_px * baseline_m)
-    d = fb / np.where(valid, z, np.float32(1.0))
+    d, valid = _to_disparity(np.asarray(depth, dtype=np.float32), fb)
     dq = np.round(d * np.float32(steps)) / np.float32(steps)
     # A disparity that rounds to 0 would mean infinite depth: no reading.
-    ok = valid & (dq > 0)
-    return np.where(ok, fb / np.where(ok, dq, np.float32(1.0)), np.float32(0.0))
+    return _to_depth(dq, valid & (dq > 0), fb)
 
 
 def _correlated_normal(shape: tuple[int, int], fraction: float, rng: np.random.Generator):
@@ -67,14 +75,12 @@ def add_disparity_noise(
         (H, W) float32 metres; a disparity pushed to <= 0 (never at Kinect ranges) reads 0.
     """
     z = np.asarray(depth, dtype=np.float32)
-    valid = z > 0
     fb = np.float32(focal_px * baseline_m)
-    d = fb / np.where(valid, z, np.float32(1.0))
+    d, valid = _to_disparity(z, fb)
     d = d + np.float32(k * focal_px * baseline_m) * _correlated_normal(
         z.shape, correlated_fraction, rng
     )
-    ok = valid & (d > 0)
-    return np.where(ok, fb / np.where(ok, d, np.float32(1.0)), np.float32(0.0))
+    return _to_depth(d, valid & (d > 0), fb)
 
 
 def smooth_disparity(
@@ -98,26 +104,28 @@ def smooth_disparity(
         gate_m: neighbours further in depth than this are left out (m).
     Returns:
         (H, W) float32 metres.
+    Raises:
+        ValueError: a negative ``sigma_px`` or a gate of 0 or less (nothing would be taken).
     """
+    if not (sigma_px >= 0 and gate_m > 0):
+        raise ValueError(f"need sigma_px >= 0 and gate_m > 0, got {sigma_px} and {gate_m}")
     z = np.asarray(depth, dtype=np.float32)
-    if sigma_px <= 0:
+    if sigma_px == 0:
         return z.copy()
-    valid = z > 0
     fb = np.float32(focal_px * baseline_m)
-    d = np.where(valid, fb / np.where(valid, z, np.float32(1.0)), np.float32(0.0))
+    d, valid = _to_disparity(z, fb)
     r = int(math.ceil(2.5 * sigma_px))
     h, w = z.shape
-    zp = np.pad(z, r)
-    dp = np.pad(d, r)
+    zp, dp = np.pad(z, r), np.pad(d, r)  # padding reads 0: no reading, never taken
     num = np.zeros_like(d)
     den = np.zeros_like(d)
     for dy in range(-r, r + 1):
         for dx in range(-r, r + 1):
             g = np.float32(math.exp(-(dy * dy + dx * dx) / (2.0 * sigma_px * sigma_px)))
-            zn = zp[r + dy : r + dy + h, r + dx : r + dx + w]
-            take = (zn > 0) & (np.abs(zn - z) <= gate_m)
-            num += np.where(take, g * dp[r + dy : r + dy + h, r + dx : r + dx + w], 0.0)
+            rows, cols = slice(r + dy, r + dy + h), slice(r + dx, r + dx + w)
+            zn = zp[rows, cols]
+            take = (zn > 0) & (np.abs(zn - z) <= gate_m)  # a neighbour without reading: never
+            num += np.where(take, g * dp[rows, cols], 0.0)
             den += np.where(take, g, 0.0)
     # The centre always takes itself, so every valid pixel has den > 0.
-    out = fb / np.where(valid, num / np.where(valid, den, 1.0), np.float32(1.0))
-    return np.where(valid, out, np.float32(0.0)).astype(np.float32)
+    return _to_depth(num / np.where(valid, den, np.float32(1.0)), valid, fb)

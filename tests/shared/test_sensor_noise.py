@@ -279,6 +279,9 @@ def test_correlation_smoothing_blends_small_steps_and_keeps_large_ones():
     np.testing.assert_allclose(out[30, 62:68], 1.6, rtol=1e-6)
     np.testing.assert_allclose(out[30, 52:59], 2.0, rtol=1e-6)
     assert np.array_equal(smooth_disparity(z, 0.0, 0.2), z)
+    for sigma, gate in ((-1.0, 0.2), (1.3, 0.0), (float("nan"), 0.2)):
+        with pytest.raises(ValueError, match="sigma_px"):
+            smooth_disparity(z, sigma, gate)
 
 
 def test_correlation_smoothing_in_the_pipeline_scales_with_width():
