@@ -119,7 +119,7 @@ class Tracker:
         return estimate_frame(estimator, prepared)
 
     def track_stream(
-        self, stream: DepthStream, fixed_lag: int | None = None
+        self, stream: DepthStream, fixed_lag: int | None = None, look_back: int | None = None
     ) -> Iterator[tuple[Frame, PoseEstimate]]:
         """Every frame of ``stream`` tracked, as ``runtime-track`` runs it: each frame is read,
         its person cut out and its forest labels made on a reader thread while the previous
@@ -132,6 +132,10 @@ class Tracker:
                 mean of the frames as many either side (:mod:`runtime.export.fixed_lag`); 0:
                 each pose as fitted, at once. None: as ``runtime-track``, 2 for a file and 0
                 for a live camera.
+            look_back: hold each pose this many frames and refit the frames the hybrid
+                doubted backwards from the clean frame after them (:mod:`runtime.look_back`);
+                0: off. None: as ``runtime-track``, the hybrid's ``look_back.frames`` for a
+                file and 0 for a live camera.
 
         A file keeps every frame, in order. A live camera's newest frame wins: frames that
         arrived while the estimator was busy are skipped and counted in :attr:`skipped`; so
@@ -153,11 +157,21 @@ class Tracker:
             fixed_lag = 0 if stream.is_live else FILE_FIXED_LAG
         if not 0 <= fixed_lag <= MAX_FIXED_LAG:
             raise TrackError(f"fixed_lag must be 0-{MAX_FIXED_LAG} frames, got {fixed_lag}")
+        from .look_back import MAX_LOOK_BACK, looked_back
+
+        estimator = self._estimator_for(stream.intrinsics)
+        cfg = getattr(getattr(estimator, "cfg", None), "look_back", None)
+        if look_back is None:
+            look_back = 0 if stream.is_live or cfg is None else cfg.frames
+        if not 0 <= look_back <= MAX_LOOK_BACK:
+            raise TrackError(f"look_back must be 0-{MAX_LOOK_BACK} frames, got {look_back}")
         pairs = self._track_stream(stream)
+        if look_back > 0 and hasattr(estimator, "refit_from_later"):
+            pairs = looked_back(pairs, estimator, look_back, 2 if cfg is None else cfg.lead_in)
         return pairs if fixed_lag == 0 else smoothed_estimates(pairs, fixed_lag)
 
     def _track_stream(self, stream: DepthStream) -> Iterator[tuple[Frame, PoseEstimate]]:
-        """:meth:`track_stream` with ``fixed_lag=0``."""
+        """:meth:`track_stream` with ``fixed_lag=0`` and ``look_back=0``."""
         from .streams.latest_frame import LatestFrameReader
 
         estimator = self._estimator_for(stream.intrinsics)

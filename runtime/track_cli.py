@@ -54,6 +54,7 @@ from .estimator_setup import (
 from .export.fixed_lag import FILE_FIXED_LAG, MAX_FIXED_LAG, FixedLagSmoother
 from .export.live import add_live_args, live_output_from_args
 from .forest.inference import DEFAULT_MODEL
+from .look_back import MAX_LOOK_BACK
 from .presets import DEFAULT_PRESET, PRESETS
 from .segmentation import SegmentationConfig
 from .stop_signals import StopRequest, graceful_stop, interrupt_on_signals
@@ -190,6 +191,16 @@ def build_parser() -> argparse.ArgumentParser:
         f"{FILE_FIXED_LAG} for a file read as fast as possible, 0 live and with --realtime",
     )
     o.add_argument(
+        "--look-back",
+        type=int,
+        metavar="N",
+        help="hold each estimate N frames and refit the frames the hybrid doubted (detections, "
+        "tracks the detector was asked about) backwards from the clean frame after them, "
+        "keeping a refit that fits better (runtime/look_back.py; 0: off). Default: the "
+        "hybrid's look_back.frames (12) for a file read as fast as possible, 0 live and with "
+        "--realtime",
+    )
+    o.add_argument(
         "--view",
         nargs="?",
         const="",
@@ -253,12 +264,24 @@ def fixed_lag_frames(args: argparse.Namespace, stream) -> int:
     return 0 if args.realtime or stream.is_live else FILE_FIXED_LAG
 
 
+def look_back_frames(args: argparse.Namespace, stream, estimator) -> int:
+    """``--look-back``, or its default for this source: a file tracked as fast as possible
+    is held as the hybrid's settings say (``look_back.frames``); a live stream (or
+    ``--realtime``) is not held."""
+    if args.look_back is not None:
+        return args.look_back
+    cfg = getattr(getattr(estimator, "cfg", None), "look_back", None)
+    return 0 if args.realtime or stream.is_live or cfg is None else cfg.frames
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.threads < 1:
         return report_error(f"--threads must be >= 1, got {args.threads}")
     if args.fixed_lag is not None and not 0 <= args.fixed_lag <= MAX_FIXED_LAG:
         return report_error(f"--fixed-lag must be 0-{MAX_FIXED_LAG} frames, got {args.fixed_lag}")
+    if args.look_back is not None and not 0 <= args.look_back <= MAX_LOOK_BACK:
+        return report_error(f"--look-back must be 0-{MAX_LOOK_BACK} frames, got {args.look_back}")
     torch.set_num_threads(args.threads)
     stop = StopRequest()
     try:
@@ -392,6 +415,7 @@ def _run(args, stream, estimator, writer, view, seg_cfg, device) -> int:
                         stop=stop,
                         stats=stats,
                         view=view,
+                        look_back=look_back_frames(args, stream, estimator),
                     )
                 if stop.is_set():
                     note = stop.reason
@@ -408,6 +432,11 @@ def _run(args, stream, estimator, writer, view, seg_cfg, device) -> int:
                         "dropped_frames": stats.dropped,
                         "stopped": note,
                         "body_scale": getattr(estimator, "body_scale", None),
+                        "looked_back": {
+                            "frames": look_back_frames(args, stream, estimator),
+                            "refits": stats.looked_back[0],
+                            "revised": stats.looked_back[1],
+                        },
                         **stats.timing(),
                     }
                 )

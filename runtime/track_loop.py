@@ -29,8 +29,8 @@ class TrackStats:
     """What :func:`track` did.
 
     Attributes:
-        frames: frames written.
-        status_counts: written frames per status.
+        frames: frames estimated (all written by the end of the run).
+        status_counts: estimated frames per status.
         dropped: frames skipped because a newer one arrived while the estimator was busy
             (live cameras and ``--realtime``; a file read as fast as possible skips none).
         last_index: index of the last written frame (None if none).
@@ -43,6 +43,11 @@ class TrackStats:
             and a wait for them counts). Live: from taking the frame to its pose written,
             without the wait for the camera; its mask and labels, made on the reader thread,
             are not counted.
+        looked_back: (frames refitted backwards, frames whose estimate was replaced) by the
+            look-back (:mod:`runtime.look_back`).
+
+    With a look-back, frames are written up to its hold behind their estimate; ``latency_ms``
+    and ``frame_ms`` run to the estimate leaving the loop, not to the held frame's writing.
     """
 
     frames: int = 0
@@ -54,6 +59,7 @@ class TrackStats:
     wall_s: float = 0.0
     latency_ms: list[float] = field(default_factory=list)
     frame_ms: list[float] = field(default_factory=list)
+    looked_back: tuple[int, int] = (0, 0)
 
     @property
     def fps(self) -> float:
@@ -139,6 +145,7 @@ def track(
     stats: TrackStats | None = None,
     view=None,
     pipelined: bool = True,
+    look_back: int = 0,
 ) -> TrackStats:
     """Run the pipeline over ``stream``, writing every frame to ``writer``.
 
@@ -156,6 +163,9 @@ def track(
         pipelined: prepare frames on a reader thread beside the estimate (a file keeps every
             frame); False: read and prepare each frame on this thread, then estimate it (a
             live source is always read on its own thread).
+        look_back: hold each estimate this many frames and refit doubtful ones backwards
+            from the clean frame after them (:mod:`runtime.look_back`; estimators with
+            ``refit_from_later``, the hybrid's); 0: write each estimate at once.
     Raises:
         whatever the stream raises (StreamError, SensorDisconnected, KeyboardInterrupt); the
         frames written before are complete.
@@ -175,6 +185,33 @@ def track(
     ) if pipelined or live else None  # fmt: skip
     frames = iter(reader) if reader is not None else timed_frames(stream)
     body = getattr(estimator, "body", None)
+    stage = None
+    if look_back > 0 and hasattr(estimator, "refit_from_later"):
+        from .look_back import LookBack
+
+        cfg = getattr(getattr(estimator, "cfg", None), "look_back", None)
+        stage = LookBack(estimator, look_back, 2 if cfg is None else cfg.lead_in)
+
+    def emit(prepared: Frame, est) -> None:
+        """Write (and draw, and show) one frame's final estimate."""
+        writer.write_frame(
+            prepared.index, prepared.time, est.status, est.joints, est.q, est.errors,
+            observed=est.observed,
+        )  # fmt: skip
+        if view is not None:
+            view.log_frame(prepared, est)
+        if save_overlays:
+            import cv2
+
+            from .export.overlay import draw_overlay
+
+            # In the writer's directory as it is now: a result is staged beside its
+            # output until its first frame is written (runtime.export.results), which a
+            # fixed lag delays, and a new one holds no stale overlays.
+            overlay_dir = Path(writer.directory) / "overlays"
+            overlay_dir.mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(overlay_dir / f"{prepared.index:06d}.png"), draw_overlay(prepared, est))
+
     t_frame = time.perf_counter()
     try:
         for item, arrival in frames:
@@ -185,10 +222,8 @@ def track(
             if getattr(estimator, "body", None) is not body:  # e.g. the person's size found
                 body = estimator.body
                 writer.update_body(body)
-            writer.write_frame(
-                prepared.index, prepared.time, est.status, est.joints, est.q, est.errors,
-                observed=est.observed,
-            )  # fmt: skip
+            for done in [(prepared, est)] if stage is None else stage.push(prepared, est):
+                emit(*done)
             t_written = time.perf_counter()
             stats.latency_ms.append((t_written - arrival) * 1e3)
             stats.frame_ms.append((t_written - t_frame) * 1e3)
@@ -196,30 +231,24 @@ def track(
             stats.frames += 1
             stats.status_counts[est.status] = stats.status_counts.get(est.status, 0) + 1
             stats.last_index = prepared.index
-            if view is not None:
-                view.log_frame(prepared, est)
-            if save_overlays:
-                import cv2
-
-                from .export.overlay import draw_overlay
-
-                # In the writer's directory as it is now: a result is staged beside its
-                # output until its first frame is written (runtime.export.results), which a
-                # fixed lag delays, and a new one holds no stale overlays.
-                overlay_dir = Path(writer.directory) / "overlays"
-                overlay_dir.mkdir(parents=True, exist_ok=True)
-                cv2.imwrite(
-                    str(overlay_dir / f"{prepared.index:06d}.png"), draw_overlay(prepared, est)
-                )
             if progress is not None:
                 progress.update(stats, prepared.index)
             if stop is not None and stop.is_set():
                 break
             if reader is not None:
                 stats.dropped = reader.skipped
+        for done in [] if stage is None else stage.flush():
+            emit(*done)
+    except BaseException:
+        # Nothing estimated is lost: what is held is written as it stands.
+        for done in [] if stage is None else stage.release():
+            emit(*done)
+        raise
     finally:
         if reader is not None:
             reader.close()
             stats.dropped = reader.skipped
         stats.wall_s = time.perf_counter() - t_begin
+        if stage is not None:
+            stats.looked_back = (stage.refits, stage.revised)
     return stats

@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass
 
 from depthmocap.runtime.detector.config import DetectorConfig
+from depthmocap.runtime.look_back import LookBackConfig
 from depthmocap.runtime.tracker.config import TrackerConfig
 from depthmocap.runtime.tracker.signals import FitSignals
 from depthmocap.shared.config import ConfigError, field_doc
@@ -298,6 +299,14 @@ class HybridConfig:
         "protocol live, two runs alternated per recording: 57.4 -> 56.2 and 55.1 -> 53.5 "
         "mm, frames skipped 21.5 -> 18.6% and 16.4 -> 14.0% (docs/experiments.md, thirtieth "
         "session)",
+    )
+    look_back: LookBackConfig | None = field_doc(
+        help="a recording read as a file: hold each estimate a few frames and refit the frames "
+        "the hybrid doubted (detections, tracks the detector was asked about) backwards from "
+        "the clean frame after them, keeping a refit that fits better (runtime.look_back; not "
+        "in Wei; None: off). Broad tuning sets, 0.2 rad: 38.64 -> 36.7 mm (docs/experiments.md, "
+        "forty-seventh session)",
+        default_factory=LookBackConfig,
     )
     detector: DetectorConfig = field_doc(help="detector settings", default_factory=DetectorConfig)
     tracker: TrackerConfig = field_doc(

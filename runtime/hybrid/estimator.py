@@ -29,6 +29,7 @@ frame when the tracker's label term is on).
 from __future__ import annotations
 
 import functools
+import math
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -40,6 +41,7 @@ from depthmocap.runtime.detector import DetectionResult, Detector
 from depthmocap.runtime.estimator import PoseEstimate, evidence_of, lost, observed_of
 from depthmocap.runtime.frame import Frame, LabelSource
 from depthmocap.runtime.tracker.prior_term import velocity_scale
+from depthmocap.runtime.tracker.signals import FitSignals
 from depthmocap.runtime.tracker.tracker import Tracker, TrackResult
 from depthmocap.shared.image_cut import image_cut_distance_m
 from depthmocap.shared.joint_confidence import JointConfidence, frame_features
@@ -267,6 +269,43 @@ class HybridEstimator:
             frame.depth_m, frame.mask, frame.labels(self.label_source), frame.intrinsics, joints_t
         )
         return observed_of(fit, confidence, frame_features(errors, status), cut, joints_t, parts)
+
+    def refit_from_later(
+        self, frame: Frame, later: PoseEstimate, later2: PoseEstimate | None,
+        velocity_scale: float = 1.0,
+    ) -> tuple[PoseEstimate, float]:  # fmt: skip
+        """``frame`` fitted from the poses of the two estimates after it (``later2`` None: no
+        motion predicted), as the tracker fits a frame from the two before it, and that
+        fit's badness (:meth:`FailureThresholds.badness`). The track is not touched:
+        :mod:`runtime.look_back` revises frames already estimated with it."""
+        t = self.tracker
+
+        def pose(estimate: PoseEstimate | None) -> torch.Tensor | None:
+            return None if estimate is None else torch.as_tensor(estimate.q, dtype=t.dtype)
+
+        obs = frame.observation(t, self._tracker_labels(frame))
+        res = t.fit(obs, pose(later), pose(later2), velocity_scale=velocity_scale)
+        errors = res.signals.as_errors()
+        joints = self._joints(res.q.detach())
+        estimate = PoseEstimate(
+            res.q.detach().cpu().double().numpy(),
+            joints,
+            "tracked",
+            errors,
+            observed=self._observed(res, errors, "tracked", joints, frame),
+            **evidence_of(res),
+        )
+        return estimate, self.cfg.failure.badness(res.signals)
+
+    def badness_of(self, estimate: PoseEstimate) -> float:
+        """The badness of ``estimate``'s own fit, from the signals in its ``errors`` (a
+        track's, or a refined detection's); NaN when it has none (lost, or a detection
+        without refinement)."""
+        e = estimate.errors
+        signals = FitSignals(
+            *(e.get(k, math.nan) for k in ("depth_error_cm", "overlap", "surface_error_q97_mm"))
+        )
+        return self.cfg.failure.badness(signals)
 
     def _tracked(self, res: TrackResult, errors: dict, frame: Frame) -> PoseEstimate:
         q = res.q.detach()

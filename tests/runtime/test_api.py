@@ -39,10 +39,11 @@ def cli_result(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def cli_unsmoothed(tmp_path_factory):
-    """The same with ``--fixed-lag 0``: every pose as fitted."""
+    """The same with ``--fixed-lag 0 --look-back 0``: every pose as fitted."""
     out = tmp_path_factory.mktemp("api") / "result"
     before = torch.get_num_threads()
-    argv = ["-i", "demo", "-o", str(out), "--stop", str(FRAMES), "-q", "--fixed-lag", "0"]
+    argv = ["-i", "demo", "-o", str(out), "--stop", str(FRAMES), "-q", "--fixed-lag", "0",
+            "--look-back", "0"]  # fmt: skip
     assert cli.main(argv) == 0
     torch.set_num_threads(before)
     return out
@@ -76,7 +77,9 @@ def test_runtime_track_smooths_a_file_as_the_fixed_lag_smoother_does(
     poses = read_poses(cli_result)
     sink = _Collect()
     smoother = FixedLagSmoother(sink, FILE_FIXED_LAG)
-    for f, e in zip(demo_frames, _track_all(Tracker(), demo_frames)):
+    with open_stream("demo", frame_range=FrameRange(0, FRAMES)) as stream:
+        looked_back = list(Tracker().track_stream(stream, fixed_lag=0))  # as runtime-track
+    for f, e in looked_back:
         smoother.write_frame(f.index, f.time, e.status, e.joints, e.q, e.errors, e.observed)
     smoother.close()
     assert list(poses.status) == [s for s, _, _ in sink.rows]
@@ -235,7 +238,7 @@ def test_track_stream_gives_the_poses_of_track(one_thread, demo_frames):
     one_by_one = _track_all(Tracker(), demo_frames)
     tracker = Tracker()
     with open_stream("demo", frame_range=FrameRange(0, FRAMES)) as stream:
-        got = list(tracker.track_stream(stream, fixed_lag=0))
+        got = list(tracker.track_stream(stream, fixed_lag=0, look_back=0))
     assert [f.index for f, _ in got] == [f.index for f in demo_frames] and tracker.skipped == 0
     for (_, a), b in zip(got, one_by_one, strict=True):
         assert a.status == b.status
@@ -261,6 +264,8 @@ def test_track_stream_smooths_a_file_as_runtime_track_does(one_thread, cli_resul
     np.testing.assert_allclose(np.stack([p.q for _, p in got]), poses.q, atol=1e-6)
     with pytest.raises(TrackError, match="fixed_lag"):
         Tracker().track_stream(stream, fixed_lag=-1)
+    with pytest.raises(TrackError, match="look_back must be 0-60"):
+        Tracker().track_stream(stream, look_back=61)
 
 
 def test_track_stream_reports_stream_errors_after_the_frames_before(one_thread, demo_frames):

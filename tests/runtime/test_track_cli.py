@@ -593,3 +593,64 @@ def test_a_file_keeps_every_frame_and_times_the_interval_between_poses():
     assert w.indices == est.calls == list(range(12)) and stats.dropped == 0
     assert len(stats.frame_ms) == 12 and min(stats.frame_ms) >= 10.0 * 0.9
     assert sum(stats.frame_ms) <= stats.wall_s * 1e3 + 1e-6
+
+
+class LookingBackEstimator(FakeEstimator):
+    """Detects frame 1 (badness 2), tracks the others (badness 1); a refit from later frames
+    has q[0] = 9 and badness 0.5 (runtime.look_back's estimator protocol)."""
+
+    def __init__(self):
+        super().__init__()
+        self.refits: list[int] = []
+
+    def estimate(self, frame: Frame) -> PoseEstimate:
+        est = super().estimate(frame)
+        if frame.index == 1:
+            return PoseEstimate(est.q, est.joints, "detected", {"depth_error_cm": 2.0})
+        return PoseEstimate(est.q, est.joints, "tracked", {"depth_error_cm": 1.0})
+
+    def refit_from_later(self, frame, later, later2, velocity_scale):
+        self.refits.append(frame.index)
+        q = later.q.copy()
+        q[0] = 9.0
+        return PoseEstimate(q, later.joints, "tracked", {"depth_error_cm": 0.5}), 0.5
+
+    def badness_of(self, estimate):
+        return estimate.errors["depth_error_cm"]
+
+
+class RowsWriter:
+    def __init__(self):
+        self.rows = []
+
+    def write_frame(self, index, time, status, joints, q, errors, observed=None):
+        self.rows.append((index, status, q[0], "looked_back" in errors))
+
+
+def test_a_look_back_revises_a_doubted_frame_and_writes_every_frame():
+    w, est = RowsWriter(), LookingBackEstimator()
+    stats = cli.track(ListStream([person_frame()] * 4), est, w, look_back=3)
+    # Frame 2 is clean: frames 1 and 0 (the lead-in) are refitted from it, and fit better.
+    assert w.rows == [(0, "tracked", 9.0, True), (1, "detected", 9.0, True),
+                      (2, "tracked", 0.0, False), (3, "tracked", 0.0, False)]  # fmt: skip
+    assert est.refits == [1, 0] and stats.looked_back == (2, 2) and stats.frames == 4
+
+
+def test_frames_held_by_a_look_back_are_written_when_the_camera_drops():
+    w, est = RowsWriter(), LookingBackEstimator()
+    stream = ListStream([person_frame()] * 2, fail=SensorDisconnected("unplugged"))
+    with pytest.raises(SensorDisconnected):
+        cli.track(stream, est, w, look_back=5)
+    assert [r[0] for r in w.rows] == [0, 1] and est.refits == []  # as they stood
+
+
+def test_look_back_option_range_and_summary(fake, recording, tmp_path, capsys):
+    code, err = run(["-i", recording, "-o", tmp_path / "o", "--look-back", "61"], capsys)
+    assert code == 2
+    assert_one_line_error(err, "--look-back must be 0-60")
+    out = tmp_path / "ok"
+    code, err = run(["-i", recording, "-o", out, "--mode", "tracker", "--look-back", "4"], capsys)
+    assert code == 0, err
+    records, summary, _ = read_result(out)
+    assert len(records) == 5  # the fake tracker cannot refit: written as estimated
+    assert summary["extra"]["looked_back"] == {"frames": 4, "refits": 0, "revised": 0}

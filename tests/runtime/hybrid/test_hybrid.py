@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 from depthmocap.runtime.detector import Detector, DetectorConfig
-from depthmocap.runtime.estimator import estimate_frame, make_estimator
+from depthmocap.runtime.estimator import PoseEstimate, estimate_frame, make_estimator
 from depthmocap.runtime.frame import Frame
 from depthmocap.runtime.hybrid import (
     ArmSearchConfig,
@@ -1113,3 +1113,44 @@ def test_a_still_chair_behind_the_legs_leaves_the_mask(scene):
         assert bool(frame.mask[mask].all())
     # Frame 0 has no track, frame 1 none before it; counted from frame 2, dropped at frame 3.
     assert kept[:3] == [int(chair.sum())] * 3 and kept[3:] == [0, 0]
+
+
+def test_a_frame_refitted_from_the_poses_after_it_leaves_the_track_alone(scene):
+    """runtime.look_back's refit: frame 0 fitted backwards from the true poses of frames 1
+    and 2 finds frame 0's pose; the estimator's track is not touched."""
+    q, depth, labels, mask = scene
+    det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
+    trk = Tracker(BODY, INTR, TrackerConfig(iterations=6))
+    cfg = HybridConfig(body_scale=None, joint_offsets=None, joint_confidence=None)
+    est = HybridEstimator(lambda f: labels * f.mask, det, trk, cfg)
+    poses = []
+    for k in range(3):
+        qk = q.clone()
+        qk[0] += 0.02 * k
+        qk[sk.DOF_NAMES.index("r_humerus_abd")] = math.radians(8 * k)
+        poses.append(qk)
+    d0, _, m0 = render_labels(poses[0])
+
+    def pose_estimate(qk):
+        return PoseEstimate(qk.double().numpy(), np.zeros((16, 3)), "tracked", {})
+
+    refit, badness = est.refit_from_later(
+        frame_of(d0, 0, m0), pose_estimate(poses[1]), pose_estimate(poses[2]), 1.0
+    )
+    true = named_joint_positions(forward_kinematics(poses[0][None], BODY))[0].numpy()
+    assert np.linalg.norm(refit.joints - true, axis=-1).max() < 0.02
+    assert refit.status == "tracked" and refit.observed is not None
+    assert badness == pytest.approx(est.badness_of(refit))  # its errors carry its signals
+    assert badness < 1.0
+    assert est.state.q_prev is None  # no track was started
+
+
+def test_badness_of_an_estimate_reads_its_errors_golden(scene):
+    det = Detector(BODY, INTR, DetectorConfig(refine_iterations=0))
+    est = HybridEstimator(lambda f: f.mask.long(), det, FakeTracker(), HybridConfig())
+    errors = {"depth_error_cm": 1.5, "overlap": 0.85, "surface_error_q97_mm": 40.0}
+    # Shipped thresholds 3 cm, 0.7, 80 mm: 1.5 / 3 + 0.15 / 0.3 + 40 / 80.
+    good = PoseEstimate(np.zeros(34), np.zeros((16, 3)), "detected", errors)
+    assert est.badness_of(good) == pytest.approx(1.5)
+    unrefined = PoseEstimate(np.zeros(34), np.zeros((16, 3)), "detected", {"ik_rms_m": 0.01})
+    assert math.isnan(est.badness_of(unrefined))

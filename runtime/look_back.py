@@ -1,0 +1,235 @@
+"""Look-back refits: doubtful frames fitted again backwards in time from the clean frame after
+them (``runtime-track --look-back N``; on for a file, off live).
+
+Why: where the forward track goes wrong (a limb left behind at the start of a fast motion,
+a detection that puts an arm in the wrong place) Wei's tests fail or the detector is asked,
+and the hybrid can only choose between the track and a detection; on the frames it cannot
+fix, neither is right (``docs/experiments.md``, forty-fifth session). A few frames later the
+track is clean again. Seen from there the same stretch is entered from its other end, with
+the limbs already in place, so a fit that starts from the later pose and predicts the motion
+backwards is a hypothesis of its own, not the loser of a choice already made. On the broad
+tuning sets those backward fits beat the forward pose by badness on four frames in five of
+the doubtful ones they were tried on, and where they did the joints were 57 -> 39 mm
+(``docs/experiments.md``, forty-seventh session).
+
+What is doubtful (:func:`is_doubtful`): a detection, or a track the detector was asked about
+(kept over a detection, rechecked, confirmed, or kept while the detector waited). A clean
+frame (:func:`is_clean`) is a track that passed its tests without a second opinion.
+
+How: estimates are held up to ``frames`` behind the newest. When a clean frame follows a run
+of held doubtful ones, the run (and up to ``lead_in`` clean frames before it, where a
+track may already have drifted before its tests failed) is refitted newest to oldest, each
+frame from the poses of the two after it (the clean frame's successor gives the first fit
+its velocity, when it is clean too). A refit replaces the held estimate when its badness is
+lower (the same sum of the three signals over their thresholds the hybrid's choices read);
+it keeps the frame's status (the forward track did need the detector there: a tracking
+failure stays one) and is flagged ``looked_back``. The forward track is never touched: the
+next frames are estimated exactly as without look-back. A frame leaves the hold when
+``frames`` newer ones have arrived, or at :meth:`LookBack.flush` (end of stream, or an
+interrupted run: nothing estimated is lost).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
+
+from depthmocap.shared.config import ConfigError, field_doc
+
+if TYPE_CHECKING:
+    from .estimator import PoseEstimate
+    from .frame import Frame
+
+
+class RefitsFromLater(Protocol):
+    """What a :class:`LookBack` needs of an estimator (the hybrid's,
+    :class:`~runtime.hybrid.estimator.HybridEstimator`)."""
+
+    def refit_from_later(
+        self, frame: Frame, later: PoseEstimate, later2: PoseEstimate | None,
+        velocity_scale: float,
+    ) -> tuple[PoseEstimate, float]:  # fmt: skip
+        """``frame`` fitted from the poses of the two frames after it, and the fit's badness."""
+
+    def badness_of(self, estimate: PoseEstimate) -> float:
+        """The badness of an estimate's own fit (NaN when unknown)."""
+
+
+__all__ = [
+    "DOUBT_FLAGS",
+    "MAX_LOOK_BACK",
+    "LookBack",
+    "LookBackConfig",
+    "RefitsFromLater",
+    "is_clean",
+    "is_doubtful",
+    "looked_back",
+    "refit_span",
+]
+
+MAX_LOOK_BACK = 60
+"""The longest hold ``runtime-track`` takes (two seconds at 30 frames/s)."""
+
+
+@dataclass
+class LookBackConfig:
+    """The hybrid's look-back (``HybridConfig.look_back``; module docstring)."""
+
+    frames: int = field_doc(
+        12,
+        "estimates held behind the newest when a recording is read as a file (0.4 s at 30 "
+        "frames/s; at most frames - 1 before a clean frame can be revised from it). A live "
+        "stream, or --realtime, is not held unless runtime-track --look-back says so",
+    )
+    lead_in: int = field_doc(
+        2,
+        "clean frames before a doubtful run refitted with it: a track drifts a frame or two "
+        "before its tests fail",
+    )
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.frames <= MAX_LOOK_BACK:
+            raise ConfigError(f"look_back.frames must be 0-{MAX_LOOK_BACK}, got {self.frames}")
+        if self.lead_in < 0:
+            raise ConfigError(f"look_back.lead_in must be >= 0, got {self.lead_in}")
+
+
+DOUBT_FLAGS = ("kept_over_detector", "rechecked", "confirmed_by_detector", "detector_waited")
+"""``errors`` flags of a track the detector was asked about (:mod:`runtime.hybrid.estimator`)."""
+
+
+def is_doubtful(estimate: PoseEstimate) -> bool:
+    """A pose worth a second look: a detection, or a track the detector was asked about."""
+    if estimate.q is None:
+        return False
+    return estimate.status == "detected" or any(k in estimate.errors for k in DOUBT_FLAGS)
+
+
+def is_clean(estimate: PoseEstimate) -> bool:
+    """A track that passed its tests with no second opinion: a pose to look back from."""
+    return estimate.status == "tracked" and estimate.q is not None and not is_doubtful(estimate)
+
+
+def refit_span(doubtful: list[bool], clean: list[bool], lead_in: int) -> int:
+    """How many of the held estimates before the newest one to refit backwards (0: none).
+
+    Args:
+        doubtful, clean: per held estimate, oldest first, the newest one last; the newest is
+            where the refits start from, so it must be clean and the one before it doubtful.
+    Returns:
+        the length of the run of doubtful estimates right before the newest, plus up to
+        ``lead_in`` clean ones before the run, within what is held.
+    """
+    n = len(doubtful)
+    if n < 2 or not clean[-1] or not doubtful[-2]:
+        return 0
+    k = n - 2
+    while k - 1 >= 0 and doubtful[k - 1]:
+        k -= 1
+    lead = 0
+    while lead < lead_in and k - 1 >= 0 and clean[k - 1]:
+        k, lead = k - 1, lead + 1
+    return n - 1 - k
+
+
+class LookBack:
+    """Holds a stream's estimates ``frames`` deep and revises doubtful ones (module docstring).
+
+    Args:
+        estimator: the stream's estimator (the hybrid's: its tracker and tests refit the
+            frames).
+        frames: how many frames an estimate is held behind the newest (0: passed through);
+            at most ``frames - 1`` frames before a clean one can be revised from it.
+        lead_in: clean frames before a doubtful run refitted with it.
+    """
+
+    def __init__(self, estimator: RefitsFromLater, frames: int, lead_in: int = 2) -> None:
+        if frames < 0 or lead_in < 0:
+            raise ValueError(f"look-back frames and lead-in must be >= 0, got {frames}, {lead_in}")
+        self.estimator, self.frames, self.lead_in = estimator, frames, lead_in
+        self._held: deque[tuple[Frame, PoseEstimate]] = deque()
+        self.refits = 0  # frames refitted backwards so far
+        self.revised = 0  # of those, frames whose estimate was replaced
+
+    def push(self, frame: Frame, estimate: PoseEstimate) -> list[tuple[Frame, PoseEstimate]]:
+        """Hold ``frame``'s estimate; returns the (frame, estimate) pairs that leave the hold,
+        oldest first."""
+        if self.frames == 0:
+            return [(frame, estimate)]
+        self._held.append((frame, estimate))
+        # The newest but one is where refits start; the newest gives them their velocity.
+        self._look_back(self._held, upto=len(self._held) - 1)
+        out = []
+        while len(self._held) > self.frames:
+            out.append(self._held.popleft())
+        return out
+
+    def flush(self) -> list[tuple[Frame, PoseEstimate]]:
+        """Everything held, oldest first (the stream ended: the last frame starts a look-back
+        of its own, without a velocity)."""
+        self._look_back(self._held, upto=len(self._held))
+        return self.release()
+
+    def release(self) -> list[tuple[Frame, PoseEstimate]]:
+        """Everything held, oldest first, as it stands (no look-back: after an error)."""
+        out = list(self._held)
+        self._held.clear()
+        return out
+
+    def _look_back(self, held: deque, upto: int) -> None:
+        """Refit the doubtful run before ``held[upto - 1]`` from it (when it is clean)."""
+        items = list(held)[:upto]
+        doubtful = [is_doubtful(e) for _, e in items]
+        clean = [is_clean(e) for _, e in items]
+        span = refit_span(doubtful, clean, self.lead_in)
+        if span == 0:
+            return
+        from .tracker.prior_term import velocity_scale
+
+        est = self.estimator
+        later_frame, later = items[-1]
+        after = held[upto] if upto < len(held) else None
+        later2_frame, later2 = after if after is not None and is_clean(after[1]) else (None, None)
+        for i in range(upto - 2, upto - 2 - span, -1):
+            frame, old = held[i]
+            if not frame.has_person:
+                break
+            # Backwards in time: the prior predicts from the later frames to this earlier one.
+            ahead = velocity_scale(
+                -frame.index, -later_frame.index, None if later2 is None else -later2_frame.index
+            )
+            new, new_badness = est.refit_from_later(frame, later, later2, ahead)
+            self.refits += 1
+            if new_badness < est.badness_of(old):  # False for an unknown (NaN) badness
+                new.status = old.status
+                new.errors = {**new.errors, "looked_back": 1.0}
+                held[i] = (frame, new)
+                self.revised += 1
+            later2_frame, later2 = later_frame, later
+            later_frame, later = frame, new
+
+
+def looked_back(
+    pairs: Iterable[tuple[Frame, PoseEstimate]],
+    estimator: RefitsFromLater,
+    frames: int,
+    lead_in: int = 2,
+) -> Iterator[tuple[Frame, PoseEstimate]]:
+    """``pairs`` (a stream's frames and estimates, in order) through a :class:`LookBack`,
+    each pair yielded up to ``frames`` pairs late. If ``pairs`` raises, the pairs held are
+    yielded first (as they stand: a stream that broke off gives no clean frame to look back
+    from)."""
+    stage = LookBack(estimator, frames, lead_in)
+    try:
+        for frame, estimate in pairs:
+            yield from stage.push(frame, estimate)
+    except Exception:
+        yield from stage.release()
+        raise
+    finally:  # a break in the caller's loop ends the source's iteration (its reader) now
+        close = getattr(pairs, "close", None)
+        if close is not None:
+            close()
+    yield from stage.flush()

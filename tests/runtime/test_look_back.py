@@ -1,0 +1,208 @@
+"""The look-back stage (runtime.look_back): which frames it refits, in which order, from what,
+what it replaces, and that nothing estimated is lost."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from depthmocap.runtime.estimator import PoseEstimate
+from depthmocap.runtime.look_back import (
+    LookBack,
+    LookBackConfig,
+    is_clean,
+    is_doubtful,
+    looked_back,
+    refit_span,
+)
+from depthmocap.shared.config import ConfigError
+
+
+@dataclass
+class FakeFrame:
+    index: int
+    has_person: bool = True
+
+
+def estimate(tag: float, status="tracked", badness=1.0, **flags) -> PoseEstimate:
+    """A pose whose q[0] is ``tag`` and whose fit had ``badness`` (in ``depth_error_cm``)."""
+    q = np.zeros(34)
+    q[0] = tag
+    errors = {"depth_error_cm": badness, **flags}
+    return PoseEstimate(q, np.zeros((16, 3)), status, errors)
+
+
+class FakeEstimator:
+    """Refits score ``refit_badness[index]`` (default 0.5) and record what they started from."""
+
+    def __init__(self, refit_badness=None):
+        self.refit_badness = refit_badness or {}
+        self.calls = []  # (index, later tag, later2 tag or None, velocity scale)
+
+    def refit_from_later(self, frame, later, later2, velocity_scale):
+        self.calls.append(
+            (frame.index, later.q[0], None if later2 is None else later2.q[0], velocity_scale)
+        )
+        bad = self.refit_badness.get(frame.index, 0.5)
+        return estimate(100 + frame.index, badness=bad), bad
+
+    def badness_of(self, est):
+        return est.errors.get("depth_error_cm", math.nan)
+
+
+def run(stage, items):
+    out = []
+    for i, est in enumerate(items):
+        out += stage.push(FakeFrame(i), est)
+    return out
+
+
+D = dict(status="detected", badness=2.0)  # a re-detection that fitted with badness 2
+K = dict(badness=2.0, kept_over_detector=1.0)  # a failed track kept over a detection
+
+
+@pytest.mark.parametrize(
+    ("doubtful", "clean", "lead_in", "span"),
+    [
+        ([], [], 2, 0),
+        ([0, 0], [1, 1], 2, 0),  # nothing doubtful
+        ([0, 1], [1, 0], 2, 0),  # the newest is doubtful: nothing to start from
+        ([1, 0], [0, 1], 2, 1),
+        ([0, 0, 1, 1, 0], [1, 1, 0, 0, 1], 2, 4),  # two doubtful, two clean before
+        ([0, 0, 0, 1, 1, 0], [1, 1, 1, 0, 0, 1], 1, 3),
+        ([0, 1, 0, 1, 0], [1, 0, 1, 0, 1], 2, 2),  # lead-in stops at the earlier doubtful
+        ([0, 1, 0], [0, 0, 1], 2, 1),  # lead-in only over clean frames (a lost one stops it)
+    ],
+)
+def test_refit_span_table(doubtful, clean, lead_in, span):
+    assert refit_span([bool(d) for d in doubtful], [bool(c) for c in clean], lead_in) == span
+
+
+def test_doubtful_and_clean():
+    assert is_doubtful(estimate(0, **D)) and not is_clean(estimate(0, **D))
+    assert is_doubtful(estimate(0, **K)) and not is_clean(estimate(0, **K))
+    assert is_doubtful(estimate(0, rechecked=1.0))
+    assert not is_doubtful(estimate(0)) and is_clean(estimate(0))
+    gone = PoseEstimate(None, None, "lost")
+    assert not is_doubtful(gone) and not is_clean(gone)
+
+
+def test_zero_frames_passes_every_estimate_through_at_once():
+    stage = LookBack(FakeEstimator(), 0)
+    for i, est in enumerate([estimate(0, **D), estimate(1)]):
+        assert stage.push(FakeFrame(i), est) == [(FakeFrame(i), est)]
+    assert stage.flush() == []
+
+
+def test_estimates_leave_in_order_held_frames_deep():
+    stage = LookBack(FakeEstimator(), 3)
+    items = [estimate(i) for i in range(6)]
+    out = run(stage, items)
+    assert [f.index for f, _ in out] == [0, 1, 2]  # three held behind the newest
+    rest = stage.flush()
+    assert [f.index for f, _ in out + rest] == list(range(6))
+
+
+def test_a_doubtful_run_is_refitted_backwards_from_the_clean_frame_after_it():
+    fake = FakeEstimator(refit_badness={3: 0.5, 2: 3.0, 1: 0.1, 0: 0.1})
+    stage = LookBack(fake, 8, lead_in=1)
+    items = [estimate(0), estimate(1), estimate(2, **D), estimate(3, **K), estimate(4), estimate(5)]
+    out = run(stage, items) + stage.flush()
+    # Refits start when frame 5 arrives: frame 4 is the clean pose, frame 5 its velocity;
+    # newest first, each from the refit after it (taken or not); one lead-in frame (1).
+    assert fake.calls == [(3, 4.0, 5.0, 1.0), (2, 103.0, 4.0, 1.0), (1, 102.0, 103.0, 1.0)]
+    by_index = {f.index: e for f, e in out}
+    assert by_index[3].q[0] == 103 and by_index[3].errors["looked_back"] == 1.0
+    assert by_index[3].status == "tracked"  # a kept track's status stays
+    assert by_index[2].q[0] == 2 and "looked_back" not in by_index[2].errors  # 3.0 > 2.0
+    assert by_index[1].q[0] == 101  # the lead-in frame fitted better backwards (0.1 < 1.0)
+    assert by_index[0].q[0] == 0  # before the lead-in: not refitted
+    assert (stage.refits, stage.revised) == (3, 2)
+
+
+def test_a_refit_replaces_only_a_worse_fit_and_keeps_the_status():
+    fake = FakeEstimator(refit_badness={1: 0.5, 0: 2.5})
+    stage = LookBack(fake, 8, lead_in=0)
+    items = [estimate(0, **D), estimate(1, **D), estimate(2), estimate(3)]
+    out = dict((f.index, e) for f, e in run(stage, items) + stage.flush())
+    assert out[1].q[0] == 101 and out[1].status == "detected"  # 0.5 < 2.0: replaced
+    assert out[0].q[0] == 0  # 2.5 > 2.0: kept
+    assert (stage.refits, stage.revised) == (2, 1)
+
+
+def test_an_unknown_forward_badness_is_never_replaced():
+    fake = FakeEstimator(refit_badness={0: 0.0})
+    stage = LookBack(fake, 4, lead_in=0)
+    out = run(stage, [estimate(0, **{**D, "badness": math.nan}), estimate(1)]) + stage.flush()
+    assert out[0][1].q[0] == 0 and stage.refits == 1 and stage.revised == 0
+
+
+def test_flush_looks_back_from_the_last_frame_without_a_velocity():
+    fake = FakeEstimator()
+    stage = LookBack(fake, 8, lead_in=0)
+    run(stage, [estimate(0), estimate(1, **D), estimate(2)])
+    assert fake.calls == []  # frame 2's successor has not come yet
+    out = stage.flush()
+    assert fake.calls == [(1, 2.0, None, 1.0)]
+    assert [e.q[0] for _, e in out] == [0, 101, 2]
+
+
+def test_a_frame_without_a_person_ends_the_refits():
+    fake = FakeEstimator()
+    stage = LookBack(fake, 8, lead_in=0)
+    frames = [FakeFrame(0), FakeFrame(1, has_person=False), FakeFrame(2), FakeFrame(3)]
+    items = [estimate(0, **D), estimate(1, **D), estimate(2, **D), estimate(3)]
+    for f, e in zip(frames, items, strict=True):
+        stage.push(f, e)
+    stage.flush()
+    assert [c[0] for c in fake.calls] == [2]
+
+
+def test_only_held_frames_are_revised():
+    fake = FakeEstimator()
+    stage = LookBack(fake, 3, lead_in=2)
+    items = [estimate(i, **D) for i in range(6)] + [estimate(6), estimate(7)]
+    out = run(stage, items) + stage.flush()
+    # When frame 7 arrives, frames 4-7 are held: 6 is the clean pose, 4 and 5 are refitted.
+    assert [c[0] for c in fake.calls] == [5, 4]
+    assert [e.q[0] for _, e in out] == [0, 1, 2, 3, 104, 105, 6, 7]
+
+
+def test_the_velocity_follows_a_live_stream_s_frame_indices():
+    fake = FakeEstimator()
+    stage = LookBack(fake, 8, lead_in=0)
+    for i, e in [(0, estimate(0, **D)), (2, estimate(2)), (3, estimate(3))]:
+        stage.push(FakeFrame(i), e)
+    # Frame 0 lies two frames before frame 2, whose velocity spans one frame (2 -> 3).
+    assert fake.calls == [(0, 2.0, 3.0, 2.0)]
+
+
+def test_looked_back_yields_what_is_held_before_the_source_s_error():
+    def pairs():
+        yield FakeFrame(0), estimate(0)
+        yield FakeFrame(1), estimate(1, **D)
+        raise OSError("stream broke")
+
+    seen = []
+    with pytest.raises(OSError, match="stream broke"):
+        for frame, _ in looked_back(pairs(), FakeEstimator(), 8):
+            seen.append(frame.index)
+    assert seen == [0, 1]
+
+
+def test_looked_back_passes_everything_on_in_order():
+    items = [(FakeFrame(i), estimate(i, **(D if i in (2, 3) else {}))) for i in range(7)]
+    out = list(looked_back(iter(items), FakeEstimator(), 4, lead_in=0))
+    assert [f.index for f, _ in out] == list(range(7))
+    assert [e.q[0] for _, e in out] == [0, 1, 102, 103, 4, 5, 6]
+
+
+@pytest.mark.parametrize("bad", [dict(frames=-1), dict(frames=61), dict(lead_in=-1)])
+def test_bad_settings_are_refused(bad):
+    with pytest.raises(ConfigError):
+        LookBackConfig(**bad)
+    if "frames" in bad and bad["frames"] < 0:
+        with pytest.raises(ValueError):
+            LookBack(FakeEstimator(), bad["frames"])
