@@ -59,16 +59,27 @@ class _FrameLog:
         self.statuses: list[str] = []
         self.work: list[str] = []
         self._samples = self._size_samples()
+        self._sized: dict[int, bool] = {}  # frame index -> its estimate took a size sample
+        # A look-back writes frames after later ones were estimated: note each frame's size
+        # sample when it is estimated, not when it is written.
+        estimate = estimator.estimate
+
+        def noted(frame):
+            result = estimate(frame)
+            samples = self._size_samples()
+            self._sized[frame.index] = samples > self._samples
+            self._samples = samples
+            return result
+
+        estimator.estimate = noted
 
     def _size_samples(self) -> int:
         search = getattr(self.estimator, "scale_search", None)
         return 0 if search is None else search.samples
 
     def write_frame(self, index, time, status, joints, q, errors, observed=None) -> None:
-        samples = self._size_samples()
         self.statuses.append(status)
-        self.work.append(frame_work(status, errors or {}, samples > self._samples))
-        self._samples = samples
+        self.work.append(frame_work(status, errors or {}, self._sized.pop(index, False)))
 
     def update_body(self, body) -> None:
         pass
@@ -84,7 +95,8 @@ def benchmark_hybrid(
 ) -> dict:
     """Per-frame wall times of the shipped hybrid on the first ``frames`` frames of ``source``
     (any ``open_stream`` name; None: all of them), after ``warmup`` untimed frames of the
-    same source, run by ``runtime-track``'s own loop (:func:`runtime.track_loop.track`).
+    same source, run by ``runtime-track``'s own loop (:func:`runtime.track_loop.track`),
+    with its look-back for a file.
     ``config``: settings laid over the shipped preset (``runtime-track --config``).
 
     ``pipelined``: as ``runtime-track`` runs a file, each frame's mask and forest labels
@@ -105,10 +117,14 @@ def benchmark_hybrid(
         tracker.settings,
     )  # fmt: skip
     log = _FrameLog(estimator)
+    # A file as runtime-track tracks it: held for the hybrid's look-back (a frame's time
+    # includes the refits it started).
+    held = getattr(getattr(estimator, "cfg", None), "look_back", None)
     with open_stream(source, frame_range=FrameRange(0, frames)) as stream:
         stats = track(
-            stream, estimator, log, tracker.segmentation, tracker.device, pipelined=pipelined
-        )
+            stream, estimator, log, tracker.segmentation, tracker.device, pipelined=pipelined,
+            look_back=0 if held is None else held.frames,
+        )  # fmt: skip
     return {
         "ms": np.asarray(stats.frame_ms),
         "statuses": np.asarray(log.statuses),
@@ -127,10 +143,11 @@ def frame_work(status: str, errors: dict, sized: bool) -> str:
     if sized:
         ran.append("size search")
     # Keys only the detector's path writes: its labelled pixels (a detection, found or not),
-    # a track kept over it or confirmed by it, a fit too poor to report after it.
+    # a track kept over it or confirmed by it, a fit too poor to report after it; and a
+    # look-back's refit, which replaced the errors of a frame the detector was asked about.
     asked = (
         "labelled_pixels", "kept_over_detector", "rechecked", "confirmed_by_detector",
-        "unsupported",
+        "unsupported", "looked_back",
     )  # fmt: skip
     if (
         status == "detected"

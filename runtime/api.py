@@ -167,7 +167,11 @@ class Tracker:
             raise TrackError(f"look_back must be 0-{MAX_LOOK_BACK} frames, got {look_back}")
         pairs = self._track_stream(stream)
         if look_back > 0 and hasattr(estimator, "refit_from_later"):
-            pairs = looked_back(pairs, estimator, look_back, 2 if cfg is None else cfg.lead_in)
+            pairs = (
+                looked_back(pairs, estimator, look_back)
+                if cfg is None
+                else looked_back(pairs, estimator, look_back, cfg.lead_in, cfg.suspect_badness)
+            )
         return pairs if fixed_lag == 0 else smoothed_estimates(pairs, fixed_lag)
 
     def _track_stream(self, stream: DepthStream) -> Iterator[tuple[Frame, PoseEstimate]]:

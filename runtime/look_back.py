@@ -88,28 +88,43 @@ class LookBackConfig:
         "clean frames before a doubtful run refitted with it: a track drifts a frame or two "
         "before its tests fail",
     )
+    suspect_badness: float | None = field_doc(
+        None,
+        "a track that passed with a badness above this is doubted too, though the detector was "
+        "not asked about it (None: only detections and tracks the detector was asked about)",
+    )
 
     def __post_init__(self) -> None:
         if not 0 <= self.frames <= MAX_LOOK_BACK:
             raise ConfigError(f"look_back.frames must be 0-{MAX_LOOK_BACK}, got {self.frames}")
         if self.lead_in < 0:
             raise ConfigError(f"look_back.lead_in must be >= 0, got {self.lead_in}")
+        b = self.suspect_badness
+        if b is not None and not b >= 0:
+            raise ConfigError(f"look_back.suspect_badness must be >= 0 or null, got {b}")
 
 
 DOUBT_FLAGS = ("kept_over_detector", "rechecked", "confirmed_by_detector", "detector_waited")
 """``errors`` flags of a track the detector was asked about (:mod:`runtime.hybrid.estimator`)."""
 
 
-def is_doubtful(estimate: PoseEstimate) -> bool:
-    """A pose worth a second look: a detection, or a track the detector was asked about."""
+def is_doubtful(estimate: PoseEstimate, suspect: bool = False) -> bool:
+    """A pose worth a second look: a detection, a track the detector was asked about, or
+    (``suspect``) a track whose fit the caller found suspect."""
     if estimate.q is None:
         return False
-    return estimate.status == "detected" or any(k in estimate.errors for k in DOUBT_FLAGS)
+    asked = estimate.status == "detected" or any(k in estimate.errors for k in DOUBT_FLAGS)
+    return asked or suspect
 
 
-def is_clean(estimate: PoseEstimate) -> bool:
-    """A track that passed its tests with no second opinion: a pose to look back from."""
-    return estimate.status == "tracked" and estimate.q is not None and not is_doubtful(estimate)
+def is_clean(estimate: PoseEstimate, suspect: bool = False) -> bool:
+    """A track that passed its tests with no second opinion (and is not ``suspect``): a pose
+    to look back from."""
+    return (
+        estimate.status == "tracked"
+        and estimate.q is not None
+        and not is_doubtful(estimate, suspect)
+    )
 
 
 def refit_span(doubtful: list[bool], clean: list[bool], lead_in: int) -> int:
@@ -140,15 +155,23 @@ class LookBack:
     Args:
         estimator: the stream's estimator (the hybrid's: its tracker and tests refit the
             frames).
+        suspect_badness: a track whose own badness exceeds this is doubted too (None: no).
         frames: how many frames an estimate is held behind the newest (0: passed through);
             at most ``frames - 1`` frames before a clean one can be revised from it.
         lead_in: clean frames before a doubtful run refitted with it.
     """
 
-    def __init__(self, estimator: RefitsFromLater, frames: int, lead_in: int = 2) -> None:
+    def __init__(
+        self,
+        estimator: RefitsFromLater,
+        frames: int,
+        lead_in: int = 2,
+        suspect_badness: float | None = None,
+    ) -> None:
         if frames < 0 or lead_in < 0:
             raise ValueError(f"look-back frames and lead-in must be >= 0, got {frames}, {lead_in}")
         self.estimator, self.frames, self.lead_in = estimator, frames, lead_in
+        self.suspect_badness = suspect_badness
         self._held: deque[tuple[Frame, PoseEstimate]] = deque()
         self.refits = 0  # frames refitted backwards so far
         self.revised = 0  # of those, frames whose estimate was replaced
@@ -178,11 +201,17 @@ class LookBack:
         self._held.clear()
         return out
 
+    def _suspect(self, estimate: PoseEstimate) -> bool:
+        """Whether a track's own fit is worse than ``suspect_badness``."""
+        limit = self.suspect_badness
+        return limit is not None and self.estimator.badness_of(estimate) > limit
+
     def _look_back(self, held: deque, upto: int) -> None:
         """Refit the doubtful run before ``held[upto - 1]`` from it (when it is clean)."""
         items = list(held)[:upto]
-        doubtful = [is_doubtful(e) for _, e in items]
-        clean = [is_clean(e) for _, e in items]
+        suspect = [self._suspect(e) for _, e in items]
+        doubtful = [is_doubtful(e, s) for (_, e), s in zip(items, suspect, strict=True)]
+        clean = [is_clean(e, s) for (_, e), s in zip(items, suspect, strict=True)]
         span = refit_span(doubtful, clean, self.lead_in)
         if span == 0:
             return
@@ -191,7 +220,8 @@ class LookBack:
         est = self.estimator
         later_frame, later = items[-1]
         after = held[upto] if upto < len(held) else None
-        later2_frame, later2 = after if after is not None and is_clean(after[1]) else (None, None)
+        clean_after = after is not None and is_clean(after[1], self._suspect(after[1]))
+        later2_frame, later2 = after if clean_after else (None, None)
         for i in range(upto - 2, upto - 2 - span, -1):
             frame, old = held[i]
             if not frame.has_person:
@@ -216,12 +246,13 @@ def looked_back(
     estimator: RefitsFromLater,
     frames: int,
     lead_in: int = 2,
+    suspect_badness: float | None = None,
 ) -> Iterator[tuple[Frame, PoseEstimate]]:
     """``pairs`` (a stream's frames and estimates, in order) through a :class:`LookBack`,
     each pair yielded up to ``frames`` pairs late. If ``pairs`` raises, the pairs held are
     yielded first (as they stand: a stream that broke off gives no clean frame to look back
     from)."""
-    stage = LookBack(estimator, frames, lead_in)
+    stage = LookBack(estimator, frames, lead_in, suspect_badness)
     try:
         for frame, estimate in pairs:
             yield from stage.push(frame, estimate)

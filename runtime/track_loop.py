@@ -190,7 +190,11 @@ def track(
         from .look_back import LookBack
 
         cfg = getattr(getattr(estimator, "cfg", None), "look_back", None)
-        stage = LookBack(estimator, look_back, 2 if cfg is None else cfg.lead_in)
+        stage = (
+            LookBack(estimator, look_back)
+            if cfg is None
+            else LookBack(estimator, look_back, cfg.lead_in, cfg.suspect_badness)
+        )
 
     def emit(prepared: Frame, est) -> None:
         """Write (and draw, and show) one frame's final estimate."""

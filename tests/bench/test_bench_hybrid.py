@@ -22,6 +22,8 @@ def test_frames_are_classed_by_what_they_ran():
     assert frame_work("detected", {}, False) == "detector"
     assert frame_work("tracked", {"depth_error_cm": 3.1, "rechecked": 1.0}, False) == "detector"
     assert frame_work("tracked", {"kept_over_detector": 1.0}, False) == "detector"
+    # A doubted frame revised by the look-back carries the refit's errors and the flag.
+    assert frame_work("detected", {"overlap": 0.9, "looked_back": 1.0}, False) == "detector"
     assert frame_work("lost", {"tracker_overlap": 0.1, "labelled_pixels": 0.0}, False) == "detector"
     assert frame_work("lost", {"labelled_pixels": 3.0}, False) == "detector"  # found nobody
     assert frame_work("lost", {}, False) == "no person"  # nobody in the frame: nothing ran

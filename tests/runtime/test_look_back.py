@@ -206,3 +206,20 @@ def test_bad_settings_are_refused(bad):
     if "frames" in bad and bad["frames"] < 0:
         with pytest.raises(ValueError):
             LookBack(FakeEstimator(), bad["frames"])
+
+
+def test_a_suspect_track_is_doubted_when_asked():
+    """With suspect_badness, a passed track fitted worse than it is refitted too (its own
+    badness is its ``depth_error_cm`` here); without, it is a clean frame."""
+    items = [estimate(0), estimate(1, badness=3.0), estimate(2), estimate(3)]
+    fake = FakeEstimator()
+    stage = LookBack(fake, 8, lead_in=0, suspect_badness=2.5)
+    out = dict((f.index, e) for f, e in run(stage, items) + stage.flush())
+    assert [c[0] for c in fake.calls] == [1] and out[1].q[0] == 101
+    plain = FakeEstimator()
+    stage = LookBack(plain, 8, lead_in=0)
+    run(stage, items)
+    stage.flush()
+    assert plain.calls == []
+    with pytest.raises(ConfigError):
+        LookBackConfig(suspect_badness=-1.0)
