@@ -226,6 +226,9 @@ def track(
             if getattr(estimator, "body", None) is not body:  # e.g. the person's size found
                 body = estimator.body
                 writer.update_body(body)
+            note = getattr(writer, "note_estimated", None)
+            if note is not None:  # the processing rate counts estimates, not held writes
+                note()
             for done in [(prepared, est)] if stage is None else stage.push(prepared, est):
                 emit(*done)
             t_written = time.perf_counter()

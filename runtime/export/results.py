@@ -168,6 +168,12 @@ class ResultWriter:
         self._t_open = _clock()
         self._t_first: float | None = None
         self._t_last: float | None = None
+        # When the caller says when each frame was estimated (note_estimated), the processing
+        # rate is read from those times: a stage that holds frames (a fixed lag, the
+        # look-back) writes them late and the last ones in a burst at the end.
+        self._estimated = 0
+        self._t_first_estimate: float | None = None
+        self._t_last_estimate: float | None = None
         self._t_summary = -math.inf
         self._started = _now_iso()
         self._closed_summary: dict | None = None
@@ -211,6 +217,15 @@ class ResultWriter:
     def frames(self) -> int:
         """Frames written so far."""
         return self._poses.frames
+
+    def note_estimated(self) -> None:
+        """A frame was estimated now (it may be written later): ``fps`` is then the rate of
+        the estimates, not of the writes."""
+        now = _clock()
+        if self._t_first_estimate is None:
+            self._t_first_estimate = now
+        self._t_last_estimate = now
+        self._estimated += 1
 
     def update_body(self, body: BodyShape) -> None:
         """The estimator found a better body (e.g. the person's size, estimated while
@@ -291,8 +306,13 @@ class ResultWriter:
 
     def _summary(self, complete: bool) -> dict:
         n = self.frames
-        span = (self._t_last - self._t_first) if n >= 2 else None
-        fps = (n - 1) / span if span else None
+        if self._estimated:
+            k = self._estimated
+            span = (self._t_last_estimate - self._t_first_estimate) if k >= 2 else None
+            fps = (k - 1) / span if span else None
+        else:
+            span = (self._t_last - self._t_first) if n >= 2 else None
+            fps = (n - 1) / span if span else None
         wall = (self._t_last if self._t_last is not None else _clock()) - self._t_open
         return {
             "format": RESULT_FORMAT,

@@ -11,7 +11,8 @@ __all__ = ["WriterStage"]
 
 
 class WriterStage:
-    """Delegates ``extra``, ``directory``, ``frames``, ``update_body`` and ``close`` to
+    """Delegates ``extra``, ``directory``, ``frames``, ``update_body``, ``note_estimated`` and
+    ``close`` to
     ``self.writer`` (set by the subclass), and is its own context manager."""
 
     writer = None
@@ -34,6 +35,12 @@ class WriterStage:
     def update_body(self, body) -> None:
         """As :meth:`ResultWriter.update_body`."""
         self.writer.update_body(body)
+
+    def note_estimated(self) -> None:
+        """As :meth:`ResultWriter.note_estimated` (a writer without it ignores the note)."""
+        note = getattr(self.writer, "note_estimated", None)
+        if note is not None:
+            note()
 
     def close(self) -> dict:
         """Close the writer; returns its final summary."""

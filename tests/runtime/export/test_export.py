@@ -370,3 +370,28 @@ def test_result_writer_update_body_rewrites_body_and_bvh(tmp_path):
     ref = tmp_path / "ref.bvh"
     write_bvh(ref, q, bigger, 30.0)
     assert (out / "motion.bvh").read_text() == ref.read_text()
+
+
+def test_the_processing_rate_counts_estimates_not_held_writes(tmp_path, monkeypatch):
+    """Frames estimated 100 ms apart but written in a burst at the end (a look-back's hold):
+    ``fps`` is the estimates' rate, 10 frames/s; without the notes it is the writes'."""
+    import depthmocap.runtime.export.results as results
+
+    clock = {"t": 0.0}
+    monkeypatch.setattr(results, "_clock", lambda: clock["t"])
+    q, body = _camera_poses(1), _body()
+    rates = {}
+    for noted in (True, False):
+        writer = ResultWriter(
+            tmp_path / f"r{noted}", body, 30.0, Intrinsics.kinect_v1(160), "hybrid", "test"
+        )
+        for _ in range(5):
+            clock["t"] += 0.1
+            if noted:
+                writer.note_estimated()
+        for i in range(5):
+            clock["t"] += 0.001
+            writer.write_frame(i, i / 30, "tracked", None, q[0], {})
+        rates[noted] = writer.close()["fps"]
+    assert rates[True] == pytest.approx(10.0)
+    assert rates[False] == pytest.approx(1000.0)

@@ -191,3 +191,18 @@ def test_runtime_track_default_per_source(given, realtime, live, expected):
     args = argparse.Namespace(fixed_lag=given, realtime=realtime)
     stream = argparse.Namespace(is_live=live)
     assert fixed_lag_frames(args, stream) == expected
+
+
+def test_estimate_notes_reach_the_writer_through_the_smoother():
+    class Noting(_Sink):
+        notes = 0
+
+        def note_estimated(self):
+            self.notes += 1
+
+    sink = Noting()
+    smoother = FixedLagSmoother(sink, 2)
+    smoother.note_estimated()
+    smoother.note_estimated()
+    assert sink.notes == 2
+    FixedLagSmoother(_Sink(), 2).note_estimated()  # a writer without notes ignores them
