@@ -223,3 +223,23 @@ def test_a_suspect_track_is_doubted_when_asked():
     assert plain.calls == []
     with pytest.raises(ConfigError):
         LookBackConfig(suspect_badness=-1.0)
+
+
+@pytest.mark.parametrize(
+    ("given", "realtime", "live", "held", "expected"),
+    [(None, False, False, 12, 12), (None, True, False, 12, 0), (None, False, True, 12, 0),
+     (None, False, False, None, 0), (5, True, False, 12, 5), (0, False, False, 12, 0)],
+)  # fmt: skip
+def test_runtime_track_holds_a_file_by_default_and_a_live_stream_not(
+    given, realtime, live, held, expected
+):
+    import argparse
+    from types import SimpleNamespace
+
+    from depthmocap.runtime.track_cli import look_back_frames
+
+    args = argparse.Namespace(look_back=given, realtime=realtime)
+    stream = argparse.Namespace(is_live=live)
+    cfg = None if held is None else LookBackConfig(frames=held)
+    estimator = SimpleNamespace(cfg=SimpleNamespace(look_back=cfg))
+    assert look_back_frames(args, stream, estimator) == expected
