@@ -18,6 +18,7 @@ real tracker would see larger motion.
 from __future__ import annotations
 
 import itertools
+from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -25,6 +26,7 @@ import numpy as np
 from depthmocap.runtime.api import Tracker
 from depthmocap.runtime.estimator import make_estimator
 from depthmocap.runtime.estimator_setup import load_body
+from depthmocap.runtime.look_back import file_hold
 from depthmocap.runtime.streams import FrameRange, open_stream
 from depthmocap.runtime.track_loop import track
 
@@ -59,19 +61,15 @@ class _FrameLog:
         self.statuses: list[str] = []
         self.work: list[str] = []
         self._samples = self._size_samples()
-        self._sized: dict[int, bool] = {}  # frame index -> its estimate took a size sample
-        # A look-back writes frames after later ones were estimated: note each frame's size
-        # sample when it is estimated, not when it is written.
-        estimate = estimator.estimate
+        # Whether each estimate took a size sample, oldest first: a look-back writes a frame
+        # after later ones were estimated, and every estimate is written once, in order.
+        self._sized: deque[bool] = deque()
 
-        def noted(frame):
-            result = estimate(frame)
-            samples = self._size_samples()
-            self._sized[frame.index] = samples > self._samples
-            self._samples = samples
-            return result
-
-        estimator.estimate = noted
+    def note_estimated(self) -> None:
+        """Called by the track loop right after each estimate."""
+        samples = self._size_samples()
+        self._sized.append(samples > self._samples)
+        self._samples = samples
 
     def _size_samples(self) -> int:
         search = getattr(self.estimator, "scale_search", None)
@@ -79,7 +77,8 @@ class _FrameLog:
 
     def write_frame(self, index, time, status, joints, q, errors, observed=None) -> None:
         self.statuses.append(status)
-        self.work.append(frame_work(status, errors or {}, self._sized.pop(index, False)))
+        sized = self._sized.popleft() if self._sized else False
+        self.work.append(frame_work(status, errors or {}, sized))
 
     def update_body(self, body) -> None:
         pass
@@ -119,11 +118,10 @@ def benchmark_hybrid(
     log = _FrameLog(estimator)
     # A file as runtime-track tracks it: held for the hybrid's look-back (a frame's time
     # includes the refits it started).
-    held = getattr(getattr(estimator, "cfg", None), "look_back", None)
     with open_stream(source, frame_range=FrameRange(0, frames)) as stream:
         stats = track(
             stream, estimator, log, tracker.segmentation, tracker.device, pipelined=pipelined,
-            look_back=0 if held is None else held.frames,
+            look_back=file_hold(estimator),
         )  # fmt: skip
     return {
         "ms": np.asarray(stats.frame_ms),

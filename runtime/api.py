@@ -157,21 +157,17 @@ class Tracker:
             fixed_lag = 0 if stream.is_live else FILE_FIXED_LAG
         if not 0 <= fixed_lag <= MAX_FIXED_LAG:
             raise TrackError(f"fixed_lag must be 0-{MAX_FIXED_LAG} frames, got {fixed_lag}")
-        from .look_back import MAX_LOOK_BACK, looked_back
+        from .look_back import MAX_LOOK_BACK, LookBack, file_hold, looked_back
 
         estimator = self._estimator_for(stream.intrinsics)
-        cfg = getattr(getattr(estimator, "cfg", None), "look_back", None)
         if look_back is None:
-            look_back = 0 if stream.is_live or cfg is None else cfg.frames
+            look_back = 0 if stream.is_live else file_hold(estimator)
         if not 0 <= look_back <= MAX_LOOK_BACK:
             raise TrackError(f"look_back must be 0-{MAX_LOOK_BACK} frames, got {look_back}")
         pairs = self._track_stream(stream)
-        if look_back > 0 and hasattr(estimator, "refit_from_later"):
-            pairs = (
-                looked_back(pairs, estimator, look_back)
-                if cfg is None
-                else looked_back(pairs, estimator, look_back, cfg.lead_in, cfg.suspect_badness)
-            )
+        stage = LookBack.for_estimator(estimator, look_back)
+        if stage is not None:
+            pairs = looked_back(pairs, stage)
         return pairs if fixed_lag == 0 else smoothed_estimates(pairs, fixed_lag)
 
     def _track_stream(self, stream: DepthStream) -> Iterator[tuple[Frame, PoseEstimate]]:

@@ -63,6 +63,7 @@ __all__ = [
     "LookBack",
     "LookBackConfig",
     "RefitsFromLater",
+    "file_hold",
     "is_clean",
     "is_doubtful",
     "looked_back",
@@ -152,6 +153,19 @@ def refit_span(doubtful: list[bool], clean: list[bool], lead_in: int) -> int:
     return n - 1 - k
 
 
+def _settings(estimator) -> LookBackConfig | None:
+    """The estimator's look-back settings (the hybrid's ``cfg.look_back``; None: off or none)."""
+    return getattr(getattr(estimator, "cfg", None), "look_back", None)
+
+
+def file_hold(estimator) -> int:
+    """Frames a file's estimates are held for ``estimator``'s look-back by default: its
+    settings' ``look_back.frames``; 0 when it cannot refit or has the look-back off. (A live
+    stream is not held unless asked: ``runtime-track --look-back``.)"""
+    cfg = _settings(estimator)
+    return cfg.frames if cfg is not None and hasattr(estimator, "refit_from_later") else 0
+
+
 class LookBack:
     """Holds a stream's estimates ``frames`` deep and revises doubtful ones (module docstring).
 
@@ -178,6 +192,15 @@ class LookBack:
         self._held: deque[tuple[Frame, PoseEstimate]] = deque()
         self.refits = 0  # frames refitted backwards so far
         self.revised = 0  # of those, frames whose estimate was replaced
+
+    @classmethod
+    def for_estimator(cls, estimator, frames: int) -> LookBack | None:
+        """A look-back holding ``frames`` with ``estimator``'s settings (their defaults when it
+        has none), or None when ``frames`` is 0 or the estimator cannot refit."""
+        if frames == 0 or not hasattr(estimator, "refit_from_later"):
+            return None
+        cfg = _settings(estimator) or LookBackConfig()
+        return cls(estimator, frames, cfg.lead_in, cfg.suspect_badness)
 
     def push(self, frame: Frame, estimate: PoseEstimate) -> list[tuple[Frame, PoseEstimate]]:
         """Hold ``frame``'s estimate; returns the (frame, estimate) pairs that leave the hold,
@@ -245,17 +268,12 @@ class LookBack:
 
 
 def looked_back(
-    pairs: Iterable[tuple[Frame, PoseEstimate]],
-    estimator: RefitsFromLater,
-    frames: int,
-    lead_in: int = 2,
-    suspect_badness: float | None = None,
+    pairs: Iterable[tuple[Frame, PoseEstimate]], stage: LookBack
 ) -> Iterator[tuple[Frame, PoseEstimate]]:
-    """``pairs`` (a stream's frames and estimates, in order) through a :class:`LookBack`,
-    each pair yielded up to ``frames`` pairs late. If ``pairs`` raises, the pairs held are
+    """``pairs`` (a stream's frames and estimates, in order) through ``stage``, each pair
+    yielded up to ``stage.frames`` pairs late. If ``pairs`` raises, the pairs held are
     yielded first (as they stand: a stream that broke off gives no clean frame to look back
     from)."""
-    stage = LookBack(estimator, frames, lead_in, suspect_badness)
     try:
         for frame, estimate in pairs:
             yield from stage.push(frame, estimate)

@@ -54,7 +54,7 @@ from .estimator_setup import (
 from .export.fixed_lag import FILE_FIXED_LAG, MAX_FIXED_LAG, FixedLagSmoother
 from .export.live import add_live_args, live_output_from_args
 from .forest.inference import DEFAULT_MODEL
-from .look_back import MAX_LOOK_BACK
+from .look_back import MAX_LOOK_BACK, file_hold
 from .presets import DEFAULT_PRESET, PRESETS
 from .segmentation import SegmentationConfig
 from .stop_signals import StopRequest, graceful_stop, interrupt_on_signals
@@ -270,8 +270,7 @@ def look_back_frames(args: argparse.Namespace, stream, estimator) -> int:
     ``--realtime``) is not held."""
     if args.look_back is not None:
         return args.look_back
-    cfg = getattr(getattr(estimator, "cfg", None), "look_back", None)
-    return 0 if args.realtime or stream.is_live or cfg is None else cfg.frames
+    return 0 if args.realtime or stream.is_live else file_hold(estimator)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -386,6 +385,7 @@ def _run(args, stream, estimator, writer, view, seg_cfg, device) -> int:
     stats = TrackStats()
     stop = StopRequest()
     progress = Progress(stream.frame_count, quiet=args.quiet)
+    held = look_back_frames(args, stream, estimator)
     code, note = 0, None
     try:
         with stream, writer:
@@ -415,7 +415,7 @@ def _run(args, stream, estimator, writer, view, seg_cfg, device) -> int:
                         stop=stop,
                         stats=stats,
                         view=view,
-                        look_back=look_back_frames(args, stream, estimator),
+                        look_back=held,
                     )
                 if stop.is_set():
                     note = stop.reason
@@ -433,7 +433,7 @@ def _run(args, stream, estimator, writer, view, seg_cfg, device) -> int:
                         "stopped": note,
                         "body_scale": getattr(estimator, "body_scale", None),
                         "looked_back": {
-                            "frames": look_back_frames(args, stream, estimator),
+                            "frames": held,
                             "refits": stats.looked_back[0],
                             "revised": stats.looked_back[1],
                         },

@@ -17,6 +17,7 @@ import numpy as np
 
 from .estimator import PoseEstimator, estimate_frame, prepare_frame
 from .frame import Frame
+from .look_back import LookBack
 from .segmentation import PersonSegmenter, SegmentationConfig
 from .streams import DepthStream
 from .streams.latest_frame import LatestFrameReader, timed_frames
@@ -185,16 +186,9 @@ def track(
     ) if pipelined or live else None  # fmt: skip
     frames = iter(reader) if reader is not None else timed_frames(stream)
     body = getattr(estimator, "body", None)
-    stage = None
-    if look_back > 0 and hasattr(estimator, "refit_from_later"):
-        from .look_back import LookBack
-
-        cfg = getattr(getattr(estimator, "cfg", None), "look_back", None)
-        stage = (
-            LookBack(estimator, look_back)
-            if cfg is None
-            else LookBack(estimator, look_back, cfg.lead_in, cfg.suspect_badness)
-        )
+    stage = LookBack.for_estimator(estimator, look_back)
+    # The processing rate counts estimates, not the held frames' writes.
+    note_estimated = getattr(writer, "note_estimated", None)
 
     def emit(prepared: Frame, est) -> None:
         """Write (and draw, and show) one frame's final estimate."""
@@ -226,9 +220,8 @@ def track(
             if getattr(estimator, "body", None) is not body:  # e.g. the person's size found
                 body = estimator.body
                 writer.update_body(body)
-            note = getattr(writer, "note_estimated", None)
-            if note is not None:  # the processing rate counts estimates, not held writes
-                note()
+            if note_estimated is not None:
+                note_estimated()
             for done in [(prepared, est)] if stage is None else stage.push(prepared, est):
                 emit(*done)
             t_written = time.perf_counter()

@@ -187,14 +187,14 @@ def test_looked_back_yields_what_is_held_before_the_source_s_error():
 
     seen = []
     with pytest.raises(OSError, match="stream broke"):
-        for frame, _ in looked_back(pairs(), FakeEstimator(), 8):
+        for frame, _ in looked_back(pairs(), LookBack(FakeEstimator(), 8)):
             seen.append(frame.index)
     assert seen == [0, 1]
 
 
 def test_looked_back_passes_everything_on_in_order():
     items = [(FakeFrame(i), estimate(i, **(D if i in (2, 3) else {}))) for i in range(7)]
-    out = list(looked_back(iter(items), FakeEstimator(), 4, lead_in=0))
+    out = list(looked_back(iter(items), LookBack(FakeEstimator(), 4, lead_in=0)))
     assert [f.index for f, _ in out] == list(range(7))
     assert [e.q[0] for _, e in out] == [0, 1, 102, 103, 4, 5, 6]
 
@@ -241,5 +241,5 @@ def test_runtime_track_holds_a_file_by_default_and_a_live_stream_not(
     args = argparse.Namespace(look_back=given, realtime=realtime)
     stream = argparse.Namespace(is_live=live)
     cfg = None if held is None else LookBackConfig(frames=held)
-    estimator = SimpleNamespace(cfg=SimpleNamespace(look_back=cfg))
+    estimator = SimpleNamespace(cfg=SimpleNamespace(look_back=cfg), refit_from_later=None)
     assert look_back_frames(args, stream, estimator) == expected
