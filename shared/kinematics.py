@@ -71,7 +71,10 @@ def _cached(array, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     if t is None:
         if len(_CONSTANTS) >= _MAX_CONSTANTS:  # only ever a few dozen; never grow unbounded
             _CONSTANTS.clear()
-        t = _CONSTANTS[key] = torch.as_tensor(a, dtype=dtype, device=device)
+        # Never an inference tensor, even when first asked for inside torch.inference_mode
+        # (runtime-track's estimates): autograd could not save it for backward later on.
+        with torch.inference_mode(False):
+            t = _CONSTANTS[key] = torch.as_tensor(a, dtype=dtype, device=device)
     return t
 
 

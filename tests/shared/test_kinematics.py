@@ -279,3 +279,22 @@ def test_skeleton_constants_are_built_once_per_content_dtype_and_device():
     i = kin_module._index([3, 1], like)
     assert i.dtype == torch.long and kin_module._index(np.array([3, 1]), like) is i
     assert kin_module._index([3, 2], like) is not i
+
+
+def test_constants_first_made_in_inference_mode_still_serve_autograd(monkeypatch):
+    """runtime-track estimates in torch.inference_mode; the skeleton's cached constants it
+    creates there must not break a later autograd pass in the same process (the Python API
+    tracks, then a caller differentiates)."""
+    import depthmocap.shared.kinematics as kinematics
+
+    monkeypatch.setattr(kinematics, "_CONSTANTS", {})  # made afresh below, in inference mode
+    body = BodyShape.default()
+    q = rest_pose(2, (0.0, 0.0, 2.5))
+    with torch.inference_mode():
+        named_joint_positions(forward_kinematics(pose_update(q, torch.zeros_like(q)), body))
+
+    def joints(dq):
+        return named_joint_positions(forward_kinematics(pose_update(q, dq), body)).sum(0)
+
+    jac = torch.autograd.functional.jacobian(joints, torch.zeros_like(q), vectorize=True)
+    assert torch.isfinite(jac).all() and jac.abs().sum() > 0
