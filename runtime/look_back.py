@@ -98,6 +98,13 @@ class LookBackConfig:
         "tracking failure 6.46 -> 3.72% (docs/experiments.md, forty-seventh session)",
     )
 
+    sweep_margin: float | None = field_doc(
+        None,
+        "also refit every held frame backwards, clean ones included, in blocks of the hold's "
+        "depth, each from the two (revised) poses after it, and keep a refit whose badness is "
+        "lower by more than this (None: only the doubtful runs). One more tracker fit a frame",
+    )
+
     def __post_init__(self) -> None:
         if not 0 <= self.frames <= MAX_LOOK_BACK:
             raise ConfigError(f"look_back.frames must be 0-{MAX_LOOK_BACK}, got {self.frames}")
@@ -106,6 +113,9 @@ class LookBackConfig:
         b = self.suspect_badness
         if b is not None and not b >= 0:
             raise ConfigError(f"look_back.suspect_badness must be >= 0 or null, got {b}")
+        m = self.sweep_margin
+        if m is not None and not m >= 0:
+            raise ConfigError(f"look_back.sweep_margin must be >= 0 or null, got {m}")
 
 
 DOUBT_FLAGS = ("kept_over_detector", "rechecked", "confirmed_by_detector", "detector_waited")
@@ -184,12 +194,14 @@ class LookBack:
         frames: int,
         lead_in: int = 2,
         suspect_badness: float | None = None,
+        sweep_margin: float | None = None,
     ) -> None:
         if frames < 0 or lead_in < 0:
             raise ValueError(f"look-back frames and lead-in must be >= 0, got {frames}, {lead_in}")
         self.estimator, self.frames, self.lead_in = estimator, frames, lead_in
-        self.suspect_badness = suspect_badness
+        self.suspect_badness, self.sweep_margin = suspect_badness, sweep_margin
         self._held: deque[tuple[Frame, PoseEstimate]] = deque()
+        self._unswept = 0  # the newest held estimates no sweep has refitted yet
         self.refits = 0  # frames refitted backwards so far
         self.revised = 0  # of those, frames whose estimate was replaced
 
@@ -200,7 +212,7 @@ class LookBack:
         if frames == 0 or not hasattr(estimator, "refit_from_later"):
             return None
         cfg = _settings(estimator) or LookBackConfig()
-        return cls(estimator, frames, cfg.lead_in, cfg.suspect_badness)
+        return cls(estimator, frames, cfg.lead_in, cfg.suspect_badness, cfg.sweep_margin)
 
     def push(self, frame: Frame, estimate: PoseEstimate) -> list[tuple[Frame, PoseEstimate]]:
         """Hold ``frame``'s estimate; returns the (frame, estimate) pairs that leave the hold,
@@ -208,8 +220,11 @@ class LookBack:
         if self.frames == 0:
             return [(frame, estimate)]
         self._held.append((frame, estimate))
+        self._unswept += 1
         # The newest but one is where refits start; the newest gives them their velocity.
         self._look_back(self._held, upto=len(self._held) - 1)
+        if len(self._held) > self.frames and self._unswept >= len(self._held):
+            self._sweep(self._held)  # the oldest would leave unswept: a block, from the newest
         out = []
         while len(self._held) > self.frames:
             out.append(self._held.popleft())
@@ -219,12 +234,14 @@ class LookBack:
         """Everything held, oldest first (the stream ended: the last frame starts a look-back
         of its own, without a velocity)."""
         self._look_back(self._held, upto=len(self._held))
+        self._sweep(self._held)
         return self.release()
 
     def release(self) -> list[tuple[Frame, PoseEstimate]]:
         """Everything held, oldest first, as it stands (no look-back: after an error)."""
         out = list(self._held)
         self._held.clear()
+        self._unswept = 0
         return out
 
     def _suspect(self, estimate: PoseEstimate) -> bool:
@@ -265,6 +282,39 @@ class LookBack:
                 self.revised += 1
             later2_frame, later2 = later_frame, later
             later_frame, later = frame, new
+
+    def _sweep(self, held: deque) -> None:
+        """Refit the unswept held estimates but the newest backwards from it (``sweep_margin``
+        set): each from the two chosen poses after it, replaced by a refit whose badness is
+        lower by more than the margin (flagged ``swept``). A frame without a pose (lost, or
+        no person) breaks the chain; the next frame with one starts it again."""
+        margin, count = self.sweep_margin, min(self._unswept, len(held))
+        self._unswept = min(self._unswept, 1)
+        if margin is None or count < 2:
+            return
+        from .tracker.prior_term import velocity_scale
+
+        est = self.estimator
+        later_frame, later = held[-1]
+        later2_frame = later2 = None
+        for i in range(len(held) - 2, len(held) - 1 - count, -1):
+            frame, old = held[i]
+            usable = frame.has_person and old.q is not None
+            if not usable or later.q is None:
+                later_frame, later, later2_frame, later2 = frame, old, None, None
+                continue
+            ahead = velocity_scale(
+                -frame.index, -later_frame.index, None if later2 is None else -later2_frame.index
+            )
+            new, new_badness = est.refit_from_later(frame, later, later2, ahead)
+            self.refits += 1
+            if new_badness < est.badness_of(old) - margin:  # False for an unknown badness
+                new.status = old.status
+                new.errors = {**new.errors, "swept": 1.0}
+                held[i] = (frame, new)
+                self.revised += 1
+            later2_frame, later2 = later_frame, later
+            later_frame, later = held[i]
 
 
 def looked_back(

@@ -243,3 +243,38 @@ def test_runtime_track_holds_a_file_by_default_and_a_live_stream_not(
     cfg = None if held is None else LookBackConfig(frames=held)
     estimator = SimpleNamespace(cfg=SimpleNamespace(look_back=cfg), refit_from_later=None)
     assert look_back_frames(args, stream, estimator) == expected
+
+
+def test_a_sweep_refits_every_frame_once_in_blocks_from_the_newest():
+    """sweep_margin: when the oldest held frame would leave unswept, every unswept frame but
+    the newest is refitted newest to oldest, each from the two chosen poses after it; the
+    rest at the end of the stream. Each frame once, the last one never (nothing after it)."""
+    fake = FakeEstimator(refit_badness={i: 0.5 for i in range(10)} | {4: 0.95, 6: 3.0})
+    stage = LookBack(fake, 3, lead_in=0, sweep_margin=0.1)
+    out = dict((f.index, e) for f, e in run(stage, [estimate(i) for i in range(8)]) + stage.flush())
+    # Frame 3 arrives with 0-3 held: 2, 1, 0 from 3. Frame 6 arrives with 3-6 held: 5, 4, 3
+    # from 6; frame 6's refit is worse (3.0), so frame 5 starts from 6's own pose and 5's
+    # refit (taken) gives 4 its start. At the end: 6 from 7.
+    assert [(c[0], c[1], c[2]) for c in fake.calls] == [
+        (2, 3.0, None), (1, 102.0, 3.0), (0, 101.0, 102.0),
+        (5, 6.0, None), (4, 105.0, 6.0), (3, 4.0, 105.0),
+        (6, 7.0, None),
+    ]  # fmt: skip
+    assert [out[i].q[0] for i in range(8)] == [100, 101, 102, 103, 4, 105, 6, 7]
+    # Frame 4's refit (0.95) is better than its 1.0 by less than the margin: not taken.
+    assert out[0].errors["swept"] == 1.0 and "swept" not in out[4].errors
+    assert (stage.refits, stage.revised) == (7, 5)
+
+
+def test_a_sweep_keeps_the_status_and_restarts_after_a_frame_without_a_pose():
+    fake = FakeEstimator()
+    stage = LookBack(fake, 8, lead_in=0, sweep_margin=0.0)
+    items = [estimate(0, status="detected"), estimate(1), PoseEstimate(None, None, "lost"),
+             estimate(3), estimate(4)]  # fmt: skip
+    out = dict((f.index, e) for f, e in run(stage, items) + stage.flush())
+    # The look-back refits the detection 0 from 1 when 2 arrives; at the end the sweep: 3
+    # from 4; 2 has no pose, so 1 is not refitted but starts the chain again; 0 from 1.
+    assert [c[0] for c in fake.calls] == [0, 3, 0]
+    assert out[0].status == "detected" and out[0].q[0] == 100 and out[2].q is None
+    with pytest.raises(ConfigError):
+        LookBackConfig(sweep_margin=-0.1)
