@@ -4,7 +4,8 @@
 
 Each recording is tracked as ``runtime-track`` runs a file (the population body, the shipped
 settings with ``--config`` laid over them; the observed flags from the tracker's own area
-test, ``joint_confidence`` off), and every frame with a pose gives a line of evidence: the
+test, ``joint_confidence`` off; the look-back's refits in place of the frames they revised,
+as the poses a file gets are written), and every frame with a pose gives a line of evidence: the
 joints' confirmed areas, the limbs' visibility in the fit, the output joints and the flags.
 One ``NAME.npz`` per recording (written whole, so an interrupted run resumes at the next
 recording; one already there is kept). ``python -m
@@ -23,6 +24,7 @@ import torch
 from depthmocap.runtime.api import Tracker
 from depthmocap.runtime.estimator import estimate_frame, make_estimator, prepare_frame
 from depthmocap.runtime.estimator_setup import load_body
+from depthmocap.runtime.look_back import LookBack, file_hold, looked_back
 from depthmocap.runtime.segmentation import PersonSegmenter
 from depthmocap.runtime.streams import open_stream
 from depthmocap.shared import skeleton as sk
@@ -34,8 +36,11 @@ from depthmocap.shared.part_evidence import image_part_evidence
 __all__ = ["main", "record_evidence", "track_evidence"]
 
 
-def track_evidence(recording: Path, config: str | None = None) -> dict[str, np.ndarray]:
-    """Track ``recording`` (module docstring).
+def track_evidence(
+    recording: Path, config: str | None = None, look_back: int | None = None
+) -> dict[str, np.ndarray]:
+    """Track ``recording`` (module docstring); ``look_back``: frames held for the look-back
+    (None: as ``runtime-track`` holds a file; 0: each estimate as the forward track left it).
 
     Returns:
         ``frame`` (F,) indices of the frames with a pose, ``support`` (F, J) confirmed areas
@@ -57,10 +62,17 @@ def track_evidence(recording: Path, config: str | None = None) -> dict[str, np.n
             tracker.mode, tracker.model, load_body(None), stream.intrinsics, tracker.device,
             tracker.settings,
         )  # fmt: skip
-        try:
-            for index, frame in enumerate(stream):
+
+        def estimates():
+            for frame in stream:
                 prepared = prepare_frame(estimator, frame, segment, tracker.device)
-                est = estimate_frame(estimator, prepared)
+                yield prepared, estimate_frame(estimator, prepared)
+
+        held = file_hold(estimator) if look_back is None else look_back
+        stage = LookBack.for_estimator(estimator, held)
+        pairs = estimates() if stage is None else looked_back(estimates(), stage)
+        try:
+            for prepared, est in pairs:
                 cut = parts = None
                 if est.joints is not None:  # the mask as the estimate left it
                     joints = torch.as_tensor(est.joints, dtype=torch.float64)
@@ -74,7 +86,7 @@ def track_evidence(recording: Path, config: str | None = None) -> dict[str, np.n
                         .numpy()
                     )
                 fit = frame_features(est.errors, est.status)
-                values = (index, est.joint_support_cm2, est.limb_visibility, est.joints,
+                values = (prepared.index, est.joint_support_cm2, est.limb_visibility, est.joints,
                           cut, fit, est.observed, parts)  # fmt: skip
                 if all(v is not None for v in values):  # a frame with a pose and its evidence
                     for key, value in zip(keys, values, strict=True):
@@ -96,7 +108,9 @@ def track_evidence(recording: Path, config: str | None = None) -> dict[str, np.n
     }
 
 
-def record_evidence(recordings: list[Path], out: Path, config: str | None = None) -> list[Path]:
+def record_evidence(
+    recordings: list[Path], out: Path, config: str | None = None, look_back: int | None = None
+) -> list[Path]:
     """:func:`track_evidence` of each recording into ``out/NAME.npz`` (kept where present);
     the files, in the recordings' order."""
     out.mkdir(parents=True, exist_ok=True)
@@ -105,7 +119,7 @@ def record_evidence(recordings: list[Path], out: Path, config: str | None = None
         path = out / f"{rec.name}.npz"
         if not path.is_file():
             tmp = out / f"{rec.name}.tmp.npz"
-            np.savez(tmp, **track_evidence(rec, config))
+            np.savez(tmp, **track_evidence(rec, config, look_back))
             tmp.replace(path)
             print(f"  {rec.name}", flush=True)
         files.append(path)
@@ -120,6 +134,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="recordings, or folders of them")  # fmt: skip
     p.add_argument("--out", type=Path, required=True, help="folder for one NAME.npz each")
     p.add_argument("--config", default=None, help="settings over the shipped preset")
+    p.add_argument("--look-back", type=int, default=None,
+                   help="frames held for the look-back (default: as runtime-track holds a "
+                        "file, so the evidence is of the poses it writes; 0: the forward "
+                        "track's)")  # fmt: skip
     args = p.parse_args(argv)
     recordings = []
     for path in args.recordings:
@@ -129,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
             recordings += sorted(r for r in path.iterdir() if (r / "meta.json").is_file())
         else:
             p.error(f"{path}: no such recording or folder")
-    record_evidence(recordings, args.out, args.config)
+    record_evidence(recordings, args.out, args.config, args.look_back)
     return 0
 
 

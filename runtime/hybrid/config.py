@@ -306,7 +306,8 @@ class HybridConfig:
         "the clean frame after them, keeping a refit that fits better (runtime.look_back; not "
         "in Wei; None: off). Broad tuning sets at 0.2 rad 38.64 -> 36.34 mm, report set "
         "44.40 -> 42.80 mm (mean of three trust regions), UTD-MHAD 56.3 -> 54.3 mm "
-        "(docs/experiments.md, forty-seventh session)",
+        "(docs/experiments.md, forty-seventh session); with its sweep over every frame "
+        "(sweep_margin) 42.80 -> 41.82 mm and 54.3 -> 53.5 mm (forty-eighth session)",
         default_factory=LookBackConfig,
     )
     detector: DetectorConfig = field_doc(help="detector settings", default_factory=DetectorConfig)

@@ -11,6 +11,7 @@ import sys
 import textwrap
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import depthmocap.runtime.track_cli as cli
 import numpy as np
@@ -23,6 +24,7 @@ from depthmocap.runtime.estimator import (
     make_estimator,
 )
 from depthmocap.runtime.frame import Frame, depth_mm_to_metres
+from depthmocap.runtime.look_back import LookBackConfig
 from depthmocap.runtime.streams import DepthFrame, DepthStream, SensorDisconnected, StreamError
 from depthmocap.shared import forest_format as ff
 from depthmocap.shared.body import BodyShape
@@ -599,9 +601,10 @@ class LookingBackEstimator(FakeEstimator):
     """Detects frame 1 (badness 2), tracks the others (badness 1); a refit from later frames
     has q[0] = 9 and badness 0.5 (runtime.look_back's estimator protocol)."""
 
-    def __init__(self):
+    def __init__(self, sweep_margin: float | None = None):
         super().__init__()
         self.refits: list[int] = []
+        self.cfg = SimpleNamespace(look_back=LookBackConfig(sweep_margin=sweep_margin))
 
     def estimate(self, frame: Frame) -> PoseEstimate:
         est = super().estimate(frame)
@@ -634,6 +637,14 @@ def test_a_look_back_revises_a_doubted_frame_and_writes_every_frame():
     assert w.rows == [(0, "tracked", 9.0, True), (1, "detected", 9.0, True),
                       (2, "tracked", 0.0, False), (3, "tracked", 0.0, False)]  # fmt: skip
     assert est.refits == [1, 0] and stats.looked_back == (2, 2) and stats.frames == 4
+
+
+def test_the_shipped_look_back_also_sweeps_every_frame_but_the_last():
+    w, est = RowsWriter(), LookingBackEstimator(sweep_margin=LookBackConfig().sweep_margin)
+    stats = cli.track(ListStream([person_frame()] * 4), est, w, look_back=3)
+    # The run refits (1, 0) when frame 3 arrives; at the end the sweep: 2, 1, 0 from 3.
+    assert est.refits == [1, 0, 2, 1, 0] and stats.looked_back == (5, 3)
+    assert [r[2] for r in w.rows] == [9.0, 9.0, 9.0, 0.0] and stats.frames == 4
 
 
 def test_frames_held_by_a_look_back_are_written_when_the_camera_drops():
