@@ -25,7 +25,15 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
-__all__ = ["GROUPS", "METRICS", "CompareError", "compare", "format_comparison", "load_runs"]
+__all__ = [
+    "GROUPS",
+    "METRICS",
+    "CompareError",
+    "compare",
+    "format_comparison",
+    "load_runs",
+    "pooled",
+]
 
 DEFAULT_CONFIG = "hybrid, default body"
 # (report key, label) of the pooled figures.
@@ -70,7 +78,7 @@ def load_runs(outs: list[Path], config: str = DEFAULT_CONFIG) -> dict[str, dict]
     return runs
 
 
-def _pooled(entries: list[dict], key: str) -> float:
+def pooled(entries: list[dict], key: str) -> float:
     """The frame-weighted mean of ``key`` over ``entries`` with a value for it."""
     have = [e for e in entries if e.get(key) is not None]
     frames = sum(e["frames"] for e in have)
@@ -84,8 +92,8 @@ def compare(base: dict[str, dict], new: dict[str, dict], margin_mm: float = 0.5)
         raise CompareError(f"the runs hold different recordings: {', '.join(only[:5])} ...")
     names = sorted(base)
     total = sum(base[n]["frames"] for n in names)
-    pooled = {
-        key: (_pooled([base[n] for n in names], key), _pooled([new[n] for n in names], key))
+    figures = {
+        key: (pooled([base[n] for n in names], key), pooled([new[n] for n in names], key))
         for key, _ in METRICS
     }
     deltas = sorted(
@@ -102,8 +110,8 @@ def compare(base: dict[str, dict], new: dict[str, dict], margin_mm: float = 0.5)
                 members[str(value)].append(n)
         rows = {
             value: (
-                _pooled([base[n] for n in ns], ERROR),
-                _pooled([new[n] for n in ns], ERROR),
+                pooled([base[n] for n in ns], ERROR),
+                pooled([new[n] for n in ns], ERROR),
                 len(ns),
             )
             for value, ns in sorted(members.items())
@@ -113,7 +121,7 @@ def compare(base: dict[str, dict], new: dict[str, dict], margin_mm: float = 0.5)
     return {
         "recordings": len(names),
         "frames": total,
-        "pooled": pooled,
+        "pooled": figures,
         "better": sum(d < -1.0 for d in raw.values()),
         "worse": sum(d > 1.0 for d in raw.values()),
         "largest_gains": deltas[:3],
