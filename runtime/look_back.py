@@ -271,30 +271,15 @@ class LookBack:
         span = refit_span(doubtful, clean, self.lead_in)
         if span == 0:
             return
-        from .tracker.prior_term import velocity_scale
-
-        est = self.estimator
-        later_frame, later = items[-1]
         after = held[upto] if upto < len(held) else None
         clean_after = after is not None and is_clean(after[1], self._suspect(after[1]))
-        later2_frame, later2 = after if clean_after else (None, None)
+        later, later2 = items[-1], after if clean_after else None
         for i in range(upto - 2, upto - 2 - span, -1):
-            frame, old = held[i]
+            frame = held[i][0]
             if not frame.has_person:
                 break
-            # Backwards in time: the prior predicts from the later frames to this earlier one.
-            ahead = velocity_scale(
-                -frame.index, -later_frame.index, None if later2 is None else -later2_frame.index
-            )
-            new, new_badness = est.refit_from_later(frame, later, later2, ahead)
-            self.refits += 1
-            if new_badness < est.badness_of(old):  # False for an unknown (NaN) badness
-                new.status = old.status
-                new.errors = {**new.errors, "looked_back": 1.0}
-                held[i] = (frame, new)
-                self.revised += 1
-            later2_frame, later2 = later_frame, later
-            later_frame, later = frame, new
+            new = self._refit(held, i, later, later2, 0.0, "looked_back")
+            later2, later = later, (frame, new)  # the refit, taken or not
 
     def _sweep(self, held: deque) -> None:
         """Refit the unswept held estimates but the newest backwards from it (``sweep_margin``
@@ -305,29 +290,39 @@ class LookBack:
         self._unswept = min(self._unswept, 1)
         if margin is None or count < 2:
             return
-        from .tracker.prior_term import velocity_scale
-
-        est = self.estimator
-        later_frame, later = held[-1]
-        later2_frame = later2 = None
+        later, later2 = held[-1], None
         for i in range(len(held) - 2, len(held) - 1 - count, -1):
             frame, old = held[i]
-            usable = frame.has_person and old.q is not None
-            if not usable or later.q is None:
-                later_frame, later, later2_frame, later2 = frame, old, None, None
+            if not (frame.has_person and old.q is not None) or later[1].q is None:
+                later, later2 = held[i], None
                 continue
-            ahead = velocity_scale(
-                -frame.index, -later_frame.index, None if later2 is None else -later2_frame.index
-            )
-            new, new_badness = est.refit_from_later(frame, later, later2, ahead)
-            self.refits += 1
-            if new_badness < est.badness_of(old) - margin:  # False for an unknown badness
-                new.status = old.status
-                new.errors = {**new.errors, "swept": 1.0}
-                held[i] = (frame, new)
-                self.revised += 1
-            later2_frame, later2 = later_frame, later
-            later_frame, later = held[i]
+            self._refit(held, i, later, later2, margin, "swept")
+            later2, later = later, held[i]  # the chosen pose
+
+    def _refit(
+        self, held: deque, i: int, later: tuple, later2: tuple | None, margin: float, flag: str
+    ) -> PoseEstimate:
+        """``held[i]`` refitted from the (frame, estimate) pairs after it (``later2`` None: no
+        velocity); the refit replaces it, keeping its status and flagged ``flag``, when its
+        badness is lower by more than ``margin``. Returns the refit, taken or not."""
+        from .tracker.prior_term import velocity_scale
+
+        frame, old = held[i]
+        # Backwards in time: the prior predicts from the later frames to this earlier one.
+        ahead = velocity_scale(
+            -frame.index, -later[0].index, None if later2 is None else -later2[0].index
+        )
+        est = self.estimator
+        new, badness = est.refit_from_later(
+            frame, later[1], None if later2 is None else later2[1], ahead
+        )
+        self.refits += 1
+        if badness < est.badness_of(old) - margin:  # False for an unknown (NaN) badness
+            new.status = old.status
+            new.errors = {**new.errors, flag: 1.0}
+            held[i] = (frame, new)
+            self.revised += 1
+        return new
 
 
 def looked_back(
