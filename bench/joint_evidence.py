@@ -24,7 +24,7 @@ import torch
 from depthmocap.runtime.api import Tracker
 from depthmocap.runtime.estimator import estimate_frame, make_estimator, prepare_frame
 from depthmocap.runtime.estimator_setup import load_body
-from depthmocap.runtime.look_back import LookBack, file_hold, looked_back
+from depthmocap.runtime.look_back import MAX_LOOK_BACK, LookBack, file_hold, looked_back
 from depthmocap.runtime.segmentation import PersonSegmenter
 from depthmocap.runtime.streams import open_stream
 from depthmocap.shared import skeleton as sk
@@ -139,6 +139,8 @@ def main(argv: list[str] | None = None) -> int:
                         "file, so the evidence is of the poses it writes; 0: the forward "
                         "track's)")  # fmt: skip
     args = p.parse_args(argv)
+    if args.look_back is not None and not 0 <= args.look_back <= MAX_LOOK_BACK:
+        p.error(f"--look-back must be 0-{MAX_LOOK_BACK} frames, got {args.look_back}")
     recordings = []
     for path in args.recordings:
         if (path / "meta.json").is_file():

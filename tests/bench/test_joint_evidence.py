@@ -35,3 +35,11 @@ def test_evidence_of_each_posed_frame_is_written_once(two_demo_recordings, tmp_p
 def test_a_missing_recording_is_a_usage_error(tmp_path):
     with pytest.raises(SystemExit):
         joint_evidence.main(["--recordings", str(tmp_path / "none"), "--out", str(tmp_path)])
+
+
+@pytest.mark.parametrize("frames", ["-1", "61"])
+def test_a_look_back_out_of_range_is_a_usage_error(tmp_path, frames, capsys):
+    with pytest.raises(SystemExit):
+        joint_evidence.main(["--recordings", str(tmp_path), "--out", str(tmp_path),
+                             "--look-back", frames])  # fmt: skip
+    assert "--look-back must be 0-60" in capsys.readouterr().err
