@@ -133,9 +133,10 @@ class Tracker:
                 each pose as fitted, at once. None: as ``runtime-track``, 2 for a file and 0
                 for a live camera.
             look_back: hold each pose this many frames and refit the frames the hybrid
-                doubted backwards from the clean frame after them (:mod:`runtime.look_back`);
-                0: off. None: as ``runtime-track``, the hybrid's ``look_back.frames`` for a
-                file and 0 for a live camera.
+                doubted backwards from the clean frame after them, then every held frame
+                once (the sweep, ``look_back.sweep_margin``; :mod:`runtime.look_back`); 0:
+                off. None: as ``runtime-track``, the hybrid's ``look_back.frames`` for a file
+                and 0 for a live camera.
 
         A file keeps every frame, in order. A live camera's newest frame wins: frames that
         arrived while the estimator was busy are skipped and counted in :attr:`skipped`; so

@@ -196,7 +196,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="hold each estimate N frames and refit the frames the hybrid doubted (detections, "
         "tracks the detector was asked about) backwards from the clean frame after them, "
-        "keeping a refit that fits better (runtime/look_back.py; 0: off). Default: the "
+        "keeping a refit that fits better, and sweep every held frame backwards once as "
+        "the hybrid's look_back.sweep_margin says (runtime/look_back.py; 0: off). Default: the "
         "hybrid's look_back.frames (12) for a file read as fast as possible, 0 live and with "
         "--realtime",
     )
