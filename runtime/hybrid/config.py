@@ -131,12 +131,20 @@ class KeepBetterConfig:
         "the detector's refinement is not run (None: the detection is always refined and "
         "weighed)",
     )
+    agree_within_m: float | None = field_doc(
+        None,
+        "when the refined detection that would replace the track puts every joint within this "
+        "distance (m) of the track's, the two found the same pose: the track did not fail, it "
+        "is kept (tracked, flagged confirmed_by_detector) with its history (None: any better "
+        "detection is taken)",
+    )
 
     def __post_init__(self) -> None:
         _check(self.wait_frames >= 0, "keep_better.wait_frames must be >= 0", self.wait_frames)
-        c = self.confirm_within_m
-        _check(c is None or (c > 0 and math.isfinite(c)),
-               "keep_better.confirm_within_m must be > 0 or None", c)  # fmt: skip
+        for name in ("confirm_within_m", "agree_within_m"):
+            c = getattr(self, name)
+            _check(c is None or (c > 0 and math.isfinite(c)),
+                   f"keep_better.{name} must be > 0 or None", c)  # fmt: skip
         m = self.take_margin
         _check(m >= 0 and math.isfinite(m), "keep_better.take_margin must be >= 0", m)
         # The margin is in badness units; the surface-only comparison would ignore it.

@@ -13,7 +13,9 @@ Per frame (a :class:`~runtime.frame.Frame` with a person in it):
    detection ("detected"). With ``keep_better.confirm_within_m``, a detection whose IK pose
    puts every joint that close to the track's confirms the track before any refinement: the
    track is kept ("tracked", flagged ``confirmed_by_detector``), its history goes on, and the
-   refinement's cost is saved. A detection that finds nobody leaves the frame "lost" and the next
+   refinement's cost is saved. With ``keep_better.agree_within_m``, a better refined detection
+   that lands that close to the track agrees with it: the track is kept the same way. A
+   detection that finds nobody leaves the frame "lost" and the next
    frame starts afresh. So does a frame whose chosen fit explains almost none of the
    silhouette (overlap below ``failure.lost_overlap``): it is not the person's pose.
 
@@ -484,4 +486,10 @@ class HybridEstimator:
             state.refused_at = frame.index
             kept = {"kept_over_detector": 1.0} if verdict.failed else {"rechecked": 1.0}
             return self._keep(res, errors, kept, frame)
+        agree = cfg.keep_better.agree_within_m
+        if agree is not None and self._agrees(res.q.detach(), agree, det.q.detach()):
+            # The tests fired on a fit the model explains poorly whatever the pose (a deep
+            # squat): a detection that lands on the same pose shows the track was not lost,
+            # and taking it would only restart the motion prior.
+            return self._keep(res, errors, {"confirmed_by_detector": 1.0}, frame)
         return self._detected(det, failed, frame)

@@ -70,7 +70,8 @@ def cfg_of(**flat) -> HybridConfig:
     if "epsilon3_mm" in failure:
         failure["epsilon3_mm"] = _off(failure["epsilon3_mm"])
     keep = {k: flat.pop(k) for k in ("compare_all_tests", "recheck_badness",
-                                     "wait_frames", "confirm_within_m") if k in flat}  # fmt: skip
+                                     "wait_frames", "confirm_within_m", "agree_within_m")
+            if k in flat}  # fmt: skip
     for k in ("recheck_badness",):
         if k in keep:
             keep[k] = _off(keep[k])
@@ -425,6 +426,41 @@ def test_a_detection_that_finds_the_track_confirms_it_unrefined(scene, within_m,
     assert (est.state.q_prev2 is not None) == (status == "tracked")
     with pytest.raises(ValueError, match="confirm_within_m"):
         KeepBetterConfig(confirm_within_m=0.0)
+
+
+def test_a_better_detection_on_the_track_s_pose_agrees_with_it(scene):
+    """The track fails (depth) and fits worse than any detection (surface 10 m): the refined
+    detection is taken, unless it puts every joint within ``agree_within_m`` of the track's.
+    Then the track is kept with its history, flagged, after the refinement ran."""
+    q, depth, labels, mask = scene
+
+    def third_frame(agree_m):
+        tracker = FakeTracker(fail_calls={2}, surface_mm=1e4)
+        est, _ = make_hybrid(scene, tracker, refine_iterations=1, keep_better=True,
+                             agree_within_m=agree_m)  # fmt: skip
+        for i in range(2):
+            estimate_frame(est, frame_of(depth, i, mask))
+        track = est.state.q_prev.clone()  # the fake tracker keeps the previous pose
+        refits = []
+        real_fit_starts = tracker.real.fit_starts
+        tracker.real.fit_starts = lambda *a, **k: refits.append(1) or real_fit_starts(*a, **k)
+        got = estimate_frame(est, frame_of(depth, 2, mask))
+        assert refits  # agreement is judged on the refined detection
+        return got, track, est
+
+    taken, track, est = third_frame(None)
+    assert taken.status == "detected" and est.state.q_prev2 is None
+    kin = forward_kinematics(torch.stack([track, est.state.q_prev]).to(BODY.lengths), BODY)
+    joints = named_joint_positions(kin)
+    gap = float((joints[0] - joints[1]).norm(dim=-1).max())
+    assert gap > 1e-3  # the detection is another pose, so the boundary below means something
+    farther, _, _ = third_frame(0.9 * gap)
+    assert farther.status == "detected"
+    agreed, _, est = third_frame(1.1 * gap)
+    assert agreed.status == "tracked" and agreed.errors["confirmed_by_detector"] == 1.0
+    assert torch.equal(est.state.q_prev, track) and est.state.q_prev2 is not None
+    with pytest.raises(ValueError, match="agree_within_m"):
+        KeepBetterConfig(agree_within_m=-0.01)
 
 
 @pytest.mark.parametrize("threshold, rechecked", [(0.5, True), (1.0, False)])
