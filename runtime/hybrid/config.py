@@ -226,7 +226,7 @@ def _shipped_failure() -> FailureThresholds:
 
 
 def _shipped_keep_better() -> KeepBetterConfig:
-    return KeepBetterConfig(compare_all_tests=True, recheck_badness=2.4)
+    return KeepBetterConfig(compare_all_tests=True, recheck_badness=2.4, agree_within_m=0.05)
 
 
 def _shipped_arm_search() -> ArmSearchConfig:

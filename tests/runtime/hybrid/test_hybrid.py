@@ -627,7 +627,7 @@ def test_the_shipped_preset_is_a_tree_of_values():
 
     cfg = config_from_mapping(load_settings("configs/hybrid.yaml"))
     assert cfg.failure == FailureThresholds(3.0, 0.7, 80.0, lost_overlap=0.3)
-    assert cfg.keep_better == KeepBetterConfig(True, 2.4)
+    assert cfg.keep_better == KeepBetterConfig(True, 2.4, agree_within_m=0.05)
     assert cfg.arm_search.badness == 1.9 and cfg.arm_search.misplaced.conflict == 0.7
     assert cfg.tracker.use_labels and cfg.tracker.use_collision
 
