@@ -250,10 +250,14 @@ class HybridEstimator:
 
     def _agrees(self, track: torch.Tensor, within_m: float, q: torch.Tensor) -> bool:
         """Whether pose ``q`` (34,) puts every model joint within ``within_m`` of ``track``'s."""
+        return self._joint_gap(track, q) <= within_m
+
+    def _joint_gap(self, track: torch.Tensor, q: torch.Tensor) -> float:
+        """The largest distance (m) between a model joint of pose ``q`` (34,) and ``track``'s."""
         body = self.tracker.body
         kin = forward_kinematics(torch.stack([track, q.to(track)]).to(body.lengths), body)
         joints = named_joint_positions(kin)  # (2, J, 3)
-        return bool((joints[0] - joints[1]).norm(dim=-1).max() <= within_m)
+        return float((joints[0] - joints[1]).norm(dim=-1).max())
 
     # ---- estimates, each updating the track ----
 
@@ -478,18 +482,16 @@ class HybridEstimator:
             return self._detected(det, failed, frame)
         if det.confirmed:  # the detector found the track's own pose: nothing to weigh
             return self._keep(res, errors, {"confirmed_by_detector": 1.0}, frame)
-        detection = Detection(det.found, det.refined.signals if det.refined else None)
+        measure = det.found and cfg.keep_better.agree_within_m is not None
+        gap = self._joint_gap(res.q.detach(), det.q.detach()) if measure else None
+        detection = Detection(det.found, det.refined.signals if det.refined else None, gap)
         decision = choose(res.signals, detection, cfg.failure, cfg.keep_better)
         if decision.forget and self.arm_search is not None:
             self.arm_search.reset()
+        if decision.agreed:
+            return self._keep(res, errors, {"confirmed_by_detector": 1.0}, frame)
         if decision.keep_track:
             state.refused_at = frame.index
             kept = {"kept_over_detector": 1.0} if verdict.failed else {"rechecked": 1.0}
             return self._keep(res, errors, kept, frame)
-        agree = cfg.keep_better.agree_within_m
-        if agree is not None and self._agrees(res.q.detach(), agree, det.q.detach()):
-            # The tests fired on a fit the model explains poorly whatever the pose (a deep
-            # squat): a detection that lands on the same pose shows the track was not lost,
-            # and taking it would only restart the motion prior.
-            return self._keep(res, errors, {"confirmed_by_detector": 1.0}, frame)
         return self._detected(det, failed, frame)

@@ -6,7 +6,8 @@ Two decisions per frame, both free of state and tensors so that tables can test 
    (a recheck)? Either way the detector runs.
 2. :func:`choose`: given the detection, keep the track or take the detection? Wei always takes
    the detection; with ``keep_better`` it is taken only when it fits better (than a track
-   that passed its tests, by more than ``take_margin`` in badness).
+   that passed its tests, by more than ``take_margin`` in badness) and, with
+   ``agree_within_m``, lands farther than that from the track's pose.
 
 The estimator (:mod:`runtime.hybrid.estimator`) calls both and keeps what carries over frames.
 """
@@ -42,19 +43,25 @@ class Detection:
         found: the detector found a person (enough labelled pixels).
         signals: the refined detection's signals, None when it was not refined (nothing to
             compare: the detection is taken).
+        gap_m: the largest distance between a model joint of the detection and the track's
+            (None: not measured, ``keep_better.agree_within_m`` off).
     """
 
     found: bool
     signals: FitSignals | None = None
+    gap_m: float | None = None
 
 
 @dataclass(frozen=True)
 class Decision:
     """Keep the track (``keep_track``) or take the detection; ``forget``: the detector found
-    no one, so per-track memories (cooldowns) are dropped."""
+    no one, so per-track memories (cooldowns) are dropped; ``agreed``: the track is kept
+    because the better detection found the same pose (it confirms the track rather than
+    being refused)."""
 
     keep_track: bool
     forget: bool = False
+    agreed: bool = False
 
 
 def behind(index: int, index_prev: int | None) -> bool:
@@ -96,4 +103,10 @@ def choose(
         worse = failure.badness(detection.signals) >= failure.badness(track) - margin
     elif worse:
         worse = detection.signals.surface_error_q97_mm >= track.surface_error_q97_mm
+    agree, gap = keep_better.agree_within_m, detection.gap_m
+    if not worse and agree is not None and gap is not None and gap <= agree:
+        # The tests fired on a fit the model explains poorly whatever the pose (a deep
+        # squat): a detection that lands on the same pose shows the track was not lost, and
+        # taking it would only restart the motion prior.
+        return Decision(keep_track=True, agreed=True)
     return Decision(keep_track=worse)

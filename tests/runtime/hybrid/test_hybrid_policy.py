@@ -41,6 +41,7 @@ def test_judge_track(signals, keep, failed, recheck):
 
 KEEP = KeepBetterConfig(compare_all_tests=True)
 SURFACE_ONLY = KeepBetterConfig(compare_all_tests=False)
+AGREE = KeepBetterConfig(compare_all_tests=True, agree_within_m=0.05)
 BETTER = FitSignals(1.0, 0.9, 60.0)  # badness 1.42 < FAILED badness 1.92; surface 60 > 20
 WORSE = FitSignals(3.5, 0.6, 90.0)
 
@@ -67,6 +68,16 @@ WORSE = FitSignals(3.5, 0.6, 90.0)
         ),
         (SUSPECT, Detection(True, BETTER), KeepBetterConfig(True, take_margin=0.9), Decision(True)),
         (FAILED, Detection(True, BETTER), KeepBetterConfig(True, take_margin=0.9), Decision(False)),
+        # A better detection within agree_within_m of the track found the same pose: the
+        # track is kept as confirmed; farther, or unmeasured, it is taken; a worse one stays
+        # refused whatever its gap.
+        (FAILED, Detection(True, BETTER, 0.04), AGREE, Decision(True, agreed=True)),
+        (FAILED, Detection(True, BETTER, 0.05), AGREE, Decision(True, agreed=True)),
+        (FAILED, Detection(True, BETTER, 0.06), AGREE, Decision(False)),
+        (FAILED, Detection(True, BETTER, None), AGREE, Decision(False)),
+        (FAILED, Detection(True, BETTER, 0.04), KEEP, Decision(False)),
+        (FAILED, Detection(True, WORSE, 0.04), AGREE, Decision(True)),
+        (FAILED, Detection(True, None, 0.04), AGREE, Decision(True, agreed=True)),
     ],
 )
 def test_choose(track, detection, keep, expected):
