@@ -31,8 +31,9 @@ if TYPE_CHECKING:
 
 __all__ = ["Frame", "FrameError", "LabelSource", "depth_mm_to_metres"]
 
-# A frame -> its (H, W) int64 part labels (shared.labels classes, 0 = background).
-LabelSource = Callable[["Frame"], torch.Tensor]
+# A frame -> its (H, W) int64 part labels (shared.labels classes, 0 = background), or the
+# labels with each one's posterior ((H, W) float; the forest's).
+LabelSource = Callable[["Frame"], "torch.Tensor | tuple[torch.Tensor, torch.Tensor]"]
 
 
 class FrameError(ValueError):
@@ -68,6 +69,7 @@ class Frame:
     intrinsics: Intrinsics
     depth_mm: np.ndarray | None = None
     _labels: dict = field(default_factory=dict, repr=False)
+    _label_confidence: dict = field(default_factory=dict, repr=False)
     _observations: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -124,23 +126,43 @@ class Frame:
         """(H, W) int64 part labels from ``source``, computed on the first call per source."""
         if source not in self._labels:
             labels = source(self)
-            if labels.shape != self.mask.shape:
-                raise FrameError(
-                    f"frame {self.index}: labels {tuple(labels.shape)} do not match the frame "
-                    f"{tuple(self.mask.shape)}"
-                )
+            confidence = None
+            if isinstance(labels, tuple):
+                labels, confidence = labels
+            for name, image in (("labels", labels), ("label confidence", confidence)):
+                if image is not None and image.shape != self.mask.shape:
+                    raise FrameError(
+                        f"frame {self.index}: {name} {tuple(image.shape)} do not match the "
+                        f"frame {tuple(self.mask.shape)}"
+                    )
             self._labels[source] = labels.to(device=self.device, dtype=torch.long)
+            if confidence is not None:
+                self._label_confidence[source] = confidence.to(self.device, torch.float32)
         return self._labels[source]
 
-    def observation(self, tracker: Tracker, labels: torch.Tensor | None = None) -> Observation:
+    def label_confidence(self, source: LabelSource) -> torch.Tensor | None:
+        """(H, W) float32 posterior of each of ``source``'s labels (:meth:`labels`), or None
+        when the source gives none (ground-truth labels)."""
+        self.labels(source)
+        return self._label_confidence.get(source)
+
+    def observation(
+        self,
+        tracker: Tracker,
+        labels: torch.Tensor | None = None,
+        label_confidence: torch.Tensor | None = None,
+    ) -> Observation:
         """``tracker``'s working-resolution observation of this frame, computed once per
         tracker and per label image (``labels``: this frame's part labels for the tracker's
-        label term, or None)."""
+        label term, or None; ``label_confidence``: their posteriors, for the tracker's label
+        gate, or None)."""
         if not tracker.cfg.use_labels:
             labels = None  # the tracker would drop them: the same observation either way
-        key = (id(tracker), None if labels is None else id(labels))
+        if labels is None or tracker.cfg.label_min_posterior <= 0:
+            label_confidence = None  # likewise
+        key = (id(tracker), *(None if x is None else id(x) for x in (labels, label_confidence)))
         if key not in self._observations:
-            # Keyed by identity: keep the tracker and the labels alive with their entry.
-            obs = tracker.observe(self.depth_m, self.mask, labels)
-            self._observations[key] = (tracker, labels, obs)
-        return self._observations[key][2]
+            # Keyed by identity: keep the tracker and the images alive with their entry.
+            obs = tracker.observe(self.depth_m, self.mask, labels, label_confidence)
+            self._observations[key] = (tracker, labels, label_confidence, obs)
+        return self._observations[key][-1]

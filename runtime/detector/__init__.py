@@ -45,8 +45,9 @@ __all__ = [
     "create_estimator",
 ]
 
-# (depth_m (H, W), mask (H, W) bool) -> (H, W) int part labels or (C, H, W) posteriors.
-Labeler = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+# (depth_m (H, W), mask (H, W) bool) -> (H, W) int part labels or (C, H, W) posteriors, or
+# the labels with each one's posterior ((H, W) int, (H, W) float).
+Labeler = Callable[[torch.Tensor, torch.Tensor], torch.Tensor | tuple[torch.Tensor, torch.Tensor]]
 
 
 def load_forest_labeler(
@@ -56,8 +57,12 @@ def load_forest_labeler(
     posteriors: bool = False,
     smooth_window: int = 1,
     smooth_depth_gate_m: float = 0.05,
+    confidence: bool = False,
 ) -> Labeler:
     """Per-pixel part labels (or (C, H, W) posteriors) from the forest at ``model_path``.
+
+    ``confidence``: the labels with each label's posterior, a pair (the tracker's label
+    gate, ``TrackerConfig.label_min_posterior``); not with ``posteriors``.
 
     ``intrinsics``: the stream's camera (feature offsets are rescaled to its focal length).
     ``smooth_window``, ``smooth_depth_gate_m``: depth-gated smoothing of the posteriors
@@ -88,15 +93,22 @@ def load_forest_labeler(
         )
     except ValueError as err:
         raise DetectorError(str(err)) from None
+    if posteriors and confidence:
+        raise DetectorError("a labeler gives posteriors or labels with their confidence")
+    if confidence:
+        return clf.labels_and_confidence
     return clf.posteriors if posteriors else clf.labels
 
 
 def forest_label_source(labeler: Labeler):
     """A frame's part labels from the forest ``labeler`` (arg-max of its posteriors), as a
-    ``runtime.frame.LabelSource``."""
+    ``runtime.frame.LabelSource``; with each label's posterior when the labeler gives it."""
 
-    def labels(frame) -> torch.Tensor:
-        return labels_from(labeler(frame.depth_m, frame.mask))
+    def labels(frame) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        out = labeler(frame.depth_m, frame.mask)
+        if isinstance(out, tuple):
+            return labels_from(out[0]), out[1]
+        return labels_from(out)
 
     return labels
 

@@ -286,6 +286,21 @@ class ForestClassifier:
             arg = probs.argmax(1)
         return self._dense(depth_m, pix, arg)
 
+    def labels_and_confidence(
+        self, depth_m: torch.Tensor, mask: torch.Tensor, stride: int = 1
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`labels` and each label's posterior (the arg-max class's): (H, W) int64 and
+        (H, W) float32, or batched as :meth:`labels`; 0 where not classified."""
+        pix, probs = self.pixel_posteriors(depth_m, mask, stride)
+        if self._numpy:
+            p = probs.numpy()
+            arg = torch.from_numpy(p.argmax(1).astype(np.int64))
+            top = torch.from_numpy(np.ascontiguousarray(p.max(1)))
+        else:  # argmax, as labels(): the first maximum on ties
+            arg = probs.argmax(1)
+            top = probs.gather(1, arg[:, None])[:, 0]
+        return self._dense(depth_m, pix, arg), self._dense(depth_m, pix, top)
+
 
 def load_classifier(
     path: str | Path,

@@ -82,6 +82,7 @@ def create_estimator(
             device,
             intrinsics,
             smooth_window=cfg.detector.label_smoothing_window,
+            confidence=cfg.tracker.label_min_posterior > 0,
         )
         labels = forest_label_source(labeler)
     try:

@@ -195,15 +195,20 @@ class HybridEstimator:
 
     # ---- the pieces a frame is made of ----
 
-    def _tracker_labels(self, frame: Frame) -> torch.Tensor | None:
-        """The labels the tracker's label term reads (None when it is off)."""
-        return frame.labels(self.label_source) if self.tracker.cfg.use_labels else None
+    def _observation(self, frame: Frame, tracker: Tracker):
+        """``tracker``'s observation of ``frame`` with the labels its label term reads (none
+        when it is off), and their posteriors for its label gate."""
+        if not tracker.cfg.use_labels:
+            return frame.observation(tracker)
+        return frame.observation(
+            tracker, frame.labels(self.label_source), frame.label_confidence(self.label_source)
+        )
 
     def _fit(self, frame: Frame, start: torch.Tensor, before: torch.Tensor | None = None,
              iterations: int | None = None) -> TrackResult:  # fmt: skip
         """The frame's own fit; its prior predicts over the stream frames since the last pose
         (a live stream skips some: :func:`~runtime.tracker.prior_term.velocity_scale`)."""
-        obs = frame.observation(self.tracker, self._tracker_labels(frame))
+        obs = self._observation(frame, self.tracker)
         ahead = velocity_scale(frame.index, self.state.index_prev, self.state.index_prev2)
         return self.tracker.fit(obs, start, before, iterations, velocity_scale=ahead)
 
@@ -211,7 +216,7 @@ class HybridEstimator:
                     iterations: int | None = None) -> list[TrackResult]:  # fmt: skip
         """Refits of ``frame`` from each of the (K, 34) ``starts``, batched (split over two
         threads on the CPU)."""
-        obs = frame.observation(self.tracker, self._tracker_labels(frame))
+        obs = self._observation(frame, self.tracker)
         return self._refits.fit_starts(self.tracker, obs, starts, iterations)
 
     def _joints(self, q: torch.Tensor) -> np.ndarray:
@@ -289,7 +294,7 @@ class HybridEstimator:
         def pose(estimate: PoseEstimate | None) -> torch.Tensor | None:
             return None if estimate is None else torch.as_tensor(estimate.q, dtype=t.dtype)
 
-        obs = frame.observation(t, self._tracker_labels(frame))
+        obs = self._observation(frame, t)
         res = t.fit(obs, pose(later), pose(later2), velocity_scale=velocity_scale)
         errors = res.signals.as_errors()
         joints = self._joints(res.q.detach())
@@ -365,7 +370,7 @@ class HybridEstimator:
                 Tracker(bodies.select(slice(a, b)), t.intr, t.cfg, device=t.device, dtype=t.dtype)
                 for a, b in zip(edges[:-1], edges[1:], strict=True)
             ]
-        obs = frame.observation(t, self._tracker_labels(frame))
+        obs = self._observation(frame, t)
         iterations = self.cfg.body_scale.iterations
         refits = [
             functools.partial(

@@ -96,6 +96,15 @@ class TrackerConfig:
         "labels as a limb pull that limb's surface; needs the frame's part labels (the hybrid "
         "passes them), otherwise it is skipped",
     )
+    label_min_posterior: float = field_doc(
+        0.0,
+        "the label term reads only the pixels whose label the forest gives at least this "
+        "posterior (the arg-max class's, after smoothing): on real depth the forest calls "
+        "forearms held in front of the belly belly and puts confident-looking forearm labels "
+        "where a hanging forearm would be, and those pull the arm down. 0: every labelled "
+        "pixel. Only labels that come with a confidence are gated (the forest's in the "
+        "hybrid; a recording's ground-truth labels are not)",
+    )
     use_collision: bool = field_doc(
         False,
         "collision term (not in Wei; runtime.tracker.collision_term): points on the arms' "
@@ -173,12 +182,14 @@ class TrackerConfig:
         bad = {k: v for k, v in scales.items() if not (v > 0 and math.isfinite(v))}
         if not (self.pose_prior_weight >= 0 and math.isfinite(self.pose_prior_weight)):
             bad["pose_prior_weight"] = self.pose_prior_weight
+        if not (0.0 <= self.label_min_posterior < 1.0):
+            bad["label_min_posterior"] = self.label_min_posterior
         area = self.observed_joint_area_cm2
         if not (area >= 0 and math.isfinite(area)):
             bad["observed_joint_area_cm2"] = area
         if bad:
             raise TrackerConfigError(
                 f"noise scales must be positive and finite (the observed-joint area and the pose "
-                f"prior's weight may be 0), "
+                f"prior's weight may be 0; the label posterior gate in [0, 1)), "
                 f"got {bad}"
             )

@@ -429,12 +429,18 @@ class Tracker:
                 raise TrackerConfigError(f"pose_prior_model: {err}") from None
 
     def observe(
-        self, depth_m: torch.Tensor, mask: torch.Tensor, labels: torch.Tensor | None = None
+        self,
+        depth_m: torch.Tensor,
+        mask: torch.Tensor,
+        labels: torch.Tensor | None = None,
+        label_confidence: torch.Tensor | None = None,
     ) -> Observation:
         """Working-resolution observation of one frame (H, W) or a batch (B, H, W).
 
         ``labels``: the forest's part labels (``shared.labels`` classes, 0 = background) of
         the same shape, for the label term (kept only with ``cfg.use_labels``).
+        ``label_confidence``: the same shape, each label's posterior; with
+        ``cfg.label_min_posterior`` the labels below it are dropped (None: all kept).
         """
         if depth_m.shape[-2:] != (self.intr.height, self.intr.width):
             raise TrackerError(
@@ -453,6 +459,15 @@ class Tracker:
             labels = labels.to(device=self.device, dtype=torch.long)
             if labels.numel() and not (0 <= int(labels.min()) <= int(labels.max()) < len(table)):
                 raise TrackerError(f"labels must be part classes in [0, {len(table) - 1}]")
+            gate = self.cfg.label_min_posterior
+            if label_confidence is not None and gate > 0:
+                if label_confidence.shape != labels.shape:
+                    raise TrackerError(
+                        f"label confidence {tuple(label_confidence.shape)} does not match the "
+                        f"labels {tuple(labels.shape)}"
+                    )
+                keep = label_confidence.to(device=self.device) >= gate
+                labels = labels * keep  # 0: background, which the label term skips
             segments = table[labels]
             segments = segments[None] if segments.dim() == 2 else segments
         if depth.dim() == 2:

@@ -242,6 +242,38 @@ def test_labeler_reports_bad_smoothing_as_a_detector_error(forest, tmp_path):
     assert labels(torch.from_numpy(depth), torch.from_numpy(mask)).shape == (60, 80)
 
 
+def test_labels_with_confidence_are_the_labels_and_their_posteriors(forest, test_frames, tmp_path):
+    """``labels_and_confidence``: the labels of :meth:`labels` and, at each classified pixel,
+    the posterior of that label (0 elsewhere), on every backend; the labeler's pair through
+    ``forest_label_source``."""
+    from depthmocap.runtime.detector import (
+        DetectorError,
+        forest_label_source,
+        load_forest_labeler,
+    )
+
+    d, m = test_frames
+    backends = ["torch", "onnxruntime"] + (["numba"] if inference.compiled_walk() else [])
+    for backend in backends:
+        clf = ForestClassifier(forest, backend=backend, smooth_window=3)
+        lab, conf = clf.labels_and_confidence(d, m)
+        assert torch.equal(lab, clf.labels(d, m)) and conf.dtype == torch.float32
+        post = clf.posteriors(d, m)  # (B, C, H, W)
+        torch.testing.assert_close(conf, post.gather(1, lab[:, None])[:, 0], atol=1e-6, rtol=0)
+        seen = m & (d > 0)  # the classified pixels
+        assert bool((conf[~seen] == 0).all()) and bool((conf[seen] > 0).all())
+    save_forest(tmp_path / "f.npz", forest)
+    labeler = load_forest_labeler(tmp_path / "f.npz", "cpu", INTR, confidence=True)
+
+    class Frame:
+        depth_m, mask = d[0], m[0]
+
+    lab, conf = forest_label_source(labeler)(Frame)
+    assert lab.shape == conf.shape == d[0].shape
+    with pytest.raises(DetectorError, match="posteriors or labels"):
+        load_forest_labeler(tmp_path / "f.npz", "cpu", INTR, posteriors=True, confidence=True)
+
+
 # ---------------------------------------------------------------- numba backend and fallback
 
 

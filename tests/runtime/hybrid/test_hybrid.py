@@ -10,7 +10,7 @@ import pytest
 import torch
 from depthmocap.runtime.detector import Detector, DetectorConfig
 from depthmocap.runtime.estimator import PoseEstimate, estimate_frame, make_estimator
-from depthmocap.runtime.frame import Frame
+from depthmocap.runtime.frame import Frame, FrameError
 from depthmocap.runtime.hybrid import (
     ArmSearchConfig,
     FailureThresholds,
@@ -139,7 +139,7 @@ class ScriptedTracker:
         self.real = Tracker(BODY, INTR)
         self.velocity_scales: list[float] = []  # of the frame's own fits
 
-    def observe(self, depth, mask, labels=None):
+    def observe(self, depth, mask, labels=None, label_confidence=None):
         return self.real.observe(depth, mask, labels), (labels if self.cfg.use_labels else None)
 
     def fit(self, obs, q_prev, q_prev2=None, iterations=None, velocity_scale=1.0):
@@ -868,6 +868,37 @@ def test_labels_from_a_recording_stand_in_for_the_forest(scene, tmp_path):
     for i in (5, 6):
         estimate_frame(est, frame_of(depth, i, mask))
     assert seen == [5, 6]
+
+
+def test_the_tracker_reads_only_the_labels_the_forest_is_sure_of(scene, tmp_path):
+    """A label source that gives each label's posterior (the forest's): the frame keeps both,
+    and with ``tracker.label_min_posterior`` every observation the hybrid makes for its
+    tracker (its fit, refits, the detector's refinement) has the unsure labels taken out;
+    without the setting, or from a source without posteriors, the labels are read as given."""
+    q, depth, labels, mask = scene
+    _write_recording(tmp_path / "rec", depth, labels, 2)
+    confidence = torch.where(labels % 2 == 0, 0.9, 0.2)  # every other part unsure
+    made = {}
+    for gate in (0.0, 0.5):
+        est = create_estimator(
+            model_path=None, body=BODY, intrinsics=INTR,
+            config={"labels_from_recording": str(tmp_path / "rec"), "joint_offsets": None,
+                    "tracker": {"use_labels": True, "label_min_posterior": gate}},
+        )  # fmt: skip
+        est.label_source = lambda f: (labels * f.mask, confidence)
+        frame = frame_of(depth, 0, mask)
+        torch.testing.assert_close(frame.label_confidence(est.label_source), confidence)
+        made[gate] = est._observation(frame, est.tracker).labels
+        estimate_frame(est, frame_of(depth, 1, mask))  # a whole frame runs through it
+    t = Tracker(BODY, INTR, TrackerConfig(use_labels=True))
+    plain = frame_of(depth, 0, mask)
+    want = t.observe(plain.depth_m, plain.mask, labels * plain.mask * (confidence >= 0.5))
+    assert torch.equal(made[0.5], want.labels)
+    assert torch.equal(made[0.0], t.observe(plain.depth_m, plain.mask, labels * plain.mask).labels)
+    assert not torch.equal(made[0.0], made[0.5])
+    with pytest.raises(FrameError, match="label confidence"):
+        plain.labels(lambda f: (labels, confidence[:-1]))
+    assert plain.label_confidence(lambda f: labels) is None
 
 
 def test_labels_from_a_recording_errors(scene, tmp_path):

@@ -195,3 +195,37 @@ def test_the_compiled_term_gives_the_torch_rows_bit_for_bit(assert_same_rows, mo
             want = label_rows(kin, geom, obs, cfg)
         assert len(want) > 30 and bool((want.weight == 0).any() and (want.weight > 0).any())
         assert_same_rows(got, want, cap)
+
+
+def test_the_label_gate_drops_unsure_labels_only():
+    """``label_min_posterior``: labels whose confidence is under the gate reach the label term
+    as background, the others unchanged; no confidence (ground-truth labels) gates nothing,
+    and a gate of 0 ignores the confidence."""
+    body = BodyShape.default(torch.float64)
+    q = _pose()
+    depth = render_body(q, body, INTR).depth[0]
+    labels = _part_labels(q, body)
+    confidence = torch.full(labels.shape, 0.9)
+    confidence[:, : labels.shape[1] // 2] = 0.3  # the image's left half unsure
+    gated = Tracker(body, INTR, TrackerConfig(use_labels=True, label_min_posterior=0.5,
+                                              downsample=1), dtype=torch.float64)  # fmt: skip
+    plain = Tracker(body, INTR, TrackerConfig(use_labels=True, downsample=1), dtype=torch.float64)
+    obs = gated.observe(depth, depth > 0, labels, confidence)
+    want = plain.observe(depth, depth > 0, labels * (confidence >= 0.5))
+    assert torch.equal(obs.labels, want.labels)
+    full = plain.observe(depth, depth > 0, labels)
+    assert (
+        int((full.labels >= sk.FIRST_LIMB_SEGMENT).sum())
+        > int((obs.labels >= sk.FIRST_LIMB_SEGMENT).sum())
+        > 0
+    )
+    assert torch.equal(gated.observe(depth, depth > 0, labels).labels, full.labels)
+    assert torch.equal(plain.observe(depth, depth > 0, labels, confidence).labels, full.labels)
+    with pytest.raises(TrackerError, match="confidence"):
+        gated.observe(depth, depth > 0, labels, confidence[:-1])
+
+
+@pytest.mark.parametrize("gate", [-0.1, 1.0, float("nan")])
+def test_bad_label_gates_are_rejected(gate):
+    with pytest.raises(TrackerConfigError, match="label_min_posterior"):
+        TrackerConfig(label_min_posterior=gate)
