@@ -34,6 +34,7 @@ from .depth_kernel import _depth_rows
 from .extra_kernel import _correspondences_in
 from .label_kernel import label_rows_at
 from .normal_kernel import _AFFECTS, _CHAINS, _COUNTS, _assemble, _column_rows, _moments
+from .observation import label_term_pixels
 from .regions_kernel import _classify
 from .sampling_kernel import sampled
 from .silhouette_kernel import _silhouette
@@ -78,7 +79,7 @@ def fit_arrays(obs, observed, body, geom, B: int, cfg, labels_on: bool, consts: 
     classes = tuple(np.ascontiguousarray((t[:1] if shared else t).numpy()) for t in views)
     intr = obs.intr
     labels = obs.labels if obs.labels is not None else torch.full_like(obs.depth, -1).long()
-    use = obs.valid & (labels >= sk.FIRST_LIMB_SEGMENT)
+    use = label_term_pixels(obs)
     if observed is None:
         cand_points = np.zeros((0, 3), np.float32)
         cand_batch = np.zeros(0, np.int64)

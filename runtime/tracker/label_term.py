@@ -17,13 +17,12 @@ from __future__ import annotations
 
 import torch
 from depthmocap.runtime.raycast import SegmentGeometry, capsule_signed_distance
-from depthmocap.shared import skeleton as sk
 from depthmocap.shared.compiled import compiled_float32
 from depthmocap.shared.kinematics import Kinematics
 
 from .config import TrackerConfig
 from .gauss_newton import Rows
-from .observation import Observation
+from .observation import Observation, label_term_pixels
 from .regions import sample_pixels
 
 __all__ = ["LABEL_GATE_M", "MAX_LABEL_PIXELS", "capsule_offsets", "label_rows"]
@@ -72,7 +71,7 @@ def label_rows(
     """Label-term rows for a subsample of the labelled limb pixels of ``obs`` (needs
     ``obs.labels``; no rows without it)."""
     labels = obs.labels if obs.labels is not None else torch.full_like(obs.depth, -1).long()
-    use = obs.valid & (labels >= sk.FIRST_LIMB_SEGMENT)
+    use = label_term_pixels(obs)
     kernel = compiled_float32("depthmocap.runtime.tracker.label_kernel", obs.points, kin.origins)
     if obs.labels is not None and kernel is not None:  # one compiled call, the same rows
         return Rows(

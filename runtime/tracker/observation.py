@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass
 
 import torch
+from depthmocap.shared import skeleton as sk
 from depthmocap.shared.camera import Intrinsics, depth_to_points
 from depthmocap.shared.compiled import compiled_module
 
@@ -45,6 +46,9 @@ class Observation:
         distance_grad: (B, H, W, 2) its gradient along (u, v) by central differences.
         labels: (B, H, W) int64 segment the forest labels each pixel as (-1: none), for the
             label term; None when the caller gave no labels.
+        label_sure: (B, H, W) bool, the labels the label term may read (the forest sure
+            enough of them: ``TrackerConfig.label_min_posterior``); None: all of them. The
+            observed-joint support reads every label.
     """
 
     intr: Intrinsics
@@ -55,6 +59,15 @@ class Observation:
     distance: torch.Tensor
     distance_grad: torch.Tensor
     labels: torch.Tensor | None = None
+    label_sure: torch.Tensor | None = None
+
+
+def label_term_pixels(obs: Observation) -> torch.Tensor:
+    """(B, H, W) bool: the pixels the label term reads, valid ones labelled as a limb (and
+    sure, where the observation says which are)."""
+    labels = obs.labels if obs.labels is not None else torch.full_like(obs.depth, -1).long()
+    use = obs.valid & (labels >= sk.FIRST_LIMB_SEGMENT)
+    return use if obs.label_sure is None else use & obs.label_sure
 
 
 def working_intrinsics(intr: Intrinsics, factor: int) -> Intrinsics:
@@ -176,6 +189,7 @@ def observe(
     max_distance_px: float,
     window: tuple[int, int, int, int] | None = None,
     labels: torch.Tensor | None = None,
+    label_sure: torch.Tensor | None = None,
 ) -> Observation:
     """Working-resolution observation of full-resolution frames.
 
@@ -189,11 +203,14 @@ def observe(
             covers, not what the image does.
         labels: (B, H, W) int64 segment per stream pixel (-1: none), optional; working pixel
             (i, j) takes stream pixel (f i, f j)'s, like the silhouette.
+        label_sure: (B, H, W) bool, which of the labels the label term may read, optional
+            (None: all); taken like the labels.
     """
     if window is not None:
         u0, u1, v0, v1 = window
         depth, mask = depth[..., v0:v1, u0:u1], mask[..., v0:v1, u0:u1]
         labels = None if labels is None else labels[..., v0:v1, u0:u1]
+        label_sure = None if label_sure is None else label_sure[..., v0:v1, u0:u1]
         intr = intr.cropped(u0, v0, u1 - u0, v1 - v0)
     work = working_intrinsics(intr, factor)
     pooled, silhouette = pool_depth(depth, mask.bool(), factor)
@@ -205,4 +222,10 @@ def observe(
     if labels is not None:
         h, w = pooled.shape[-2:]
         labels = labels[..., ::factor, ::factor][..., :h, :w]
-    return Observation(work, pooled, silhouette, valid, points, distance, grad, labels)
+        if label_sure is not None:
+            label_sure = label_sure[..., ::factor, ::factor][..., :h, :w].bool()
+    else:
+        label_sure = None
+    return Observation(
+        work, pooled, silhouette, valid, points, distance, grad, labels, label_sure
+    )

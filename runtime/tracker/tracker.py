@@ -440,7 +440,8 @@ class Tracker:
         ``labels``: the forest's part labels (``shared.labels`` classes, 0 = background) of
         the same shape, for the label term (kept only with ``cfg.use_labels``).
         ``label_confidence``: the same shape, each label's posterior; with
-        ``cfg.label_min_posterior`` the labels below it are dropped (None: all kept).
+        ``cfg.label_min_posterior`` the label term skips the labels below it (None: it reads
+        all; the observed-joint support always reads all).
         """
         if depth_m.shape[-2:] != (self.intr.height, self.intr.width):
             raise TrackerError(
@@ -451,7 +452,7 @@ class Tracker:
             raise TrackerError(f"mask {tuple(mask.shape)} does not match depth {depth_m.shape}")
         depth = depth_m.to(device=self.device, dtype=self.dtype)
         mask = mask.to(device=self.device, dtype=torch.bool)
-        segments = None
+        segments = sure = None
         if labels is not None and self.cfg.use_labels:
             if labels.shape != depth_m.shape:
                 raise TrackerError(f"labels {tuple(labels.shape)} do not match depth {depth.shape}")
@@ -459,6 +460,8 @@ class Tracker:
             labels = labels.to(device=self.device, dtype=torch.long)
             if labels.numel() and not (0 <= int(labels.min()) <= int(labels.max()) < len(table)):
                 raise TrackerError(f"labels must be part classes in [0, {len(table) - 1}]")
+            segments = table[labels]
+            segments = segments[None] if segments.dim() == 2 else segments
             gate = self.cfg.label_min_posterior
             if label_confidence is not None and gate > 0:
                 if label_confidence.shape != labels.shape:
@@ -466,10 +469,8 @@ class Tracker:
                         f"label confidence {tuple(label_confidence.shape)} does not match the "
                         f"labels {tuple(labels.shape)}"
                     )
-                keep = label_confidence.to(device=self.device) >= gate
-                labels = labels * keep  # 0: background, which the label term skips
-            segments = table[labels]
-            segments = segments[None] if segments.dim() == 2 else segments
+                sure = label_confidence.to(device=self.device) >= gate
+                sure = sure[None] if sure.dim() == 2 else sure
         if depth.dim() == 2:
             depth, mask = depth[None], mask[None]
         cfg = self.cfg
@@ -478,7 +479,7 @@ class Tracker:
         if CROP_MARGIN >= 0:
             margin_px = int(SILHOUETTE_MAX_PX) + 2
             window = person_window(mask, factor, CROP_MARGIN, margin_px)
-        return observe(depth, mask, self.intr, factor, SILHOUETTE_MAX_PX, window, segments)
+        return observe(depth, mask, self.intr, factor, SILHOUETTE_MAX_PX, window, segments, sure)
 
     def step(
         self,

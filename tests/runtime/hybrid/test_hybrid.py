@@ -873,11 +873,13 @@ def test_labels_from_a_recording_stand_in_for_the_forest(scene, tmp_path):
 def test_the_tracker_reads_only_the_labels_the_forest_is_sure_of(scene, tmp_path):
     """A label source that gives each label's posterior (the forest's): the frame keeps both,
     and with ``tracker.label_min_posterior`` every observation the hybrid makes for its
-    tracker (its fit, refits, the detector's refinement) has the unsure labels taken out;
-    without the setting, or from a source without posteriors, the labels are read as given."""
+    tracker (its fit, refits, the detector's refinement) has its label term skip the unsure
+    labels; without the setting, or from a source without posteriors, it reads them all."""
     q, depth, labels, mask = scene
     _write_recording(tmp_path / "rec", depth, labels, 2)
     confidence = torch.where(labels % 2 == 0, 0.9, 0.2)  # every other part unsure
+    from depthmocap.runtime.tracker.observation import label_term_pixels
+
     made = {}
     for gate in (0.0, 0.5):
         est = create_estimator(
@@ -888,13 +890,14 @@ def test_the_tracker_reads_only_the_labels_the_forest_is_sure_of(scene, tmp_path
         est.label_source = lambda f: (labels * f.mask, confidence)
         frame = frame_of(depth, 0, mask)
         torch.testing.assert_close(frame.label_confidence(est.label_source), confidence)
-        made[gate] = est._observation(frame, est.tracker).labels
+        made[gate] = label_term_pixels(est._observation(frame, est.tracker))
         estimate_frame(est, frame_of(depth, 1, mask))  # a whole frame runs through it
     t = Tracker(BODY, INTR, TrackerConfig(use_labels=True))
     plain = frame_of(depth, 0, mask)
     want = t.observe(plain.depth_m, plain.mask, labels * plain.mask * (confidence >= 0.5))
-    assert torch.equal(made[0.5], want.labels)
-    assert torch.equal(made[0.0], t.observe(plain.depth_m, plain.mask, labels * plain.mask).labels)
+    assert torch.equal(made[0.5], label_term_pixels(want))
+    full = t.observe(plain.depth_m, plain.mask, labels * plain.mask)
+    assert torch.equal(made[0.0], label_term_pixels(full))
     assert not torch.equal(made[0.0], made[0.5])
     with pytest.raises(FrameError, match="label confidence"):
         plain.labels(lambda f: (labels, confidence[:-1]))

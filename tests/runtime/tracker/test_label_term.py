@@ -17,7 +17,8 @@ from depthmocap.runtime.tracker import (
 )
 from depthmocap.runtime.tracker.gauss_newton import rows_jacobian
 from depthmocap.runtime.tracker.label_term import capsule_offsets, label_rows
-from depthmocap.runtime.tracker.observation import observe
+from depthmocap.runtime.tracker.observation import label_term_pixels, observe, person_window
+from depthmocap.runtime.tracker.tracker import CROP_MARGIN, SILHOUETTE_MAX_PX
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.camera import Intrinsics
@@ -198,9 +199,10 @@ def test_the_compiled_term_gives_the_torch_rows_bit_for_bit(assert_same_rows, mo
 
 
 def test_the_label_gate_drops_unsure_labels_only():
-    """``label_min_posterior``: labels whose confidence is under the gate reach the label term
-    as background, the others unchanged; no confidence (ground-truth labels) gates nothing,
-    and a gate of 0 ignores the confidence."""
+    """``label_min_posterior``: the label term skips the labels whose confidence is under
+    the gate and reads the others; the observation keeps every label (the observed-joint
+    support reads them); no confidence (ground-truth labels) gates nothing, and a gate of 0
+    ignores the confidence."""
     body = BodyShape.default(torch.float64)
     q = _pose()
     depth = render_body(q, body, INTR).depth[0]
@@ -211,18 +213,21 @@ def test_the_label_gate_drops_unsure_labels_only():
                                               downsample=1), dtype=torch.float64)  # fmt: skip
     plain = Tracker(body, INTR, TrackerConfig(use_labels=True, downsample=1), dtype=torch.float64)
     obs = gated.observe(depth, depth > 0, labels, confidence)
-    want = plain.observe(depth, depth > 0, labels * (confidence >= 0.5))
-    assert torch.equal(obs.labels, want.labels)
     full = plain.observe(depth, depth > 0, labels)
-    assert (
-        int((full.labels >= sk.FIRST_LIMB_SEGMENT).sum())
-        > int((obs.labels >= sk.FIRST_LIMB_SEGMENT).sum())
-        > 0
-    )
-    assert torch.equal(gated.observe(depth, depth > 0, labels).labels, full.labels)
-    assert torch.equal(plain.observe(depth, depth > 0, labels, confidence).labels, full.labels)
+    assert torch.equal(obs.labels, full.labels) and full.label_sure is None
+    read, everything = label_term_pixels(obs), label_term_pixels(full)
+    sure = (confidence >= 0.5)[None]
+    u0, u1, v0, v1 = person_window(depth[None] > 0, 1, CROP_MARGIN, int(SILHOUETTE_MAX_PX) + 2)
+    assert torch.equal(read, everything & sure[:, v0:v1, u0:u1])
+    assert int(everything.sum()) > int(read.sum()) > 0
+    assert gated.observe(depth, depth > 0, labels).label_sure is None
+    assert plain.observe(depth, depth > 0, labels, confidence).label_sure is None
     with pytest.raises(TrackerError, match="confidence"):
         gated.observe(depth, depth > 0, labels, confidence[:-1])
+    # The rows: the gated term reads the sure pixels' rows only.
+    kin, geom = forward_kinematics(q, body), segment_geometry(body, q)
+    rows = label_rows(kin, geom, obs, gated.cfg)
+    assert 0 < len(rows) < len(label_rows(kin, geom, full, plain.cfg))
 
 
 @pytest.mark.parametrize("gate", [-0.1, 1.0, float("nan")])
