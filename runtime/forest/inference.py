@@ -280,11 +280,7 @@ class ForestClassifier:
     def labels(self, depth_m: torch.Tensor, mask: torch.Tensor, stride: int = 1) -> torch.Tensor:
         """Arg-max class per pixel: (H, W) or (B, H, W) int64, 0 where not classified."""
         pix, probs = self.pixel_posteriors(depth_m, mask, stride)
-        if self._numpy:  # first maximum on ties, as torch.argmax
-            arg = torch.from_numpy(probs.numpy().argmax(1).astype(np.int64))
-        else:
-            arg = probs.argmax(1)
-        return self._dense(depth_m, pix, arg)
+        return self._dense(depth_m, pix, self._arg_max(probs))
 
     def labels_and_confidence(
         self, depth_m: torch.Tensor, mask: torch.Tensor, stride: int = 1
@@ -292,14 +288,15 @@ class ForestClassifier:
         """:meth:`labels` and each label's posterior (the arg-max class's): (H, W) int64 and
         (H, W) float32, or batched as :meth:`labels`; 0 where not classified."""
         pix, probs = self.pixel_posteriors(depth_m, mask, stride)
-        if self._numpy:
-            p = probs.numpy()
-            arg = torch.from_numpy(p.argmax(1).astype(np.int64))
-            top = torch.from_numpy(np.ascontiguousarray(p.max(1)))
-        else:  # argmax, as labels(): the first maximum on ties
-            arg = probs.argmax(1)
-            top = probs.gather(1, arg[:, None])[:, 0]
+        arg = self._arg_max(probs)
+        top = probs.gather(1, arg[:, None])[:, 0]
         return self._dense(depth_m, pix, arg), self._dense(depth_m, pix, top)
+
+    def _arg_max(self, probs: torch.Tensor) -> torch.Tensor:
+        """(N,) int64 class of each row of (N, C) posteriors, the first maximum on ties."""
+        if self._numpy:  # first maximum on ties, as torch.argmax
+            return torch.from_numpy(probs.numpy().argmax(1).astype(np.int64))
+        return probs.argmax(1)
 
 
 def load_classifier(

@@ -65,8 +65,9 @@ class Observation:
 def label_term_pixels(obs: Observation) -> torch.Tensor:
     """(B, H, W) bool: the pixels the label term reads, valid ones labelled as a limb (and
     sure, where the observation says which are)."""
-    labels = obs.labels if obs.labels is not None else torch.full_like(obs.depth, -1).long()
-    use = obs.valid & (labels >= sk.FIRST_LIMB_SEGMENT)
+    if obs.labels is None:
+        return torch.zeros_like(obs.valid)
+    use = obs.valid & (obs.labels >= sk.FIRST_LIMB_SEGMENT)
     return use if obs.label_sure is None else use & obs.label_sure
 
 
@@ -226,6 +227,4 @@ def observe(
             label_sure = label_sure[..., ::factor, ::factor][..., :h, :w].bool()
     else:
         label_sure = None
-    return Observation(
-        work, pooled, silhouette, valid, points, distance, grad, labels, label_sure
-    )
+    return Observation(work, pooled, silhouette, valid, points, distance, grad, labels, label_sure)
