@@ -471,3 +471,62 @@ def test_the_hybrid_sizes_on_its_worker_thread_as_inline(one_thread):
     assert scales_bg.index(scales_bg[-1]) == 3  # frame 0 detected; samples at 1 and 3
     for a, b in zip(poses_bg, poses_in, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def _sized_by_pose(body: BodyShape):
+    """A ``fit`` whose overlaps peak at 1.12 on a seated frame's refits and at 0.96 on a
+    standing one's (a seated person sized too large), recording the frames it refits."""
+    stature, seen = float(body.stature()), []
+
+    def fit(bodies, frame, q):
+        seen.append(frame)
+        peak = 1.12 if frame.startswith("seated") else 0.96
+        return -((bodies.stature().numpy() / stature - peak) ** 2)
+
+    return fit, seen
+
+
+def test_a_size_from_unfolded_samples_when_the_search_has_them():
+    """Some samples seated, enough of them standing: the size is the standing ones' at once,
+    and the search ends; without ``resize_unfolded`` every sample counts."""
+    body = BodyShape.default()
+    seated, standing = _stick_figure((0, 0, -1), (0, 0, -1)), _stick_figure((0, 1, 0), (0, 1, 0))
+    poses = [("seated", seated)] * 2 + [("standing", standing)] * 3
+
+    def run(**kw):
+        cfg = BodyScaleConfig(first_at_once=False, samples=5, every=1, interim_after=None, **kw)
+        search, (fit, seen) = BodyScaleSearch(cfg, body), _sized_by_pose(body)
+        found = [search.offer(f"{n}{i}", torch.zeros(34), fit, j) for i, (n, j) in enumerate(poses)]
+        return search, found
+
+    search, found = run(resize_unfolded=3)
+    assert found[:4] == [None] * 4 and found[4] == pytest.approx(0.96, abs=1e-6)
+    assert not search.searching
+    assert search.offer("standing9", torch.zeros(34), _sized_by_pose(body)[0], standing) is None
+    everything = run()[1][4]  # 2 of 5 samples at 1.12, 3 at 0.96: between them
+    assert 0.97 < everything < 1.11
+
+
+def test_a_seated_start_is_sized_again_once_the_person_stands():
+    """Every sample seated: the search's size is used at once, then every 2nd standing frame
+    is refitted (seated ones skipped) and 2 of them replace it; the search then ends."""
+    body = BodyShape.default()
+    seated, standing = _stick_figure((0, 0, -1), (0, 0, -1)), _stick_figure((0, 1, 0), (0, 1, 0))
+    cfg = BodyScaleConfig(
+        first_at_once=False, samples=3, every=1, interim_after=None, resize_unfolded=2,
+        resize_every=2,
+    )  # fmt: skip
+    search = BodyScaleSearch(cfg, body)
+    fit, seen = _sized_by_pose(body)
+    poses = [("seated", seated)] * 4 + [("standing", standing), ("seated", seated)]
+    poses += [("standing", standing)] * 5
+    found = [search.offer(f"{n}{i}", torch.zeros(34), fit, j) for i, (n, j) in enumerate(poses)]
+    assert found[2] == pytest.approx(1.12, abs=1e-6) and search.samples == 5
+    assert seen == ["seated0", "seated1", "seated2", "standing4", "standing7"]
+    assert found[7] == pytest.approx(0.96, abs=1e-6) == search.scale
+    assert [i for i, f in enumerate(found) if f is not None] == [2, 7]
+    assert not search.searching and len(search.curves) == 5
+    with pytest.raises(ConfigError):
+        BodyScaleConfig(resize_unfolded=2, interim_max_fold_deg=None)
+    with pytest.raises(ConfigError):
+        BodyScaleConfig(resize_unfolded=0)
