@@ -107,21 +107,6 @@ class BodyScaleConfig:
     resize_every: int = field_doc(
         2, "with ``resize_unfolded``: take every k-th unfolded frame after the search"
     )
-    extent_check: float | None = field_doc(
-        None,
-        "the stature read off upright frames (:mod:`runtime.hybrid.stature_extent`) replaces "
-        "the search's size when the two differ by more than this share of it (a seated start "
-        "sized on its lap and chair). None: the search's size stands",
-    )
-    extent_frames: int = field_doc(
-        5, "upright frames whose median extent gives that stature (the first ones seen)"
-    )
-    extent_ratio: float = field_doc(
-        0.914,
-        "the extent's share of the stature (``BodyShape.stature``: soles to the head's top, "
-        "standing straight): the median over the size tuning set's bodies and views, with "
-        "their true joints and part labels (10-90% of recordings: 0.895-0.935)",
-    )
     correction: float = field_doc(
         1.0,
         "factor applied to the size found, kept within min_scale..max_scale (1: none). "
@@ -148,9 +133,6 @@ class BodyScaleConfig:
                 or (self.resize_unfolded >= 1 and self.interim_max_fold_deg is not None)
             )
             and self.resize_every >= 1
-            and (self.extent_check is None or self.extent_check > 0.0)
-            and self.extent_frames >= 1
-            and 0.5 < self.extent_ratio <= 1.0
         )
         if not ok:
             raise ConfigError(
@@ -159,8 +141,7 @@ class BodyScaleConfig:
                 f"0.5 < correction < 2, 0 < max_fold_deg <= 180 or None, "
                 f"interim_after >= 1 or None, 0 < interim_max_fold_deg <= 180 or None, "
                 f"sample_detection only with first_at_once, resize_unfolded >= 1 with "
-                f"interim_max_fold_deg set, resize_every >= 1, extent_check > 0 or None, "
-                f"extent_frames >= 1, 0.5 < extent_ratio <= 1, "
+                f"interim_max_fold_deg set, resize_every >= 1, "
                 f"got {self}"
             )
 
@@ -248,20 +229,12 @@ class BodyScaleSearch:
         self._sample_folded: list[bool] = []  # per sample taken, in the order of ``curves``
         self._resizing = False  # the size is in use and unfolded frames may replace it
         self._unfolded_seen = 0  # unfolded frames offered while resizing
-        self._extents: list[float] = []  # upright frames' extents (cfg.extent_check)
-        self._extent_checked = False
-        self.extent_scale: float | None = None  # the factor the extents give, once checked
 
     @property
     def searching(self) -> bool:
         """Whether later frames may still change :attr:`scale` (before the size is found,
         and while unfolded frames are refitted to replace it: ``cfg.resize_unfolded``)."""
-        return self.scale is None or self._resizing or self.wants_extent
-
-    @property
-    def wants_extent(self) -> bool:
-        """Whether an upright frame's extent is still wanted (``cfg.extent_check``)."""
-        return self.cfg.extent_check is not None and not self._extent_checked
+        return self.scale is None or self._resizing
 
     @property
     def wants_detection(self) -> bool:
@@ -275,27 +248,19 @@ class BodyScaleSearch:
         q: torch.Tensor,
         fit: Callable[[BodyShape, object, torch.Tensor], object],
         joints: np.ndarray | None = None,
-        extent: float | None = None,
     ) -> float | None:
         """A tracked frame, its pose (34,) and its named joints (J, 3) (None: not checked
-        for a fold), and the person's extent if the frame is upright
-        (:func:`~runtime.hybrid.stature_extent.torso_extent`; None or NaN: not upright);
-        returns the factor to track with from now on (the final one, an interim one, or the
-        extents' one), None when the body stays."""
+        for a fold); returns the factor to track with from now on (the final one, or an
+        interim one), None when the body stays."""
         if not self.searching:
             return None
-        wanted = len(self._extents) < self.cfg.extent_frames
-        if self.wants_extent and wanted and extent is not None and math.isfinite(extent):
-            self._extents.append(float(extent))
         limit, interim_limit = self.cfg.max_fold_deg, self.cfg.interim_max_fold_deg
         fold = None
         if joints is not None and (limit is not None or interim_limit is not None):
             fold = fold_angle_deg(joints)  # NaN where degenerate: folded for both tests
         folded = interim_limit is not None and fold is not None and not fold <= interim_limit
         if self.scale is not None:
-            if self._resizing:
-                return None if folded else self._offer_unfolded(frame, q, fit)
-            return self._check_extent()
+            return None if folded else self._offer_unfolded(frame, q, fit)
         if limit is not None and fold is not None and not fold <= limit:
             return None  # folded (or degenerate): not counted towards ``every`` either
         take = self._seen % self.cfg.every == 0
@@ -328,22 +293,6 @@ class BodyScaleSearch:
             else:
                 self._resizing = True
         self.scale = self._factor(self.peak)
-        self._check_extent()
-        return self.scale
-
-    def _check_extent(self) -> float | None:
-        """Once ``cfg.extent_frames`` upright extents are in and the size is found: the
-        stature they give, as a factor on the search's body (:attr:`extent_scale`), replaces
-        the size if the two differ by more than ``cfg.extent_check`` (returned; else None)."""
-        cfg = self.cfg
-        if not self.wants_extent or self._resizing or len(self._extents) < cfg.extent_frames:
-            return None
-        self._extent_checked = True
-        stature = float(np.median(self._extents)) / cfg.extent_ratio
-        self.extent_scale = stature / float(self.body.stature())
-        if abs(self.extent_scale / self.scale - 1.0) <= cfg.extent_check:
-            return None
-        self.scale = float(np.clip(self.extent_scale, self.factors[0], self.factors[-1]))
         return self.scale
 
     def _unfolded_curves(self) -> list[np.ndarray]:
