@@ -495,7 +495,7 @@ def test_a_size_from_unfolded_samples_when_the_search_has_them():
 
     def run(**kw):
         cfg = BodyScaleConfig(first_at_once=False, samples=5, every=1, interim_after=None, **kw)
-        search, fit = BodyScaleSearch(cfg, body), _sized_by_pose(body)[0]
+        search, (fit, seen) = BodyScaleSearch(cfg, body), _sized_by_pose(body)
         found = [search.offer(f"{n}{i}", torch.zeros(34), fit, j) for i, (n, j) in enumerate(poses)]
         return search, found
 
