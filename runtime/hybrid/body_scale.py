@@ -94,19 +94,6 @@ class BodyScaleConfig:
         "first sample, so the body is sized from the first tracked frame on (a detection's "
         "pose is rougher than a tracked one)",
     )
-    resize_unfolded: int | None = field_doc(
-        None,
-        "when some samples showed a body folded more than ``interim_max_fold_deg``, the size "
-        "comes from this many unfolded samples instead: those of the search if it has them, "
-        "else the search's size is used until that many unfolded frames are refitted after it "
-        "(every ``resize_every``-th unfolded frame), and theirs replaces it. A seated person "
-        "is sized too large (the lap and the chair), as Wei's calibration measures only an "
-        "unfolded body; a crouched start still gets a size at once. None: one search, every "
-        "sample counted",
-    )
-    resize_every: int = field_doc(
-        2, "with ``resize_unfolded``: take every k-th unfolded frame after the search"
-    )
     correction: float = field_doc(
         1.0,
         "factor applied to the size found, kept within min_scale..max_scale (1: none). "
@@ -128,11 +115,6 @@ class BodyScaleConfig:
             and (self.interim_after is None or self.interim_after >= 1)
             and (self.interim_max_fold_deg is None or 0.0 < self.interim_max_fold_deg <= 180.0)
             and (self.first_at_once or not self.sample_detection)
-            and (
-                self.resize_unfolded is None
-                or (self.resize_unfolded >= 1 and self.interim_max_fold_deg is not None)
-            )
-            and self.resize_every >= 1
         )
         if not ok:
             raise ConfigError(
@@ -140,8 +122,7 @@ class BodyScaleConfig:
                 f"0 < min_scale < max_scale, 0 < step <= their difference, "
                 f"0.5 < correction < 2, 0 < max_fold_deg <= 180 or None, "
                 f"interim_after >= 1 or None, 0 < interim_max_fold_deg <= 180 or None, "
-                f"sample_detection only with first_at_once, resize_unfolded >= 1 with "
-                f"interim_max_fold_deg set, resize_every >= 1, "
+                f"sample_detection only with first_at_once, "
                 f"got {self}"
             )
 
@@ -226,15 +207,6 @@ class BodyScaleSearch:
         self.scale: float | None = None  # the result, once found
         self.peak: float | None = None  # the overlaps' peak, before the correction
         self.curves: list[np.ndarray] = []
-        self._sample_folded: list[bool] = []  # per sample taken, in the order of ``curves``
-        self._resizing = False  # the size is in use and unfolded frames may replace it
-        self._unfolded_seen = 0  # unfolded frames offered while resizing
-
-    @property
-    def searching(self) -> bool:
-        """Whether later frames may still change :attr:`scale` (before the size is found,
-        and while unfolded frames are refitted to replace it: ``cfg.resize_unfolded``)."""
-        return self.scale is None or self._resizing
 
     @property
     def wants_detection(self) -> bool:
@@ -252,15 +224,12 @@ class BodyScaleSearch:
         """A tracked frame, its pose (34,) and its named joints (J, 3) (None: not checked
         for a fold); returns the factor to track with from now on (the final one, or an
         interim one), None when the body stays."""
-        if not self.searching:
+        if self.scale is not None:
             return None
         limit, interim_limit = self.cfg.max_fold_deg, self.cfg.interim_max_fold_deg
         fold = None
         if joints is not None and (limit is not None or interim_limit is not None):
             fold = fold_angle_deg(joints)  # NaN where degenerate: folded for both tests
-        folded = interim_limit is not None and fold is not None and not fold <= interim_limit
-        if self.scale is not None:
-            return None if folded else self._offer_unfolded(frame, q, fit)
         if limit is not None and fold is not None and not fold <= limit:
             return None  # folded (or degenerate): not counted towards ``every`` either
         take = self._seen % self.cfg.every == 0
@@ -271,11 +240,10 @@ class BodyScaleSearch:
             self._read(self._pending)
         self._pending = fit(self.bodies, frame, q.detach())
         self.samples += 1
-        self._sample_folded.append(folded)
         if self.cfg.first_at_once and self.samples == 1 and self.samples < self.cfg.samples:
             self._read(self._pending)
             self._pending = None
-        if folded:
+        if interim_limit is not None and fold is not None and not fold <= interim_limit:
             self._folded = True
         if self.samples < self.cfg.samples:
             read = len(self.curves)  # samples whose overlaps are in the score
@@ -287,37 +255,7 @@ class BodyScaleSearch:
         self._read(self._pending)  # the last sample: the size is wanted now
         self._pending = None
         self.peak = peak_of(self.factors, self._score / self.samples)
-        if self.cfg.resize_unfolded is not None and self._folded:
-            if len(self._unfolded_curves()) >= self.cfg.resize_unfolded:
-                self.peak = peak_of(self.factors, np.mean(self._unfolded_curves(), 0))
-            else:
-                self._resizing = True
         self.scale = self._factor(self.peak)
-        return self.scale
-
-    def _unfolded_curves(self) -> list[np.ndarray]:
-        """The (S,) overlaps read so far of the samples that were not folded."""
-        return [c for c, f in zip(self.curves, self._sample_folded, strict=False) if not f]
-
-    def _offer_unfolded(self, frame, q: torch.Tensor, fit) -> float | None:
-        """An unfolded frame after a size found on folded samples: every
-        ``cfg.resize_every``-th is refitted; once ``cfg.resize_unfolded`` unfolded samples
-        are read, their size replaces the first (returned; None before)."""
-        take = self._unfolded_seen % self.cfg.resize_every == 0
-        self._unfolded_seen += 1
-        if not take:
-            return None
-        if self._pending is not None:
-            self._read(self._pending)
-        self._pending = fit(self.bodies, frame, q.detach())
-        self.samples += 1
-        self._sample_folded.append(False)
-        if sum(not f for f in self._sample_folded) < self.cfg.resize_unfolded:
-            return None
-        self._read(self._pending)  # the last one: the size is wanted now
-        self._pending = None
-        self.peak = peak_of(self.factors, np.mean(self._unfolded_curves(), 0))
-        self.scale, self._resizing = self._factor(self.peak), False
         return self.scale
 
     def _factor(self, peak: float) -> float:

@@ -345,7 +345,7 @@ class HybridEstimator:
         if scale is not None and scale != self._scale_in_use:
             self._use_body(search.body.scaled(scale))
             self._scale_in_use = scale
-        if scale is not None and not search.searching:  # the search ends here
+        if scale is not None and search.scale is not None:  # the search ends here
             self._sizes = None
             if self._worker is not None:
                 self._worker.shutdown(wait=False)
