@@ -94,6 +94,21 @@ class BodyScaleConfig:
         "first sample, so the body is sized from the first tracked frame on (a detection's "
         "pose is rougher than a tracked one)",
     )
+    extent_check: float | None = field_doc(
+        None,
+        "the stature read off upright frames (:mod:`runtime.hybrid.stature_extent`) replaces "
+        "the search's size when the two differ by more than this share of it (a seated start "
+        "sized on its lap and chair). None: the search's size stands",
+    )
+    extent_frames: int = field_doc(
+        5, "upright frames whose median extent gives that stature (the first ones seen)"
+    )
+    extent_ratio: float = field_doc(
+        0.914,
+        "the extent's share of the stature (``BodyShape.stature``: soles to the head's top, "
+        "standing straight): the median over the size tuning set's bodies and views, with "
+        "their true joints and part labels (10-90% of recordings: 0.895-0.935)",
+    )
     correction: float = field_doc(
         1.0,
         "factor applied to the size found, kept within min_scale..max_scale (1: none). "
@@ -115,6 +130,9 @@ class BodyScaleConfig:
             and (self.interim_after is None or self.interim_after >= 1)
             and (self.interim_max_fold_deg is None or 0.0 < self.interim_max_fold_deg <= 180.0)
             and (self.first_at_once or not self.sample_detection)
+            and (self.extent_check is None or self.extent_check > 0.0)
+            and self.extent_frames >= 1
+            and 0.5 < self.extent_ratio <= 1.0
         )
         if not ok:
             raise ConfigError(
@@ -122,7 +140,8 @@ class BodyScaleConfig:
                 f"0 < min_scale < max_scale, 0 < step <= their difference, "
                 f"0.5 < correction < 2, 0 < max_fold_deg <= 180 or None, "
                 f"interim_after >= 1 or None, 0 < interim_max_fold_deg <= 180 or None, "
-                f"sample_detection only with first_at_once, "
+                f"sample_detection only with first_at_once, extent_check > 0 or None, "
+                f"extent_frames >= 1, 0.5 < extent_ratio <= 1, "
                 f"got {self}"
             )
 
@@ -207,6 +226,20 @@ class BodyScaleSearch:
         self.scale: float | None = None  # the result, once found
         self.peak: float | None = None  # the overlaps' peak, before the correction
         self.curves: list[np.ndarray] = []
+        self._extents: list[float] = []  # upright frames' extents (cfg.extent_check)
+        self._extent_checked = False
+        self.extent_scale: float | None = None  # the factor the extents give, once checked
+
+    @property
+    def searching(self) -> bool:
+        """Whether later frames may still change :attr:`scale` (before the size is found,
+        and while upright frames' extents are awaited: ``cfg.extent_check``)."""
+        return self.scale is None or self.wants_extent
+
+    @property
+    def wants_extent(self) -> bool:
+        """Whether an upright frame's extent is still wanted (``cfg.extent_check``)."""
+        return self.cfg.extent_check is not None and not self._extent_checked
 
     @property
     def wants_detection(self) -> bool:
@@ -220,16 +253,25 @@ class BodyScaleSearch:
         q: torch.Tensor,
         fit: Callable[[BodyShape, object, torch.Tensor], object],
         joints: np.ndarray | None = None,
+        extent: float | None = None,
     ) -> float | None:
         """A tracked frame, its pose (34,) and its named joints (J, 3) (None: not checked
-        for a fold); returns the factor to track with from now on (the final one, or an
-        interim one), None when the body stays."""
-        if self.scale is not None:
+        for a fold), and the person's extent if the frame is upright
+        (:func:`~runtime.hybrid.stature_extent.torso_extent`; None or NaN: not upright);
+        returns the factor to track with from now on (the final one, an interim one, or the
+        extents' one), None when the body stays."""
+        if not self.searching:
             return None
+        wanted = len(self._extents) < self.cfg.extent_frames
+        if self.wants_extent and wanted and extent is not None and math.isfinite(extent):
+            self._extents.append(float(extent))
         limit, interim_limit = self.cfg.max_fold_deg, self.cfg.interim_max_fold_deg
         fold = None
         if joints is not None and (limit is not None or interim_limit is not None):
             fold = fold_angle_deg(joints)  # NaN where degenerate: folded for both tests
+        folded = interim_limit is not None and fold is not None and not fold <= interim_limit
+        if self.scale is not None:
+            return self._check_extent()
         if limit is not None and fold is not None and not fold <= limit:
             return None  # folded (or degenerate): not counted towards ``every`` either
         take = self._seen % self.cfg.every == 0
@@ -243,7 +285,7 @@ class BodyScaleSearch:
         if self.cfg.first_at_once and self.samples == 1 and self.samples < self.cfg.samples:
             self._read(self._pending)
             self._pending = None
-        if interim_limit is not None and fold is not None and not fold <= interim_limit:
+        if folded:
             self._folded = True
         if self.samples < self.cfg.samples:
             read = len(self.curves)  # samples whose overlaps are in the score
@@ -256,6 +298,22 @@ class BodyScaleSearch:
         self._pending = None
         self.peak = peak_of(self.factors, self._score / self.samples)
         self.scale = self._factor(self.peak)
+        self._check_extent()
+        return self.scale
+
+    def _check_extent(self) -> float | None:
+        """Once ``cfg.extent_frames`` upright extents are in and the size is found: the
+        stature they give, as a factor on the search's body (:attr:`extent_scale`), replaces
+        the size if the two differ by more than ``cfg.extent_check`` (returned; else None)."""
+        cfg = self.cfg
+        if not self.wants_extent or len(self._extents) < cfg.extent_frames:
+            return None
+        self._extent_checked = True
+        stature = float(np.median(self._extents)) / cfg.extent_ratio
+        self.extent_scale = stature / float(self.body.stature())
+        if abs(self.extent_scale / self.scale - 1.0) <= cfg.extent_check:
+            return None
+        self.scale = float(np.clip(self.extent_scale, self.factors[0], self.factors[-1]))
         return self.scale
 
     def _factor(self, peak: float) -> float:

@@ -471,3 +471,53 @@ def test_the_hybrid_sizes_on_its_worker_thread_as_inline(one_thread):
     assert scales_bg.index(scales_bg[-1]) == 3  # frame 0 detected; samples at 1 and 3
     for a, b in zip(poses_bg, poses_in, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def _sized_by_pose(body: BodyShape):
+    """A ``fit`` whose overlaps peak at 1.12 on a seated frame's refits and at 0.96 on a
+    standing one's (a seated person sized too large), recording the frames it refits."""
+    stature, seen = float(body.stature()), []
+
+    def fit(bodies, frame, q):
+        seen.append(frame)
+        peak = 1.12 if frame.startswith("seated") else 0.96
+        return -((bodies.stature().numpy() / stature - peak) ** 2)
+
+    return fit, seen
+
+
+def test_upright_extents_replace_a_size_they_disagree_with():
+    """Seated samples size the body at 1.12; the extents of upright frames give 0.96 and
+    replace it once ``extent_frames`` are in; extents within the tolerance leave it."""
+    body = BodyShape.default()
+    stature = float(body.stature())
+    seated = _stick_figure((0, 0, -1), (0, 0, -1))
+
+    def run(extent_factor, **kw):
+        cfg = BodyScaleConfig(
+            first_at_once=False, samples=3, every=1, interim_after=None, extent_frames=2,
+            extent_ratio=0.9, **kw,
+        )  # fmt: skip
+        search, fit = BodyScaleSearch(cfg, body), _sized_by_pose(body)[0]
+        extent = 0.9 * extent_factor * stature  # what an upright person of that size shows
+        frames = [("seated", None)] * 4 + [("standing", extent)] * 3
+        found = [
+            search.offer(f"{n}{i}", torch.zeros(34), fit, seated, e)
+            for i, (n, e) in enumerate(frames)
+        ]
+        return search, found
+
+    search, found = run(0.96, extent_check=0.06)
+    assert found[2] == pytest.approx(1.12, abs=1e-6) and found[3:5] == [None, None]
+    assert found[5] == pytest.approx(0.96, rel=1e-6) == search.scale == search.extent_scale
+    assert not search.searching and found[6] is None
+    search, found = run(1.08, extent_check=0.06)  # 3.6% from 1.12: kept
+    assert search.scale == pytest.approx(1.12, abs=1e-6) and found[3:] == [None] * 4
+    assert search.extent_scale == pytest.approx(1.08, rel=1e-6) and not search.searching
+    search, found = run(0.5, extent_check=0.06)  # beyond the grid: its end
+    assert found[5] == pytest.approx(0.84)
+    search, found = run(0.96)  # no check: extents ignored, the search ends with its size
+    assert not search.searching and search.extent_scale is None and found[3:] == [None] * 4
+    for bad in ({"extent_check": 0.0}, {"extent_frames": 0}, {"extent_ratio": 1.2}):
+        with pytest.raises(ConfigError):
+            BodyScaleConfig(**bad)
