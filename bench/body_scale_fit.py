@@ -1,5 +1,6 @@
 """Measure the size search's systematic error (``runtime.hybrid.body_scale``) and the
-correction that removes it.
+correction that removes it, and calibrate the stature read off the silhouette
+(``runtime.hybrid.stature_extent``, the search's ``extent_check``).
 
     python -m depthmocap.bench.body_scale_fit \\
         --recordings data/size_tune --out out/size_fit/searches.jsonl
@@ -17,12 +18,20 @@ report gives the error before and after it, and the after figure also cross-vali
 half corrected with the other half's median), so that what is printed is not the fit's own
 residual. Fit on recordings you do not report: the shipped value comes from the size tuning
 set (the broad protocol's spec with seed 1002 and 60 frames a take; ``docs/protocol.md``).
+
+The same tracking collects the silhouette's extent on the first upright frames (the search's
+``extent_frames``; the check itself never acts here) and goes on until it has them. Their
+median over the recording's true stature, medianed over the recordings, is
+``body_scale.extent_ratio``; the report gives its spread, the stature error of the sizes it
+gives (cross-validated like the correction) and how far they fall from the search's own
+(``extent_check`` must exceed that on recordings the search sizes right).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -33,6 +42,7 @@ from depthmocap.shared.body import BodyShape
 
 __all__ = [
     "correction_of",
+    "extent_figures",
     "cross_validated",
     "search_recording",
     "search_stream",
@@ -71,23 +81,56 @@ def cross_validated(needed: np.ndarray, found: np.ndarray) -> np.ndarray:
     return out
 
 
+def extent_figures(rows: Sequence[dict], stature_m: float, frames: int) -> dict | None:
+    """The extent calibration from measured ``rows`` (``needed``, ``found``, ``extents``) on
+    a population body of ``stature_m``, over the recordings with ``frames`` extents: the
+    ``ratio`` (median of each recording's median extent over its true stature) and its 10th
+    and 90th percentiles, the stature ``errors`` of the sizes it gives (each half of the
+    recordings with the other half's ratio), and the 95th and 99th percentiles and maximum
+    of ``|extent size / found - 1|`` (``disagreement``). None with fewer than two."""
+    used = [r for r in rows if len(r.get("extents") or ()) >= frames and r["found"] is not None]
+    if len(used) < 2:
+        return None
+    needed = np.array([r["needed"] for r in used])
+    found = np.array([r["found"] for r in used])
+    extent = np.array([float(np.median(r["extents"][:frames])) for r in used])
+    share = extent / (needed * stature_m)  # each recording's extent over its true stature
+    ratio = float(np.median(share))
+    crossed = np.empty_like(extent)
+    for part in (0, 1):
+        mine = np.arange(len(used)) % 2 == part
+        crossed[mine] = extent[mine] / float(np.median(share[~mine])) / stature_m
+    gap = np.abs(extent / ratio / stature_m / found - 1.0)
+    return {
+        "recordings": len(used),
+        "ratio": ratio,
+        "ratio_p10_p90": np.percentile(share, [10, 90]).tolist(),
+        "errors_cross_validated": size_errors(needed, crossed, stature_m),
+        "disagreement": dict(zip(("p95", "p99", "max"), [*np.percentile(gap, [95, 99]).tolist(),
+                                                         float(gap.max())])),
+    }  # fmt: skip
+
+
 def search_stream(frames: Iterable, model: Path | None = None) -> dict:
     """Track ``frames`` (DepthFrames) as ``runtime-track`` does without a body file, until
     the size search ends (or the frames do).
 
     Returns:
         ``found`` (the search's uncorrected factor, None if it did not end), ``frames``
-        (frames read), ``curves`` ((samples, S) overlaps), ``factors`` (S,).
+        (frames read), ``curves`` ((samples, S) overlaps), ``factors`` (S,), ``extents``
+        (metres, the upright frames' extents the search collected: ``extent_frames`` of them
+        unless the frames ran out first).
     """
     from depthmocap.runtime.api import Tracker
 
-    tracker = Tracker(body=None, model=model, config={"body_scale": {"correction": 1.0}},
-                      device="cpu")  # fmt: skip
+    # An infinite tolerance: the extents are collected and never replace the size.
+    config = {"body_scale": {"correction": 1.0, "extent_check": math.inf}}
+    tracker = Tracker(body=None, model=model, config=config, device="cpu")
     read = 0
     for frame in frames:
         tracker.track(frame)
         read += 1
-        if tracker.size_search.scale is not None:
+        if tracker.size_search is not None and not tracker.size_search.searching:
             break
     search = tracker.size_search
     return {
@@ -95,6 +138,7 @@ def search_stream(frames: Iterable, model: Path | None = None) -> dict:
         "frames": read,
         "curves": [] if search is None else [c.round(5).tolist() for c in search.curves],
         "factors": [] if search is None else search.factors.round(5).tolist(),
+        "extents": [] if search is None else [round(e, 5) for e in search.extents],
     }
 
 
@@ -175,15 +219,32 @@ def main(argv: Sequence[str] | None = None) -> int:
         "after": size_errors(needed, found * corr, stature),
         "after_cross_validated": size_errors(needed, cross_validated(needed, found), stature),
     }
+    from depthmocap.runtime.hybrid.body_scale import BodyScaleConfig
+
+    chosen_rows = [r for r in rows if r["recording"] in chosen]
+    report["extent"] = extent_figures(chosen_rows, stature, BodyScaleConfig().extent_frames)
     args.out.with_suffix(".report.json").write_text(json.dumps(report, indent=1) + "\n")
     print(f"{len(ended)} searches ({report['not_ended']} did not end): correction {corr:.4f}")
     for key in ("before", "after", "after_cross_validated"):
-        e = report[key]
-        print(
-            f"  {key.replace('_', ' ')}: stature bias {e['bias_cm']:+.1f} cm, std "
-            f"{e['std_cm']:.1f}, mean |error| {e['mean_abs_cm']:.1f}, max {e['max_abs_cm']:.1f}"
-        )
+        _print_errors(key.replace("_", " "), report[key])
+    ext = report["extent"]
+    if ext is None:
+        print("extent: fewer than two recordings with enough upright frames")
+    else:
+        lo, hi = ext["ratio_p10_p90"]
+        gap = ext["disagreement"]
+        print(f"extent on {ext['recordings']} recordings: ratio {ext['ratio']:.4f} "
+              f"(10-90%: {lo:.3f}-{hi:.3f}); |extent size / search - 1| 95% {gap['p95']:.3f}, "
+              f"99% {gap['p99']:.3f}, max {gap['max']:.3f}")  # fmt: skip
+        _print_errors("extent sizes, cross-validated", ext["errors_cross_validated"])
     return 0
+
+
+def _print_errors(label: str, e: dict) -> None:
+    print(
+        f"  {label}: stature bias {e['bias_cm']:+.1f} cm, std {e['std_cm']:.1f}, "
+        f"mean |error| {e['mean_abs_cm']:.1f}, max {e['max_abs_cm']:.1f}"
+    )
 
 
 if __name__ == "__main__":

@@ -45,7 +45,6 @@ from depthmocap.runtime.frame import Frame, LabelSource
 from depthmocap.runtime.tracker.prior_term import velocity_scale
 from depthmocap.runtime.tracker.signals import FitSignals
 from depthmocap.runtime.tracker.tracker import Tracker, TrackResult
-from depthmocap.shared.camera import masked_points
 from depthmocap.shared.image_cut import image_cut_distance_m
 from depthmocap.shared.joint_confidence import JointConfidence, frame_features
 from depthmocap.shared.joint_offsets import JointOffsets, apply_offsets
@@ -59,7 +58,7 @@ from .config import HybridConfig
 from .pieces import PiecesInFlight
 from .policy import Detection, behind, choose, judge_track
 from .split_refits import SplitRefits
-from .stature_extent import is_upright, torso_extent
+from .stature_extent import upright_extent
 from .unseen_limbs import held_dofs, hold_unseen
 
 __all__ = ["HybridEstimator", "TrackState", "overlaps_of"]
@@ -344,11 +343,8 @@ class HybridEstimator:
         if search is None:
             return
         extent = None
-        if search.wants_extent and is_upright(joints) and frame.has_person:
-            mask = frame.mask
-            if not (bool(mask[0].any()) or bool(mask[-1].any())):  # not cut at the top or foot
-                points = masked_points(frame.depth_m, mask, frame.intrinsics)
-                extent = torso_extent(points, joints)
+        if search.wants_extent:
+            extent = upright_extent(frame.depth_m, frame.mask, frame.intrinsics, joints)
         scale = search.offer(frame, q, self._size_overlaps, joints, extent)
         if scale is not None and scale != self._scale_in_use:
             self._use_body(search.body.scaled(scale))

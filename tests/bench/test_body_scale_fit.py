@@ -97,3 +97,25 @@ def test_a_bad_recording_is_a_clear_error_and_keeps_what_was_measured(tmp_path, 
     assert fit.main(["--recordings", str(recs), "--out", str(out)]) == 2
     assert "error: b:" in capsys.readouterr().err
     assert json.loads(out.read_text().splitlines()[0])["recording"] == "a"
+
+
+def test_extent_calibration_recovers_the_ratio_and_the_gap():
+    """Extents at 0.91 of each true stature (within 1%): the ratio comes back, the
+    cross-validated sizes are within 1% of the truth, and the gap to a search 3% short is
+    3%; recordings without enough extents are left out, and fewer than two give None."""
+    rng = np.random.default_rng(1)
+    stature = 1.75
+    needed = rng.uniform(0.85, 1.15, 40)
+    rows = [
+        {"recording": str(k), "needed": n, "found": n * 0.97,
+         "extents": list(0.91 * n * stature * (1 + rng.uniform(-0.01, 0.01, 5)))}
+        for k, n in enumerate(needed)
+    ]  # fmt: skip
+    rows.append({"recording": "short", "needed": 1.0, "found": 1.0, "extents": [1.0, 1.0]})
+    rows.append({"recording": "old", "needed": 1.0, "found": 1.0})  # measured before extents
+    figures = fit.extent_figures(rows, stature, frames=5)
+    assert figures["recordings"] == 40
+    assert figures["ratio"] == pytest.approx(0.91, rel=0.005)
+    assert figures["errors_cross_validated"]["max_abs_cm"] < 0.02 * 100 * stature
+    assert figures["disagreement"]["p95"] == pytest.approx(1 / 0.97 - 1, abs=0.01)
+    assert fit.extent_figures(rows[-3:], stature, frames=5) is None

@@ -276,6 +276,26 @@ def test_the_hybrid_tracks_with_the_interim_sizes(one_thread):
         np.testing.assert_array_equal(a, b)
 
 
+def test_the_hybrid_measures_the_extent_on_its_frames_and_uses_it(one_thread):
+    """The hybrid hands the size search the extents of the demo's upright frames (read off
+    each frame's mask along the tracked torso) and, with a tolerance too tight to keep the
+    search's size, tracks at the extents' size from the frame that checks them; the search
+    then ends. Background and inline runs agree."""
+    config = {"body_scale": {"samples": 3, "every": 1, "min_scale": 0.8, "max_scale": 1.2,
+                             "step": 0.1, "iterations": 2, "first_at_once": False,
+                             "extent_check": 1e-9, "extent_frames": 2}}  # fmt: skip
+    runs = []
+    for est, base, steps in _demo_runs(config, 8):
+        search = est.scale_search
+        assert search.extent_scale is not None and len(search.extents) == 2
+        assert not search.searching and est._worker is None
+        assert 0.8 <= search.scale <= 1.2
+        assert search.scale == pytest.approx(min(max(search.extent_scale, 0.8), 1.2))
+        assert steps[-1][1] == pytest.approx(base * search.scale, rel=1e-5)
+        runs.append(([s for _, s, _ in steps], search.extents, search.scale))
+    assert runs[0] == runs[1]
+
+
 @pytest.mark.parametrize("sample_detection", [True, False])
 def test_the_hybrid_reads_its_first_sample_at_once(one_thread, sample_detection):
     """With ``first_at_once`` the first sample is read when taken: with ``sample_detection``

@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 import torch
 from depthmocap.bench.scenes import camera_motion
-from depthmocap.runtime.hybrid.stature_extent import EXTENT_QUANTILE, is_upright, torso_extent
+from depthmocap.runtime.hybrid.stature_extent import (
+    EXTENT_QUANTILE,
+    is_upright,
+    torso_extent,
+    upright_extent,
+)
 from depthmocap.runtime.raycast import render_body
 from depthmocap.shared.body import BodyShape
 from depthmocap.shared.camera import Intrinsics, masked_points
@@ -82,3 +87,27 @@ def test_the_extent_of_a_rendered_body_grows_with_its_size():
         shares[factor] = np.array(extents) / float(body.stature())
     np.testing.assert_allclose(shares[1.1], shares[1.0], rtol=0.01)
     assert 0.9 < shares[1.0].mean() < 1.0 and np.ptp(shares[1.0]) < 0.01
+
+
+def test_a_frame_shows_the_full_height_only_upright_and_uncut():
+    """The extent of an upright pose's frame; NaN when the pose is seated, the mask touches
+    the top or bottom row, or there is no person."""
+    intr = Intrinsics.kinect_v1(320)
+    body = BodyShape.default()
+    q = camera_motion("arm_cross", 1, seed=0, body=body).float()
+    depth = render_body(q, body, intr).depth[0]
+    joints = named_joint_positions(forward_kinematics(q, body)).numpy()[0]
+    mask = depth > 0
+    mask[0] = mask[-1] = False  # the render's own rows at the edges, if any
+    whole = upright_extent(depth, mask, intr, joints)
+    assert whole == pytest.approx(torso_extent(masked_points(depth, mask, intr), joints))
+    assert 0.5 < whole < 2.5
+    for cut_row in (0, -1):
+        cut = mask.clone()
+        cut[cut_row, 100:110] = True
+        assert math.isnan(upright_extent(depth, cut, intr, joints))
+    seated = joints.copy()
+    for side in "lr":
+        seated[AT[f"{side}_knee"]] = seated[AT[f"{side}_hip"]] + (0.0, 0.0, -0.4)
+    assert math.isnan(upright_extent(depth, mask, intr, seated))
+    assert math.isnan(upright_extent(depth, torch.zeros_like(mask), intr, joints))
