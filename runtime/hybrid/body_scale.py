@@ -95,10 +95,10 @@ class BodyScaleConfig:
         "pose is rougher than a tracked one)",
     )
     extent_check: float | None = field_doc(
-        None,
+        0.066,
         "the stature read off upright frames (:mod:`runtime.hybrid.stature_extent`) replaces "
-        "the search's size when the two differ by more than this share of it. The shipped "
-        "preset's 0.066 is the 99th percentile of that gap on the size tuning set, where the "
+        "the search's size when the two differ by more than this share of it. 0.066 is the "
+        "99th percentile of that gap on the size tuning set, where the "
         "search sizes right (``python -m depthmocap.bench.body_scale_fit``); on real depth it "
         "fires on seated starts, sized on their lap and chair (UTD-MHAD: 53.5 -> 53.1 mm, sit "
         "to stand 86.4 -> 81.2). None: the search's size stands",

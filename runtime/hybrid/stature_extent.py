@@ -7,8 +7,8 @@ person's size in the other actions), and frames that come later cannot undo it, 
 refits start from poses already bent to the wrong body. The person's extent along their own
 torso axis, head top to soles, measured on frames where they stand upright with the hands
 below the head, does not see the chair (it lies between the feet and the head) and depends on
-no fit: for each of UTD-MHAD's four people it agrees within about 2% across all twelve
-actions, seated ones included. On rendered people it gives the stature within 1.6% on average
+no fit: for each of UTD-MHAD's four people its medians over all twelve actions, seated ones
+included, span 2-3.5%. On rendered people it gives the stature within 1.6% on average
 (the search: 2.9%), so the search keeps its size unless the two disagree by more than the
 rendered people's 99th percentile (``BodyScaleConfig.extent_check``).
 """

@@ -536,7 +536,7 @@ def test_upright_extents_replace_a_size_they_disagree_with():
     assert search.extent_scale == pytest.approx(1.08, rel=1e-6) and not search.searching
     search, found = run(0.5, extent_check=0.06)  # beyond the grid: its end
     assert found[5] == pytest.approx(0.84)
-    search, found = run(0.96)  # no check: extents ignored, the search ends with its size
+    search, found = run(0.96, extent_check=None)  # no check: the search ends with its size
     assert not search.searching and search.extent_scale is None and found[3:] == [None] * 4
     for bad in ({"extent_check": 0.0}, {"extent_frames": 0}, {"extent_ratio": 1.2}):
         with pytest.raises(ConfigError):
