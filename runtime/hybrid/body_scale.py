@@ -239,7 +239,12 @@ class BodyScaleSearch:
     def searching(self) -> bool:
         """Whether later frames may still change :attr:`scale` (before the size is found,
         and while upright frames' extents are awaited: ``cfg.extent_check``)."""
-        return self.scale is None or self.wants_extent
+        return self.scale is None or self._extent_pending
+
+    @property
+    def _extent_pending(self) -> bool:
+        """Whether the extents' check is on and has not run yet."""
+        return self.cfg.extent_check is not None and not self._extent_checked
 
     @property
     def extents(self) -> tuple[float, ...]:
@@ -249,8 +254,9 @@ class BodyScaleSearch:
 
     @property
     def wants_extent(self) -> bool:
-        """Whether an upright frame's extent is still wanted (``cfg.extent_check``)."""
-        return self.cfg.extent_check is not None and not self._extent_checked
+        """Whether an upright frame's extent is still wanted (``cfg.extent_check``, fewer
+        than ``cfg.extent_frames`` in): the caller measures one only then."""
+        return self._extent_pending and len(self._extents) < self.cfg.extent_frames
 
     @property
     def wants_detection(self) -> bool:
@@ -273,16 +279,15 @@ class BodyScaleSearch:
         extents' one), None when the body stays."""
         if not self.searching:
             return None
-        wanted = len(self._extents) < self.cfg.extent_frames
-        if self.wants_extent and wanted and extent is not None and math.isfinite(extent):
+        if self.wants_extent and extent is not None and math.isfinite(extent):
             self._extents.append(float(extent))
+        if self.scale is not None:
+            return self._check_extent()
         limit, interim_limit = self.cfg.max_fold_deg, self.cfg.interim_max_fold_deg
         fold = None
         if joints is not None and (limit is not None or interim_limit is not None):
             fold = fold_angle_deg(joints)  # NaN where degenerate: folded for both tests
         folded = interim_limit is not None and fold is not None and not fold <= interim_limit
-        if self.scale is not None:
-            return self._check_extent()
         if limit is not None and fold is not None and not fold <= limit:
             return None  # folded (or degenerate): not counted towards ``every`` either
         take = self._seen % self.cfg.every == 0
@@ -317,7 +322,7 @@ class BodyScaleSearch:
         stature they give, as a factor on the search's body (:attr:`extent_scale`), replaces
         the size if the two differ by more than ``cfg.extent_check`` (returned; else None)."""
         cfg = self.cfg
-        if not self.wants_extent or len(self._extents) < cfg.extent_frames:
+        if not self._extent_pending or len(self._extents) < cfg.extent_frames:
             return None
         self._extent_checked = True
         stature = float(np.median(self._extents)) / cfg.extent_ratio
