@@ -22,7 +22,8 @@ set (the broad protocol's spec with seed 1002 and 60 frames a take; ``docs/proto
 The same tracking collects the silhouette's extent on the first upright frames (the search's
 ``extent_frames``; the check itself never acts here) and goes on until it has them. Their
 median over the recording's true stature, medianed over the recordings, is
-``body_scale.extent_ratio``; the report gives its spread, the stature error of the sizes it
+``body_scale.extent_ratio``, and over the stature of the body the search found,
+``body_scale.extent_size_ratio``; the report gives its spread, the stature error of the sizes it
 gives (cross-validated like the correction) and how far they fall from the search's own
 (``extent_check`` must exceed that on recordings the search sizes right).
 """
@@ -87,7 +88,10 @@ def extent_figures(rows: Sequence[dict], stature_m: float, frames: int) -> dict 
     ``ratio`` (median of each recording's median extent over its true stature) and its 10th
     and 90th percentiles, the stature ``errors`` of the sizes it gives (each half of the
     recordings with the other half's ratio), and the 95th and 99th percentiles and maximum
-    of ``|extent size / found - 1|`` (``disagreement``). None with fewer than two."""
+    of ``|extent size / found - 1|`` (``disagreement``); then ``size_ratio``, the same
+    median over the stature of the search's body (``body_scale.extent_size_ratio``), its
+    10th and 90th percentiles, and ``size_gap_cross_validated``, the mean
+    ``|extent size / found - 1|`` with it (halves crossed). None with fewer than two."""
     used = [r for r in rows if len(r.get("extents") or ()) >= frames and r["found"] is not None]
     if len(used) < 2:
         return None
@@ -101,6 +105,12 @@ def extent_figures(rows: Sequence[dict], stature_m: float, frames: int) -> dict 
         mine = np.arange(len(used)) % 2 == part
         crossed[mine] = extent[mine] / float(np.median(share[~mine])) / stature_m
     gap = np.abs(extent / ratio / stature_m / found - 1.0)
+    # Against the search's body instead (``extent_size_ratio``), cross-validated the same way.
+    of_found = extent / (found * stature_m)
+    from_extent = np.empty_like(extent)
+    for part in (0, 1):
+        mine = np.arange(len(used)) % 2 == part
+        from_extent[mine] = extent[mine] / float(np.median(of_found[~mine])) / stature_m
     return {
         "recordings": len(used),
         "ratio": ratio,
@@ -108,6 +118,9 @@ def extent_figures(rows: Sequence[dict], stature_m: float, frames: int) -> dict 
         "errors_cross_validated": size_errors(needed, crossed, stature_m),
         "disagreement": dict(zip(("p95", "p99", "max"), [*np.percentile(gap, [95, 99]).tolist(),
                                                          float(gap.max())])),
+        "size_ratio": float(np.median(of_found)),
+        "size_ratio_p10_p90": np.percentile(of_found, [10, 90]).tolist(),
+        "size_gap_cross_validated": float(np.mean(np.abs(from_extent / found - 1.0))),
     }  # fmt: skip
 
 
@@ -124,7 +137,7 @@ def search_stream(frames: Iterable, model: Path | None = None) -> dict:
     from depthmocap.runtime.api import Tracker
 
     # An infinite tolerance: the extents are collected and never replace the size.
-    config = {"body_scale": {"correction": 1.0, "extent_check": math.inf}}
+    config = {"body_scale": {"correction": 1.0, "extent_check": math.inf, "extent_sizes": False}}
     tracker = Tracker(body=None, model=model, config=config, device="cpu")
     read = 0
     for frame in frames:
@@ -237,6 +250,10 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"(10-90%: {lo:.3f}-{hi:.3f}); |extent size / search - 1| 95% {gap['p95']:.3f}, "
               f"99% {gap['p99']:.3f}, max {gap['max']:.3f}")  # fmt: skip
         _print_errors("extent sizes, cross-validated", ext["errors_cross_validated"])
+        lo, hi = ext["size_ratio_p10_p90"]
+        print(f"extent against the search's body: ratio {ext['size_ratio']:.4f} (10-90%: "
+              f"{lo:.3f}-{hi:.3f}); sizes it gives {100 * ext['size_gap_cross_validated']:.1f}% "
+              "from the search's, cross-validated")  # fmt: skip
     return 0
 
 

@@ -114,6 +114,17 @@ class BodyScaleConfig:
         "0.888-0.934; the sizes it gives are 1.6% off the true ones on average, the search's "
         "2.9%)",
     )
+    extent_sizes: bool = field_doc(
+        False,
+        "the stature read off upright frames sizes the body whenever ``extent_frames`` of them "
+        "come, before or after the search ends (the search's size stands only for people "
+        "never seen upright, and ``extent_check`` is not read): the body the search would "
+        "give a rendered person of that extent (``extent_ratio``). The search inflates "
+        "real people: clothing and the sensor's edges widen the silhouette, and a uniformly "
+        "scaled body that covers the width is too tall (UTD-MHAD: the search's statures "
+        "1.69-1.86 m, the extents' 1.50-1.65, the Kinect SDK's head-to-ankle spans 8-12% "
+        "under the search's bodies')",
+    )
     correction: float = field_doc(
         1.0,
         "factor applied to the size found, kept within min_scale..max_scale (1: none). "
@@ -243,8 +254,10 @@ class BodyScaleSearch:
 
     @property
     def _extent_pending(self) -> bool:
-        """Whether the extents' check is on and has not run yet."""
-        return self.cfg.extent_check is not None and not self._extent_checked
+        """Whether the extents are read (``cfg.extent_check`` or ``cfg.extent_sizes``) and
+        have not been yet."""
+        on = self.cfg.extent_check is not None or self.cfg.extent_sizes
+        return on and not self._extent_checked
 
     @property
     def extents(self) -> tuple[float, ...]:
@@ -281,7 +294,9 @@ class BodyScaleSearch:
             return None
         if self.wants_extent and extent is not None and math.isfinite(extent):
             self._extents.append(float(extent))
-        if self.scale is not None:
+        if self.scale is not None or (
+            self.cfg.extent_sizes and len(self._extents) >= self.cfg.extent_frames
+        ):
             return self._check_extent()
         limit, interim_limit = self.cfg.max_fold_deg, self.cfg.interim_max_fold_deg
         fold = None
@@ -318,17 +333,20 @@ class BodyScaleSearch:
         return self.scale
 
     def _check_extent(self) -> float | None:
-        """Once ``cfg.extent_frames`` upright extents are in and the size is found: the
-        stature they give, as a factor on the search's body (:attr:`extent_scale`), replaces
-        the size if the two differ by more than ``cfg.extent_check`` (returned; else None)."""
+        """Once ``cfg.extent_frames`` upright extents are in (and the size is found, unless
+        ``cfg.extent_sizes``): the factor on the search's body they give
+        (:attr:`extent_scale`) becomes the size, with ``cfg.extent_sizes`` always (the
+        search ends here if it has not), otherwise if the two differ by more than
+        ``cfg.extent_check``; returns the new size, None when it stays."""
         cfg = self.cfg
         if not self._extent_pending or len(self._extents) < cfg.extent_frames:
             return None
         self._extent_checked = True
         stature = float(np.median(self._extents)) / cfg.extent_ratio
         self.extent_scale = stature / float(self.body.stature())
-        if abs(self.extent_scale / self.scale - 1.0) <= cfg.extent_check:
+        if not cfg.extent_sizes and abs(self.extent_scale / self.scale - 1.0) <= cfg.extent_check:
             return None
+        self._pending = None  # refits still in flight are not read: the size is the extents'
         self.scale = float(np.clip(self.extent_scale, self.factors[0], self.factors[-1]))
         return self.scale
 

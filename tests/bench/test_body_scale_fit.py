@@ -102,7 +102,8 @@ def test_a_bad_recording_is_a_clear_error_and_keeps_what_was_measured(tmp_path, 
 def test_extent_calibration_recovers_the_ratio_and_the_gap():
     """Extents at 0.91 of each true stature (within 1%): the ratio comes back, the
     cross-validated sizes are within 1% of the truth, and the gap to a search 3% short is
-    3%; recordings without enough extents are left out, and fewer than two give None."""
+    3%; against the search's bodies the ratio is 0.91 / 0.97; recordings without enough
+    extents are left out, and fewer than two give None."""
     rng = np.random.default_rng(1)
     stature = 1.75
     needed = rng.uniform(0.85, 1.15, 40)
@@ -118,4 +119,7 @@ def test_extent_calibration_recovers_the_ratio_and_the_gap():
     assert figures["ratio"] == pytest.approx(0.91, rel=0.005)
     assert figures["errors_cross_validated"]["max_abs_cm"] < 0.02 * 100 * stature
     assert figures["disagreement"]["p95"] == pytest.approx(1 / 0.97 - 1, abs=0.01)
+    # Against the search's bodies (3% short): 0.91 / 0.97, and its sizes land on the search's.
+    assert figures["size_ratio"] == pytest.approx(0.91 / 0.97, rel=0.005)
+    assert figures["size_gap_cross_validated"] < 0.01
     assert fit.extent_figures(rows[-3:], stature, frames=5) is None

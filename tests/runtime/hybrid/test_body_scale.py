@@ -276,14 +276,17 @@ def test_the_hybrid_tracks_with_the_interim_sizes(one_thread):
         np.testing.assert_array_equal(a, b)
 
 
-def test_the_hybrid_measures_the_extent_on_its_frames_and_uses_it(one_thread):
+@pytest.mark.parametrize(
+    "use", [{"extent_check": 1e-9}, {"extent_check": None, "extent_sizes": True}]
+)
+def test_the_hybrid_measures_the_extent_on_its_frames_and_uses_it(one_thread, use):
     """The hybrid hands the size search the extents of the demo's upright frames (read off
     each frame's mask along the tracked torso) and, with a tolerance too tight to keep the
-    search's size, tracks at the extents' size from the frame that checks them; the search
-    then ends. Background and inline runs agree."""
+    search's size or with ``extent_sizes``, tracks at the extents' size from the frame that
+    reads them; the search then ends. Background and inline runs agree."""
     config = {"body_scale": {"samples": 3, "every": 1, "min_scale": 0.8, "max_scale": 1.2,
                              "step": 0.1, "iterations": 2, "first_at_once": False,
-                             "extent_check": 1e-9, "extent_frames": 2}}  # fmt: skip
+                             "extent_frames": 2, **use}}  # fmt: skip
     runs = []
     for est, base, steps in _demo_runs(config, 8):
         search = est.scale_search
@@ -541,3 +544,39 @@ def test_upright_extents_replace_a_size_they_disagree_with():
     for bad in ({"extent_check": 0.0}, {"extent_frames": 0}, {"extent_ratio": 1.2}):
         with pytest.raises(ConfigError):
             BodyScaleConfig(**bad)
+
+
+def test_upright_extents_size_the_body_before_or_after_the_search():
+    """With ``extent_sizes`` the extents' size is taken whatever the search says: on the
+    frame the ``extent_frames``-th upright extent comes, ending a search still running (its
+    refits in flight are not read), or after the search has ended, even within the check's
+    tolerance. The ratio read is ``extent_ratio``."""
+    body = BodyShape.default()
+    stature = float(body.stature())
+    standing = _stick_figure((0, 0, -1), (0, 0, -1))
+    cfg = dict(first_at_once=False, samples=3, every=1, interim_after=None, extent_frames=2,
+               extent_ratio=0.9, extent_sizes=True)  # fmt: skip
+
+    def run(frames, extent_factor=1.04):
+        search, (fit, seen) = BodyScaleSearch(BodyScaleConfig(**cfg), body), _sized_by_pose(body)
+        extent = 0.9 * extent_factor * stature
+        found = [
+            search.offer(f"f{i}", torch.zeros(34), fit, standing, extent if up else None)
+            for i, up in enumerate(frames)
+        ]
+        return search, found, seen
+
+    search, found, seen = run([True, True, False, False, False])  # upright from the start
+    assert found[0] is None and found[1] == pytest.approx(1.04, rel=1e-6)
+    assert search.scale == found[1] == search.extent_scale and search.peak is None
+    assert not search.searching and found[2:] == [None] * 3 and seen == ["f0"]
+    search, found, seen = run([False, False, False, True, True, True])  # the search first
+    assert found[2] is not None and found[2] != pytest.approx(1.04)
+    assert found[3] is None and found[4] == pytest.approx(1.04, rel=1e-6)
+    assert not search.searching and found[5] is None and len(seen) == 3
+    search, found, _ = run([False] * 3 + [True] * 2, extent_factor=found[2] * 1.01)
+    assert found[4] == pytest.approx(search.extent_scale) and search.scale == found[4]
+    search, found, _ = run([False] * 6)  # never upright: the search's size stands
+    assert search.searching and search.scale == found[2] and found[3:] == [None] * 3
+    with pytest.raises(ConfigError):
+        BodyScaleConfig(extent_ratio=0.4)
