@@ -21,11 +21,11 @@ set (the broad protocol's spec with seed 1002 and 60 frames a take; ``docs/proto
 
 The same tracking collects the silhouette's extent on the first upright frames (the search's
 ``extent_frames``; the check itself never acts here) and goes on until it has them. Their
-median over the recording's true stature, medianed over the recordings, is
-``body_scale.extent_ratio``, and over the stature of the body the search found,
-``body_scale.extent_size_ratio``; the report gives its spread, the stature error of the sizes it
-gives (cross-validated like the correction) and how far they fall from the search's own
-(``extent_check`` must exceed that on recordings the search sizes right).
+median over the stature of the body the search found, medianed over the recordings, is
+``body_scale.extent_ratio``; the report gives its spread and how far the sizes it gives fall
+from the search's own (``extent_check`` is the 99th percentile of that on recordings the
+search sizes right), and the same ratio over the true stature with the stature errors of the
+sizes it gives (cross-validated like the correction).
 """
 
 from __future__ import annotations
@@ -84,43 +84,43 @@ def cross_validated(needed: np.ndarray, found: np.ndarray) -> np.ndarray:
 
 def extent_figures(rows: Sequence[dict], stature_m: float, frames: int) -> dict | None:
     """The extent calibration from measured ``rows`` (``needed``, ``found``, ``extents``) on
-    a population body of ``stature_m``, over the recordings with ``frames`` extents: the
-    ``ratio`` (median of each recording's median extent over its true stature) and its 10th
-    and 90th percentiles, the stature ``errors`` of the sizes it gives (each half of the
-    recordings with the other half's ratio), and the 95th and 99th percentiles and maximum
-    of ``|extent size / found - 1|`` (``disagreement``); then ``size_ratio``, the same
-    median over the stature of the search's body (``body_scale.extent_size_ratio``), its
-    10th and 90th percentiles, and ``size_gap_cross_validated``, the mean
-    ``|extent size / found - 1|`` with it (halves crossed). None with fewer than two."""
+    a population body of ``stature_m``, over the recordings with ``frames`` extents.
+
+    ``ratio`` (``body_scale.extent_ratio``) is the median of each recording's median extent
+    over the stature of the body the search found, with its 10th and 90th percentiles;
+    ``disagreement`` gives the 95th and 99th percentiles and the maximum of
+    ``|extent size / found - 1|`` with it (``body_scale.extent_check`` is the 99th), and
+    ``size_gap_cross_validated`` its mean with each half of the recordings sized by the other
+    half's ratio. ``stature_ratio`` is the same median over the true stature, and
+    ``stature_errors_cross_validated`` the stature errors of the sizes it gives (halves
+    crossed). None with fewer than two recordings."""
     used = [r for r in rows if len(r.get("extents") or ()) >= frames and r["found"] is not None]
     if len(used) < 2:
         return None
     needed = np.array([r["needed"] for r in used])
     found = np.array([r["found"] for r in used])
     extent = np.array([float(np.median(r["extents"][:frames])) for r in used])
-    share = extent / (needed * stature_m)  # each recording's extent over its true stature
-    ratio = float(np.median(share))
-    crossed = np.empty_like(extent)
-    for part in (0, 1):
-        mine = np.arange(len(used)) % 2 == part
-        crossed[mine] = extent[mine] / float(np.median(share[~mine])) / stature_m
+    halves = [np.arange(len(used)) % 2 == part for part in (0, 1)]
+
+    def crossed(share: np.ndarray) -> np.ndarray:  # each half sized with the other's median
+        out = np.empty_like(extent)
+        for mine in halves:
+            out[mine] = extent[mine] / float(np.median(share[~mine])) / stature_m
+        return out
+
+    of_found = extent / (found * stature_m)  # each recording's extent over the search's body
+    of_true = extent / (needed * stature_m)  # ... and over its true stature
+    ratio = float(np.median(of_found))
     gap = np.abs(extent / ratio / stature_m / found - 1.0)
-    # Against the search's body instead (``extent_size_ratio``), cross-validated the same way.
-    of_found = extent / (found * stature_m)
-    from_extent = np.empty_like(extent)
-    for part in (0, 1):
-        mine = np.arange(len(used)) % 2 == part
-        from_extent[mine] = extent[mine] / float(np.median(of_found[~mine])) / stature_m
     return {
         "recordings": len(used),
         "ratio": ratio,
-        "ratio_p10_p90": np.percentile(share, [10, 90]).tolist(),
-        "errors_cross_validated": size_errors(needed, crossed, stature_m),
+        "ratio_p10_p90": np.percentile(of_found, [10, 90]).tolist(),
         "disagreement": dict(zip(("p95", "p99", "max"), [*np.percentile(gap, [95, 99]).tolist(),
                                                          float(gap.max())])),
-        "size_ratio": float(np.median(of_found)),
-        "size_ratio_p10_p90": np.percentile(of_found, [10, 90]).tolist(),
-        "size_gap_cross_validated": float(np.mean(np.abs(from_extent / found - 1.0))),
+        "size_gap_cross_validated": float(np.mean(np.abs(crossed(of_found) / found - 1.0))),
+        "stature_ratio": float(np.median(of_true)),
+        "stature_errors_cross_validated": size_errors(needed, crossed(of_true), stature_m),
     }  # fmt: skip
 
 
@@ -246,14 +246,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         lo, hi = ext["ratio_p10_p90"]
         gap = ext["disagreement"]
-        print(f"extent on {ext['recordings']} recordings: ratio {ext['ratio']:.4f} "
-              f"(10-90%: {lo:.3f}-{hi:.3f}); |extent size / search - 1| 95% {gap['p95']:.3f}, "
-              f"99% {gap['p99']:.3f}, max {gap['max']:.3f}")  # fmt: skip
-        _print_errors("extent sizes, cross-validated", ext["errors_cross_validated"])
-        lo, hi = ext["size_ratio_p10_p90"]
-        print(f"extent against the search's body: ratio {ext['size_ratio']:.4f} (10-90%: "
-              f"{lo:.3f}-{hi:.3f}); sizes it gives {100 * ext['size_gap_cross_validated']:.1f}% "
-              "from the search's, cross-validated")  # fmt: skip
+        print(f"extent on {ext['recordings']} recordings: {ext['ratio']:.4f} of the search's "
+              f"body (10-90%: {lo:.3f}-{hi:.3f}); |extent size / search - 1| 95% "
+              f"{gap['p95']:.3f}, 99% {gap['p99']:.3f}, max {gap['max']:.3f}, mean "
+              f"{ext['size_gap_cross_validated']:.3f} cross-validated")  # fmt: skip
+        print(f"extent over the true stature: {ext['stature_ratio']:.4f}")
+        _print_errors("its statures, cross-validated", ext["stature_errors_cross_validated"])
     return 0
 
 
