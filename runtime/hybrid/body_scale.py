@@ -95,35 +95,42 @@ class BodyScaleConfig:
         "pose is rougher than a tracked one)",
     )
     extent_check: float | None = field_doc(
-        0.066,
+        0.067,
         "the stature read off upright frames (:mod:`runtime.hybrid.stature_extent`) replaces "
-        "the search's size when the two differ by more than this share of it. 0.066 is the "
-        "99th percentile of that gap on the size tuning set, where the "
-        "search sizes right (``python -m depthmocap.bench.body_scale_fit``); on real depth it "
-        "fires on seated starts, sized on their lap and chair (UTD-MHAD: 53.5 -> 53.1 mm, sit "
-        "to stand 86.4 -> 81.2). None: the search's size stands",
+        "the search's size when the two differ by more than this share of it, either way. "
+        "0.067 is the 99th percentile of that gap on the size tuning set, where the search "
+        "sizes right (``python -m depthmocap.bench.body_scale_fit``). On real depth it fires "
+        "on seated starts, sized on their lap and chair, and on people the search inflates "
+        "(UTD-MHAD: 53.5 -> 53.1 mm with the first version, whose gap was not centred; 53.1 "
+        "-> 52.2 centred, ``extent_ratio``). None: the search's size stands",
     )
     extent_frames: int = field_doc(
         5, "upright frames whose median extent gives that stature (the first ones seen)"
     )
     extent_ratio: float = field_doc(
-        0.9155,
+        0.9422,
         "the extent's share of the stature (``BodyShape.stature``: soles to the head's top, "
-        "standing straight), with the runtime's mask and tracked joints: the median over the "
-        "size tuning set's recordings (``python -m depthmocap.bench.body_scale_fit``; 10-90%: "
-        "0.888-0.934; the sizes it gives are 1.6% off the true ones on average, the search's "
-        "2.9%)",
+        "standing straight) of the body the search finds for the same person, with the "
+        "runtime's mask and tracked joints: the median over the size tuning set's rendered "
+        "recordings (``python -m depthmocap.bench.body_scale_fit``; 10-90%: 0.914-0.962), so "
+        "that on rendered people the extent's size and the search's agree in the median and "
+        "the check's gap is centred (the sizes it gives: 1.8% from the search's on average). "
+        "Against the true stature it is 0.9155; the search's body, 3% shorter, is the one "
+        "that tracks best (``correction``). The fifty-first session's check used 0.9155, so "
+        "on renders the gap sat at +2.9% and a search had to be 10% too large to be caught",
     )
     extent_sizes: bool = field_doc(
         False,
         "the stature read off upright frames sizes the body whenever ``extent_frames`` of them "
         "come, before or after the search ends (the search's size stands only for people "
-        "never seen upright, and ``extent_check`` is not read): the body the search would "
-        "give a rendered person of that extent (``extent_ratio``). The search inflates "
-        "real people: clothing and the sensor's edges widen the silhouette, and a uniformly "
-        "scaled body that covers the width is too tall (UTD-MHAD: the search's statures "
-        "1.69-1.86 m, the extents' 1.50-1.65, the Kinect SDK's head-to-ankle spans 8-12% "
-        "under the search's bodies')",
+        "never seen upright, and ``extent_check`` is not read). The search inflates real "
+        "people: clothing and the sensor's edges widen the silhouette, and a uniformly "
+        "scaled body that covers the width is too tall (UTD-MHAD: search statures 3-7% above "
+        "the extents', the Kinect SDK's head-to-ankle spans 8-12% under our bodies'). "
+        "UTD-MHAD 53.1 -> 50.2 mm and 28 against 24 frames/s (the search stops at the 5th "
+        "upright frame), but the size tuning set 36.8 -> 37.5 mm: on rendered people the "
+        "extent is a noisier size than the search's, so it is off in the shipped preset "
+        "(docs/real_data.md, fifty-second session)",
     )
     correction: float = field_doc(
         1.0,

@@ -9,8 +9,12 @@ torso axis, head top to soles, measured on frames where they stand upright with 
 below the head, does not see the chair (it lies between the feet and the head) and depends on
 no fit: for each of UTD-MHAD's four people its medians over all twelve actions, seated ones
 included, span 2-3.5%. On rendered people it gives the stature within 1.6% on average
-(the search: 2.9%), so the search keeps its size unless the two disagree by more than the
-rendered people's 99th percentile (``BodyScaleConfig.extent_check``).
+(the search: 2.9%). Its ratio is taken against the body the search finds there, so the two
+agree in the median on renders, and the search keeps its size unless they disagree by more
+than the rendered people's 99th percentile, either way (``BodyScaleConfig.extent_check``).
+On real depth the search also errs large for people who stand throughout: a silhouette
+widened by clothing and the sensor's edges is covered best by a body too tall
+(``BodyScaleConfig.extent_sizes``).
 """
 
 from __future__ import annotations
