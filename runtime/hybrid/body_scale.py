@@ -127,8 +127,8 @@ class BodyScaleConfig:
         "people: clothing and the sensor's edges widen the silhouette, and a uniformly "
         "scaled body that covers the width is too tall (UTD-MHAD: search statures 3-7% above "
         "the extents', the Kinect SDK's head-to-ankle spans 8-12% under our bodies'). "
-        "UTD-MHAD 53.1 -> 50.2 mm and 28 against 24 frames/s (the search stops at the 5th "
-        "upright frame), but the size tuning set 36.8 -> 37.5 mm: on rendered people the "
+        "UTD-MHAD 53.1 -> 50.2 mm and mean frame x0.92 (the search stops at the 5th upright "
+        "frame), but the size tuning set 36.8 -> 37.5 mm: on rendered people the "
         "extent is a noisier size than the search's, so it is off in the shipped preset "
         "(docs/real_data.md, fifty-second session)",
     )
