@@ -204,6 +204,22 @@ class BodyShape:
             self.clavicle_rest,
         )
 
+    def girthed(self, factor: float | torch.Tensor) -> BodyShape:
+        """The body made ``factor`` times as wide and deep, its lengths kept: every radius,
+        cross-section offset and the hip half-width times ``factor`` (the segments' end caps,
+        and so the stature, stay)."""
+        f = torch.as_tensor(factor, dtype=self.lengths.dtype, device=self.lengths.device)
+        return BodyShape(
+            self.lengths,
+            self.radii * f[..., None, None],
+            self.extents,
+            self.hip_half_width * f,
+            self.offsets * f[..., None, None],
+            self.feet,
+            self.chest_tilt,
+            self.clavicle_rest,
+        )
+
     def select(self, index: slice | torch.Tensor) -> BodyShape:
         """The bodies at ``index`` of a batch of bodies (fields without the batch dimension,
         such as a scaled batch's chest tilt, are shared and kept as they are)."""

@@ -55,6 +55,17 @@ class BodyScaleConfig:
     max_scale: float = field_doc(1.16, "largest factor tried on the body tracked")
     step: float = field_doc(0.04, "spacing of the factors tried")
     iterations: int = field_doc(5, "Gauss-Newton iterations of each refit")
+    girths: tuple[float, ...] = field_doc(
+        (1.0,),
+        "width factors tried with every size (``BodyShape.girthed``: radii, cross-section "
+        "offsets and hip width, lengths kept): the search refits G x S bodies and keeps the "
+        "girth whose best overlap is highest, the size peaked within it. (1.0,): the "
+        "population body's proportions, the size alone. Real silhouettes are wider than "
+        "rendered ones of the same height (clothing, the sensor's edges): UTD-MHAD's walk, "
+        "throw and squat takes all peak at the widest girth tried, and with it the size "
+        "found falls from 6% over the person's silhouette height to 2%, while rendered "
+        "people peak at 1.0 (docs/real_data.md, fifty-second session)",
+    )
     max_fold_deg: float | None = field_doc(
         None,
         "frames whose body is folded more than this are not sampled: both thighs at least "
@@ -156,6 +167,8 @@ class BodyScaleConfig:
             and (self.extent_check is None or self.extent_check > 0.0)
             and self.extent_frames >= 1
             and 0.5 < self.extent_ratio <= 1.0
+            and len(self.girths) >= 1
+            and all(0.5 <= g <= 2.0 for g in self.girths)
         )
         if not ok:
             raise ConfigError(
@@ -164,7 +177,7 @@ class BodyScaleConfig:
                 f"0.5 < correction < 2, 0 < max_fold_deg <= 180 or None, "
                 f"interim_after >= 1 or None, 0 < interim_max_fold_deg <= 180 or None, "
                 f"sample_detection only with first_at_once, extent_check > 0 or None, "
-                f"extent_frames >= 1, 0.5 < extent_ratio <= 1, "
+                f"extent_frames >= 1, 0.5 < extent_ratio <= 1, girths in [0.5, 2] (at least one), "
                 f"got {self}"
             )
 
@@ -218,9 +231,12 @@ class BodyScaleSearch:
 
     ``offer(frame, q, fit, joints)`` after each tracked frame: of the frames whose body is
     not folded (``joints``, ``cfg.max_fold_deg``), every ``cfg.every``-th is refitted at
-    all S candidate sizes, ``fit(bodies, frame, q) -> (S,) overlaps`` with ``bodies`` the
-    default body scaled by each factor (a batch of S: one batched fit), so the cost is
-    spread over the first tracked frames instead of stalling one.
+    all S candidate sizes and G girths (``cfg.girths``; G = 1 by default), ``fit(bodies,
+    frame, q) -> (G * S,) overlaps`` with ``bodies`` the default body scaled by each factor
+    and widened by each girth, girth-major (a batch of G * S: one batched fit), so the cost
+    is spread over the first tracked frames instead of stalling one. The sizes returned are
+    factors on the default body; :meth:`sized_body` gives the body to track with, at the
+    girth found (:attr:`girth`).
 
     ``fit`` may return a :class:`concurrent.futures.Future` of the overlaps (or anything with
     its ``result()``, such as :class:`~runtime.hybrid.pieces.PiecesInFlight`): the refits then
@@ -232,17 +248,24 @@ class BodyScaleSearch:
     return the factor of the samples read so far (:attr:`interim`), once that many are read:
     the body to track with until the final one. The result does not depend on where the
     overlaps are computed: the same size on the same frame as with an inline ``fit``. A
-    search runs once per estimator; :attr:`curves` keeps each sample's (S,) overlaps for
-    diagnostics.
+    search runs once per estimator; :attr:`curves` keeps each sample's (G * S,) overlaps
+    for diagnostics.
     """
 
     def __init__(self, cfg: BodyScaleConfig, body: BodyShape) -> None:
         self.cfg, self.body = cfg, body
         self.factors = cfg.scales()
-        self.bodies = body.scaled(torch.as_tensor(self.factors, dtype=body.lengths.dtype))
-        self._score = np.zeros(len(self.factors))
+        self.girths = np.asarray(cfg.girths, dtype=np.float64)
+        G, S = len(self.girths), len(self.factors)
+        # G x S bodies, girth-major: body g * S + s has size factors[s] and girth girths[g].
+        dtype = body.lengths.dtype
+        self.bodies = body.scaled(torch.as_tensor(np.tile(self.factors, G), dtype=dtype)).girthed(
+            torch.as_tensor(np.repeat(self.girths, S), dtype=dtype)
+        )
+        self._score = np.zeros(G * S)
+        self.girth = 1.0  # the girth of the sizes returned (the best one's, once read)
         self.samples = 0  # frames refitted so far (their refits started)
-        self._pending = None  # the last sample's (S,) overlaps, or a Future of them
+        self._pending = None  # the last sample's (G * S,) overlaps, or a Future of them
         self._seen = 0
         self.interim: float | None = None  # the last interim factor returned
         self._folded = False  # a sample taken so far showed a folded body
@@ -330,11 +353,12 @@ class BodyScaleSearch:
             first = self.cfg.interim_after
             if first is None or read < first or self._folded:
                 return None
-            self.interim = self._factor(peak_of(self.factors, self._score / read))
+            peak, self.girth = self._peak(self._score / read)
+            self.interim = self._factor(peak)
             return self.interim
         self._read(self._pending)  # the last sample: the size is wanted now
         self._pending = None
-        self.peak = peak_of(self.factors, self._score / self.samples)
+        self.peak, self.girth = self._peak(self._score / self.samples)
         self.scale = self._factor(self.peak)
         self._check_extent()
         return self.scale
@@ -356,6 +380,19 @@ class BodyScaleSearch:
         self._pending = None  # refits still in flight are not read: the size is the extents'
         self.scale = float(np.clip(self.extent_scale, self.factors[0], self.factors[-1]))
         return self.scale
+
+    def _peak(self, overlaps: np.ndarray) -> tuple[float, float]:
+        """The size factor and girth of mean ``overlaps`` (G * S,): the girth whose best
+        overlap is highest (on the grid), and the size peaked within it (:func:`peak_of`)."""
+        rows = overlaps.reshape(len(self.girths), len(self.factors))
+        g = int(np.argmax(rows.max(axis=1)))
+        return peak_of(self.factors, rows[g]), float(self.girths[g])
+
+    def sized_body(self, factor: float) -> BodyShape:
+        """The body to track with at a size ``factor`` the search returned: the search's body
+        scaled by it, at the girth found (:attr:`girth`)."""
+        body = self.body.scaled(factor)
+        return body if self.girth == 1.0 else body.girthed(self.girth)
 
     def _factor(self, peak: float) -> float:
         """The factor to track with for an overlaps' ``peak``: corrected, within the grid."""

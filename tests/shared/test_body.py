@@ -104,3 +104,24 @@ def test_select_takes_bodies_of_a_batch():
     torch.testing.assert_close(part.stature(), batch.stature()[1:3])
     with pytest.raises(ValueError, match="batch of bodies"):
         body.select(slice(0, 1))
+
+
+def test_girthed_widens_the_sections_and_keeps_the_lengths():
+    """Radii, cross-section offsets and the hip half-width scale; lengths, end caps, feet and
+    so the stature stay; a (N,) factor on a batch of N widens each body by its own."""
+    body = BodyShape.default(torch.float64)
+    body.offsets = body.offsets + 0.01  # non-zero offsets, so their scaling is seen
+    wide = body.girthed(1.2)
+    torch.testing.assert_close(wide.radii, 1.2 * body.radii)
+    torch.testing.assert_close(wide.offsets, 1.2 * body.offsets)
+    torch.testing.assert_close(wide.hip_half_width, 1.2 * body.hip_half_width)
+    for same in ("lengths", "extents", "feet", "chest_tilt", "clavicle_rest"):
+        assert torch.equal(getattr(wide, same), getattr(body, same))
+    torch.testing.assert_close(wide.stature(), body.stature())
+    batch = body.scaled(torch.tensor([0.9, 1.1], dtype=torch.float64))
+    widened = batch.girthed(torch.tensor([1.0, 1.3], dtype=torch.float64))
+    torch.testing.assert_close(widened.radii[0], batch.radii[0])
+    torch.testing.assert_close(widened.radii[1], 1.3 * batch.radii[1])
+    torch.testing.assert_close(
+        widened.hip_half_width, batch.hip_half_width * torch.tensor([1.0, 1.3], dtype=torch.float64)
+    )

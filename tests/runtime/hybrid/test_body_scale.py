@@ -580,3 +580,53 @@ def test_upright_extents_size_the_body_before_or_after_the_search():
     assert search.searching and search.scale == found[2] and found[3:] == [None] * 3
     with pytest.raises(ConfigError):
         BodyScaleConfig(extent_ratio=0.4)
+
+
+def test_the_search_finds_a_girth_with_the_size():
+    """With two girths the search refits G x S bodies, girth-major, and returns the size
+    peaked within the girth whose best overlap is highest; ``sized_body`` is the default
+    body at that size and girth. One girth of 1.0 is the search without girths."""
+    body = BodyShape.default()
+    stature = float(body.stature())
+    radius = float(body.radii[0, 0])
+    cfg = dict(first_at_once=False, samples=2, every=1, interim_after=None, extent_check=None)
+
+    def fit(bodies, frame, q):  # peaks at size 0.96 and girth 1.2 (radius / size / radius)
+        size = bodies.stature().numpy() / stature
+        girth = bodies.radii[:, 0, 0].numpy() / (radius * size)
+        return -((size - 0.96) ** 2) - 0.1 * (girth - 1.2) ** 2
+
+    search = BodyScaleSearch(BodyScaleConfig(girths=(1.0, 1.2), **cfg), body)
+    S = len(search.factors)
+    assert search.bodies.lengths.shape[0] == 2 * S
+    torch.testing.assert_close(search.bodies.lengths[:S], search.bodies.lengths[S:])
+    torch.testing.assert_close(search.bodies.radii[S:], 1.2 * search.bodies.radii[:S])
+    found = [search.offer(f"f{i}", torch.zeros(34), fit) for i in range(3)]
+    assert found[1] == pytest.approx(0.96, abs=1e-6) and search.girth == 1.2
+    sized = search.sized_body(found[1])
+    torch.testing.assert_close(sized.radii, body.radii * 0.96 * 1.2)
+    torch.testing.assert_close(sized.stature(), body.stature() * 0.96)
+    plain = BodyScaleSearch(BodyScaleConfig(**cfg), body)
+    assert plain.bodies.lengths.shape[0] == S
+    found = [plain.offer(f"f{i}", torch.zeros(34), fit) for i in range(3)]
+    assert found[1] == pytest.approx(0.96, abs=1e-6) and plain.girth == 1.0
+    torch.testing.assert_close(plain.sized_body(found[1]).radii, body.radii * 0.96)
+    for bad in ({"girths": ()}, {"girths": (1.0, 3.0)}):
+        with pytest.raises(ConfigError):
+            BodyScaleConfig(**bad)
+
+
+def test_the_hybrid_tracks_at_the_girth_found(one_thread):
+    """With girths the hybrid tracks at the search's size and girth: its body's radii are the
+    default body's times both, its stature the size's alone; background and inline agree."""
+    config = {"body_scale": {"samples": 2, "every": 1, "iterations": 2, "first_at_once": False,
+                             "girths": [1.0, 1.15], "extent_check": None}}  # fmt: skip
+    runs = []
+    for est, base, steps in _demo_runs(config, 4):
+        search = est.scale_search
+        assert search.scale is not None and search.girth in (1.0, 1.15)
+        assert len(search.curves[0]) == 2 * len(search.factors)
+        torch.testing.assert_close(est.body.radii, search.body.radii * search.scale * search.girth)
+        assert steps[-1][1] == pytest.approx(base * search.scale, rel=1e-5)
+        runs.append((search.scale, search.girth, [s for _, s, _ in steps]))
+    assert runs[0] == runs[1]
