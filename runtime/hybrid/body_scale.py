@@ -392,8 +392,7 @@ class BodyScaleSearch:
     def sized_body(self, factor: float) -> BodyShape:
         """The body to track with at a size ``factor`` the search returned: the search's body
         scaled by it, at the girth found (:attr:`girth`)."""
-        body = self.body.scaled(factor)
-        return body if self.girth == 1.0 else body.girthed(self.girth)
+        return self.body.scaled(factor).girthed(self.girth)
 
     def _factor(self, peak: float) -> float:
         """The factor to track with for an overlaps' ``peak``: corrected, within the grid."""

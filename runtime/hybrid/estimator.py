@@ -150,7 +150,7 @@ class HybridEstimator:
         self._refits = SplitRefits(background)
         # The size search's trackers of its candidate bodies, in SIZE_SEARCH_PIECES pieces.
         self._sizes: list[Tracker] | None = None
-        self._scale_in_use = (1.0, 1.0)  # (factor, girth) on the search's body tracked with
+        self._size_in_use = (1.0, 1.0)  # (factor, girth) on the search's body tracked with
         # The size search's refits run here, off the frame's path (``_size_overlaps``).
         self._worker = (
             ThreadPoolExecutor(1, thread_name_prefix="size-search", initializer=_lower_priority)
@@ -346,9 +346,9 @@ class HybridEstimator:
         if search.wants_extent:
             extent = upright_extent(frame.depth_m, frame.mask, frame.intrinsics, joints)
         scale = search.offer(frame, q, self._size_overlaps, joints, extent)
-        if scale is not None and (scale, search.girth) != self._scale_in_use:
+        if scale is not None and (scale, search.girth) != self._size_in_use:
             self._use_body(search.sized_body(scale))
-            self._scale_in_use = (scale, search.girth)
+            self._size_in_use = (scale, search.girth)
         if scale is not None and not search.searching:  # the search ends here
             self._sizes = None
             if self._worker is not None:
