@@ -150,6 +150,7 @@ class HybridEstimator:
         self._refits = SplitRefits(background)
         # The size search's trackers of its candidate bodies, in SIZE_SEARCH_PIECES pieces.
         self._sizes: list[Tracker] | None = None
+        self._sizes_of = None  # the bodies self._sizes fit
         self._size_in_use = (1.0, 1.0)  # (factor, girth) on the search's body tracked with
         # The size search's refits run here, off the frame's path (``_size_overlaps``).
         self._worker = (
@@ -367,7 +368,8 @@ class HybridEstimator:
         frame, and what the worker has not started by then runs on the reading thread beside
         it. Each body's fit is the same in any batch."""
         t = self.tracker
-        if self._sizes is None:
+        if self._sizes is None or self._sizes_of is not bodies:  # new after a girth is kept
+            self._sizes_of = bodies
             S = bodies.lengths.shape[0]
             edges = np.linspace(0, S, min(SIZE_SEARCH_PIECES, S) + 1).round().astype(int)
             self._sizes = [

@@ -616,6 +616,41 @@ def test_the_search_finds_a_girth_with_the_size():
             BodyScaleConfig(**bad)
 
 
+def test_the_girth_kept_after_girth_samples():
+    """With ``girth_samples`` the search refits every girth for that many samples, keeps the
+    one whose best mean overlap is highest, and refits its sizes alone after: the size is
+    peaked over all samples of that girth, the other girths' curves NaN from then on. Without
+    it (None) every sample refits every girth and the girth may change."""
+    body = BodyShape.default()
+    stature = float(body.stature())
+    radius = float(body.radii[0, 0])
+    calls = []
+
+    def fit(bodies, frame, q):  # girth 1.2 best on f0, 1.0 on later frames; size 0.96 / 1.0
+        calls.append(bodies.lengths.shape[0])
+        size = bodies.stature().numpy() / stature
+        girth = bodies.radii[:, 0, 0].numpy() / (radius * size)
+        best, at = (1.2, 0.96) if frame == "f0" else (1.0, 1.0)
+        return -((size - at) ** 2) - 0.5 * (girth - best) ** 2
+
+    cfg = dict(first_at_once=False, samples=4, every=1, interim_after=1, extent_check=None)
+    search = BodyScaleSearch(BodyScaleConfig(girths=(1.0, 1.2), girth_samples=1, **cfg), body)
+    S = len(search.factors)
+    found = [search.offer(f"f{i}", torch.zeros(34), fit) for i in range(4)]
+    assert calls == [2 * S, S, S, S]  # the girth is kept once f0's overlaps are read
+    assert search.girth == 1.2 and search.bodies.lengths.shape[0] == S
+    torch.testing.assert_close(search.bodies.radii, search._all.radii[S:])
+    assert np.isnan(search.curves[1][:S]).all() and np.isfinite(search.curves[1][S:]).all()
+    # The size: the peak of the mean of 4 quadratics at girth 1.2 (0.96 once, 1.0 thrice).
+    assert found[1] == pytest.approx(0.96, abs=1e-6) and found[-1] == pytest.approx(0.99, abs=1e-6)
+    calls.clear()
+    free = BodyScaleSearch(BodyScaleConfig(girths=(1.0, 1.2), **cfg), body)
+    [free.offer(f"f{i}", torch.zeros(34), fit) for i in range(4)]
+    assert calls == [2 * S] * 4 and free.girth == 1.0
+    with pytest.raises(ConfigError):
+        BodyScaleConfig(girth_samples=0)
+
+
 def test_the_hybrid_tracks_at_the_girth_found(one_thread):
     """With girths the hybrid tracks at the search's size and girth: its body's radii are the
     default body's times both, its stature the size's alone; background and inline agree."""
@@ -628,5 +663,18 @@ def test_the_hybrid_tracks_at_the_girth_found(one_thread):
         assert len(search.curves[0]) == 2 * len(search.factors)
         torch.testing.assert_close(est.body.radii, search.body.radii * search.scale * search.girth)
         assert steps[-1][1] == pytest.approx(base * search.scale, rel=1e-5)
+        runs.append((search.scale, search.girth, [s for _, s, _ in steps]))
+    assert runs[0] == runs[1]
+    # The girth kept after the first sample: the second sample refits its sizes only, on
+    # trackers rebuilt for them (background and inline alike).
+    config["body_scale"]["girth_samples"] = 1
+    runs = []
+    for est, base, steps in _demo_runs(config, 4):
+        search = est.scale_search
+        assert search.scale is not None and search.girth in (1.0, 1.15)
+        assert len(search.curves[0]) == 2 * len(search.factors)
+        torch.testing.assert_close(est.body.radii, search.body.radii * search.scale * search.girth)
+        assert steps[-1][1] == pytest.approx(base * search.scale, rel=1e-5)
+        assert np.isnan(search.curves[1]).sum() == len(search.factors)
         runs.append((search.scale, search.girth, [s for _, s, _ in steps]))
     assert runs[0] == runs[1]
