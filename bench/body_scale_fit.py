@@ -130,7 +130,9 @@ def search_stream(frames: Iterable, model: Path | None = None) -> dict:
 
     Returns:
         ``found`` (the search's uncorrected factor, None if it did not end), ``frames``
-        (frames read), ``curves`` ((samples, S) overlaps), ``factors`` (S,), ``extents``
+        (frames read), ``curves`` ((samples, G * S) overlaps, girth-major; None where a
+        girth was not refitted), ``factors`` (S,), ``girths`` (G,), ``girth`` (the one
+        found, None if the search did not end), ``extents``
         (metres, the upright frames' extents the search collected: ``extent_frames`` of them
         unless the frames ran out first).
     """
@@ -149,10 +151,17 @@ def search_stream(frames: Iterable, model: Path | None = None) -> dict:
     return {
         "found": None if search is None else search.peak,
         "frames": read,
-        "curves": [] if search is None else [c.round(5).tolist() for c in search.curves],
+        "curves": [] if search is None else [_json_curve(c) for c in search.curves],
         "factors": [] if search is None else search.factors.round(5).tolist(),
+        "girths": [] if search is None else search.girths.round(5).tolist(),
+        "girth": None if search is None or search.scale is None else search.girth,
         "extents": [] if search is None else [round(e, 5) for e in search.extents],
     }
+
+
+def _json_curve(curve: np.ndarray) -> list[float | None]:
+    """A sample's overlaps (G * S,) for JSON: rounded, None where not refitted (NaN)."""
+    return [round(float(v), 5) if np.isfinite(v) else None for v in curve]
 
 
 def search_recording(recording: Path, population: BodyShape, model: Path | None = None) -> dict:

@@ -82,7 +82,14 @@ def test_search_on_a_stream_ends_with_its_curves(one_thread):
     cfg = BodyScaleConfig()
     row = fit.search_stream(open_stream("demo"))
     assert row["found"] is not None and cfg.min_scale <= row["found"] <= cfg.max_scale
-    assert np.asarray(row["curves"]).shape == (cfg.samples, len(cfg.scales()))
+    G, S = len(cfg.girths), len(cfg.scales())
+    curves = np.asarray(row["curves"], dtype=float)  # None (a girth not refitted): NaN
+    assert curves.shape == (cfg.samples, G * S) and row["girths"] == list(cfg.girths)
+    assert row["girth"] in cfg.girths
+    refitted = np.isfinite(curves).reshape(cfg.samples, G, S).all(axis=2)  # (samples, G)
+    first = cfg.samples if cfg.girth_samples is None else min(cfg.girth_samples, cfg.samples)
+    assert refitted[:first].all()  # every girth until the girth is kept, then that one
+    assert (refitted[first:] == (np.asarray(cfg.girths) == row["girth"])).all()
     assert row["frames"] > (cfg.samples - 1) * cfg.every  # every k-th tracked frame
 
 
