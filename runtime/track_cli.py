@@ -433,6 +433,7 @@ def _run(args, stream, estimator, writer, view, seg_cfg, device) -> int:
                         "dropped_frames": stats.dropped,
                         "stopped": note,
                         "body_scale": getattr(estimator, "body_scale", None),
+                        "body_girth": getattr(estimator, "body_girth", None),
                         "looked_back": {
                             "frames": held,
                             "refits": stats.looked_back[0],

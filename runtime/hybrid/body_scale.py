@@ -56,19 +56,18 @@ class BodyScaleConfig:
     step: float = field_doc(0.04, "spacing of the factors tried")
     iterations: int = field_doc(5, "Gauss-Newton iterations of each refit")
     girths: tuple[float, ...] = field_doc(
-        (1.0,),
+        (1.0, 1.08, 1.16, 1.24),
         "width factors tried with every size (``BodyShape.girthed``: radii, cross-section "
         "offsets and hip width, lengths kept): the search refits G x S bodies and keeps the "
         "girth whose best overlap is highest, the size peaked within it. (1.0,): the "
         "population body's proportions, the size alone. Real silhouettes are wider than "
-        "rendered ones of the same height (clothing, the sensor's edges): with [1.0, 1.08, "
-        "1.16, 1.24] UTD-MHAD's people are sized within 2% of their silhouettes' heights "
-        "(6-7% over without), 52.2 -> 49.4 mm, and the synthetic tuning sets pass (-0.24, "
-        "+0.20 mm), but the 4x refits cost mean frame x1.04, 95th percentile x1.13, so it "
-        "is off until it is cheaper (docs/real_data.md, fifty-second session)",
+        "rendered ones of the same height (clothing, the sensor's edges), and a body widened "
+        "only by its size came out too tall: UTD-MHAD's people were sized 6-7% over their "
+        "silhouettes' heights, within 2% with these girths (docs/real_data.md, fifty-second "
+        "and fifty-third sessions)",
     )
     girth_samples: int | None = field_doc(
-        None,
+        2,
         "samples refitted at every girth; the girth whose best mean overlap over them is "
         "highest is then kept, and later samples refit its S sizes only (the size comes "
         "from all samples at that girth). None: every sample at every girth. With 4 girths "
@@ -277,6 +276,7 @@ class BodyScaleSearch:
         self.girth = 1.0  # the girth of the sizes returned (the best one's, once read)
         self.samples = 0  # frames refitted so far (their refits started)
         self._pending = None  # the last sample's (G * S,) overlaps, or a Future of them
+        self._pending_row: int | None = None  # its girth row (None: every girth)
         self._seen = 0
         self.interim: float | None = None  # the last interim factor returned
         self._folded = False  # a sample taken so far showed a folded body
@@ -357,11 +357,11 @@ class BodyScaleSearch:
         if not take:
             return None
         if self._pending is not None:
-            self._read(self._pending)
-        self._pending = (fit(self.bodies, frame, q.detach()), self._row)
+            self._read(self._pending, self._pending_row)
+        self._pending, self._pending_row = fit(self.bodies, frame, q.detach()), self._row
         self.samples += 1
         if self.cfg.first_at_once and self.samples == 1 and self.samples < self.cfg.samples:
-            self._read(self._pending)
+            self._read(self._pending, self._pending_row)
             self._pending = None
         if folded:
             self._folded = True
@@ -373,7 +373,7 @@ class BodyScaleSearch:
             peak, self.girth = self._peak()
             self.interim = self._factor(peak)
             return self.interim
-        self._read(self._pending)  # the last sample: the size is wanted now
+        self._read(self._pending, self._pending_row)  # the last sample: the size is wanted now
         self._pending = None
         self.peak, self.girth = self._peak()
         self.scale = self._factor(self.peak)
@@ -416,12 +416,11 @@ class BodyScaleSearch:
         lo, hi = self.factors[0], self.factors[-1]
         return float(np.clip(peak * self.cfg.correction, lo, hi))
 
-    def _read(self, pending) -> None:
-        """Add one sample's overlaps to the score: ``pending`` is (the overlaps, an array or a
-        Future of one: its ``result()``; the girth row refitted, None: every girth). Once
-        ``cfg.girth_samples`` samples of every girth are in, the best girth is kept."""
-        job, row = pending
-        result = job.result() if callable(getattr(job, "result", None)) else job
+    def _read(self, pending, row: int | None) -> None:
+        """Add one sample's overlaps (an array, or a Future of one: its ``result()``) of the
+        girth ``row`` (None: every girth) to the score. Once ``cfg.girth_samples`` samples of
+        every girth are in, the best girth is kept."""
+        result = pending.result() if callable(getattr(pending, "result", None)) else pending
         overlaps = np.asarray(result, dtype=np.float64)
         S = len(self.factors)
         span = slice(None) if row is None else slice(row * S, (row + 1) * S)

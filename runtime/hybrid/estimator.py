@@ -170,6 +170,12 @@ class HybridEstimator:
         """The factor found on the default body (None: not searched, or not yet)."""
         return None if self.scale_search is None else self.scale_search.scale
 
+    @property
+    def body_girth(self) -> float | None:
+        """The girth found with :attr:`body_scale` (None: not searched, or not yet)."""
+        search = self.scale_search
+        return None if search is None or search.scale is None else search.girth
+
     def reset(self) -> None:
         """Forget the track: the next frame goes to the detector, which then behaves as a new
         one would (its random sequence restarts)."""

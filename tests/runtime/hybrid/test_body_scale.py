@@ -386,9 +386,9 @@ def test_the_search_finds_the_size_of_a_rendered_person(one_thread, true_scale):
     person = default.scaled(true_scale)
     truth = camera_motion("walk", 24, seed=0, body=person).float()
     depth = render_body(truth, person, INTR).depth
-    search = BodyScaleSearch(
-        BodyScaleConfig(first_at_once=False, samples=6, every=4, correction=1.0), default
-    )
+    # The size alone: the person is the default body scaled, and ``fit`` keeps one tracker.
+    cfg = BodyScaleConfig(first_at_once=False, samples=6, every=4, correction=1.0, girths=(1.0,))
+    search = BodyScaleSearch(cfg, default)
     trackers: dict = {}
 
     def fit(bodies, frame, q):  # as the hybrid does: one batched fit of all sizes
@@ -428,13 +428,16 @@ def test_runtime_track_with_the_search_on(tmp_path, one_thread):
     assert 0.9 <= scale <= 1.1
     body = BodyShape.load(out / "body.json")
     population = BodyShape.load(POPULATION_BODY)  # the body tracked without a file
+    girth = json.loads((out / "summary.json").read_text())["extra"]["body_girth"]
+    assert girth in BodyScaleConfig().girths  # the shipped girths, the preset's
     torch.testing.assert_close(body.lengths, population.scaled(scale).lengths)
+    torch.testing.assert_close(body.radii, population.scaled(scale).girthed(girth).radii)
     assert bvh_hierarchy(body.to(torch.float64)) in (out / "motion.bvh").read_text()
     with_body = tmp_path / "with_body"
     args = ["-i", "demo", "-o", str(with_body), "--stop", "4", "-q", "--config", str(cfg)]
     assert cli.main([*args, "--body", str(out / "body.json")]) == 0
     summary = json.loads((with_body / "summary.json").read_text())
-    assert summary["extra"]["body_scale"] is None
+    assert summary["extra"]["body_scale"] is None and summary["extra"]["body_girth"] is None
     assert summary["extra"]["settings"]["body_scale"] is None
 
 
@@ -451,7 +454,8 @@ def test_the_correction_multiplies_the_peak_and_the_curves_are_kept():
     found = [search.offer(i, torch.zeros(34), fit) for i in range(2)]
     assert search.peak == pytest.approx(0.96, abs=1e-6)
     assert found[1] == pytest.approx(0.96 * 1.05, abs=1e-6) and search.scale == found[1]
-    assert len(search.curves) == 2 and search.curves[0].shape == search.factors.shape
+    G, S = len(search.girths), len(search.factors)
+    assert len(search.curves) == 2 and search.curves[0].shape == (G * S,)  # girth-major
     with pytest.raises(ConfigError):
         BodyScaleConfig(correction=0.0)
 
@@ -596,7 +600,7 @@ def test_the_search_finds_a_girth_with_the_size():
         girth = bodies.radii[:, 0, 0].numpy() / (radius * size)
         return -((size - 0.96) ** 2) - 0.1 * (girth - 1.2) ** 2
 
-    search = BodyScaleSearch(BodyScaleConfig(girths=(1.0, 1.2), **cfg), body)
+    search = BodyScaleSearch(BodyScaleConfig(girths=(1.0, 1.2), girth_samples=None, **cfg), body)
     S = len(search.factors)
     assert search.bodies.lengths.shape[0] == 2 * S
     torch.testing.assert_close(search.bodies.lengths[:S], search.bodies.lengths[S:])
@@ -606,7 +610,7 @@ def test_the_search_finds_a_girth_with_the_size():
     sized = search.sized_body(found[1])
     torch.testing.assert_close(sized.radii, body.radii * 0.96 * 1.2)
     torch.testing.assert_close(sized.stature(), body.stature() * 0.96)
-    plain = BodyScaleSearch(BodyScaleConfig(**cfg), body)
+    plain = BodyScaleSearch(BodyScaleConfig(girths=(1.0,), **cfg), body)
     assert plain.bodies.lengths.shape[0] == S
     found = [plain.offer(f"f{i}", torch.zeros(34), fit) for i in range(3)]
     assert found[1] == pytest.approx(0.96, abs=1e-6) and plain.girth == 1.0
@@ -644,7 +648,7 @@ def test_the_girth_kept_after_girth_samples():
     # The size: the peak of the mean of 4 quadratics at girth 1.2 (0.96 once, 1.0 thrice).
     assert found[1] == pytest.approx(0.96, abs=1e-6) and found[-1] == pytest.approx(0.99, abs=1e-6)
     calls.clear()
-    free = BodyScaleSearch(BodyScaleConfig(girths=(1.0, 1.2), **cfg), body)
+    free = BodyScaleSearch(BodyScaleConfig(girths=(1.0, 1.2), girth_samples=None, **cfg), body)
     [free.offer(f"f{i}", torch.zeros(34), fit) for i in range(4)]
     assert calls == [2 * S] * 4 and free.girth == 1.0
     with pytest.raises(ConfigError):
