@@ -655,30 +655,23 @@ def test_the_girth_kept_after_girth_samples():
         BodyScaleConfig(girth_samples=0)
 
 
-def test_the_hybrid_tracks_at_the_girth_found(one_thread):
+@pytest.mark.parametrize("girth_samples", [None, 1])
+def test_the_hybrid_tracks_at_the_girth_found(one_thread, girth_samples):
     """With girths the hybrid tracks at the search's size and girth: its body's radii are the
-    default body's times both, its stature the size's alone; background and inline agree."""
+    default body's times both, its stature the size's alone; background and inline agree.
+    With the girth kept after the first sample, the second refits that girth's sizes only,
+    on trackers rebuilt for them."""
     config = {"body_scale": {"samples": 2, "every": 1, "iterations": 2, "first_at_once": False,
-                             "girths": [1.0, 1.15], "extent_check": None}}  # fmt: skip
+                             "girths": [1.0, 1.15], "extent_check": None,
+                             "girth_samples": girth_samples}}  # fmt: skip
     runs = []
     for est, base, steps in _demo_runs(config, 4):
         search = est.scale_search
         assert search.scale is not None and search.girth in (1.0, 1.15)
         assert len(search.curves[0]) == 2 * len(search.factors)
+        not_refitted = 0 if girth_samples is None else len(search.factors)
+        assert np.isnan(search.curves[1]).sum() == not_refitted
         torch.testing.assert_close(est.body.radii, search.body.radii * search.scale * search.girth)
         assert steps[-1][1] == pytest.approx(base * search.scale, rel=1e-5)
-        runs.append((search.scale, search.girth, [s for _, s, _ in steps]))
-    assert runs[0] == runs[1]
-    # The girth kept after the first sample: the second sample refits its sizes only, on
-    # trackers rebuilt for them (background and inline alike).
-    config["body_scale"]["girth_samples"] = 1
-    runs = []
-    for est, base, steps in _demo_runs(config, 4):
-        search = est.scale_search
-        assert search.scale is not None and search.girth in (1.0, 1.15)
-        assert len(search.curves[0]) == 2 * len(search.factors)
-        torch.testing.assert_close(est.body.radii, search.body.radii * search.scale * search.girth)
-        assert steps[-1][1] == pytest.approx(base * search.scale, rel=1e-5)
-        assert np.isnan(search.curves[1]).sum() == len(search.factors)
         runs.append((search.scale, search.girth, [s for _, s, _ in steps]))
     assert runs[0] == runs[1]
