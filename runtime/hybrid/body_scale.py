@@ -275,12 +275,12 @@ class BodyScaleSearch:
             torch.as_tensor(np.repeat(self.girths, S), dtype=dtype)
         )
         self._row: int | None = None  # the girth kept for later samples (cfg.girth_samples)
+        self._kept = self._all  # the bodies later samples refit: that girth's, once kept
         self._score = np.zeros(G * S)  # the overlaps read, summed per body
         self._count = np.zeros(G * S)  # how many samples each body's sum holds
         self.girth = 1.0  # the girth of the sizes returned (the best one's, once read)
         self.samples = 0  # frames refitted so far (their refits started)
         self._pending = None  # the last sample's (G * S,) overlaps, or a Future of them
-        self._pending_row: int | None = None  # its girth row (None: every girth)
         self._seen = 0
         self.interim: float | None = None  # the last interim factor returned
         self._folded = False  # a sample taken so far showed a folded body
@@ -295,7 +295,7 @@ class BodyScaleSearch:
     def bodies(self) -> BodyShape:
         """The bodies the next sample refits: all G x S, girth-major, until the girth is kept
         (``cfg.girth_samples``), then that girth's S sizes."""
-        return self._all if self._row is None else self._kept
+        return self._kept
 
     @property
     def searching(self) -> bool:
@@ -361,11 +361,11 @@ class BodyScaleSearch:
         if not take:
             return None
         if self._pending is not None:
-            self._read(self._pending, self._pending_row)
-        self._pending, self._pending_row = fit(self.bodies, frame, q.detach()), self._row
+            self._read(self._pending)
+        self._pending = fit(self.bodies, frame, q.detach())
         self.samples += 1
         if self.cfg.first_at_once and self.samples == 1 and self.samples < self.cfg.samples:
-            self._read(self._pending, self._pending_row)
+            self._read(self._pending)
             self._pending = None
         if folded:
             self._folded = True
@@ -377,7 +377,7 @@ class BodyScaleSearch:
             peak, self.girth = self._peak()
             self.interim = self._factor(peak)
             return self.interim
-        self._read(self._pending, self._pending_row)  # the last sample: the size is wanted now
+        self._read(self._pending)  # the last sample: the size is wanted now
         self._pending = None
         self.peak, self.girth = self._peak()
         self.scale = self._factor(self.peak)
@@ -420,10 +420,12 @@ class BodyScaleSearch:
         lo, hi = self.factors[0], self.factors[-1]
         return float(np.clip(peak * self.cfg.correction, lo, hi))
 
-    def _read(self, pending, row: int | None) -> None:
-        """Add one sample's overlaps (an array, or a Future of one: its ``result()``) of the
-        girth ``row`` (None: every girth) to the score. Once ``cfg.girth_samples`` samples of
-        every girth are in, the best girth is kept."""
+    def _read(self, pending) -> None:
+        """Add one sample's overlaps (an array, or a Future of one: its ``result()``) to the
+        score: every girth's, or the kept girth's once there is one (a sample is read before
+        the next is refitted, so it refitted :attr:`bodies` as they are now). Once
+        ``cfg.girth_samples`` samples of every girth are in, the best girth is kept."""
+        row = self._row
         result = pending.result() if callable(getattr(pending, "result", None)) else pending
         overlaps = np.asarray(result, dtype=np.float64)
         S = len(self.factors)
