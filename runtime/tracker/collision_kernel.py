@@ -25,10 +25,11 @@ __all__ = ["collision_rows_cpu"]
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def _collision(
-    points, seg, torso, hand, rot, origin, basis, span, scale, affects, consts
+    points, seg, targets, allowed, rot, origin, basis, span, scale, affects, consts
 ):  # pragma: no cover - compiled
-    """The rows and columns of ``collision_rows``; ``consts``: (tolerance, hand tolerance,
-    sigma, 1, 1e-9, 1e-12) in float32."""
+    """The rows and columns of ``collision_rows``: ``targets`` (M, T) the capsules each
+    sample is kept out of, ``allowed`` (M,) its tolerance; ``consts``: (sigma, -, -, 1, 1e-9,
+    1e-12) in float32."""
     B, M = points.shape[0], points.shape[1]
     dt = points.dtype
     n = B * M
@@ -45,40 +46,39 @@ def _collision(
             i = b * M + m
             best, best_t = np.inf, 0
             d0 = d1 = d2 = zero
-            for t in range(torso.shape[0]):
+            for t in range(targets.shape[1]):
                 s, e0, e1, e2 = capsule_offset(
-                    points[b, m], rot, origin, basis, span, scale, b, torso[t], consts
+                    points[b, m], rot, origin, basis, span, scale, b, targets[m, t], consts
                 )
                 if s < best:  # argmin: the first of equal values
                     best, best_t, d0, d1, d2 = s, t, e0, e1, e2
-            tolerance = consts[1] if hand[m] else consts[0]
-            e = max(-tolerance - best, zero)
+            e = max(-allowed[m] - best, zero)
             batch[i] = b
             for k in range(3):
                 pts[i, k] = points[b, m, k]
             direction[i, 0], direction[i, 1], direction[i, 2] = d0, d1, d2
             segment[i] = seg[m]
             excess[i] = e
-            weight[i] = (consts[3] if e > zero else zero) / consts[2]
+            weight[i] = (consts[3] if e > zero else zero) / consts[0]
             for j in range(affects.shape[1]):
-                columns[i, j] = consts[3] - affects[torso[best_t], j]
+                columns[i, j] = consts[3] - affects[targets[m, best_t], j]
     return batch, pts, segment, direction, excess, weight, columns
 
 
-def collision_rows_cpu(points, seg, torso, hand, rot, origin, geom, consts):
+def collision_rows_cpu(points, seg, targets, allowed, rot, origin, geom, sigma):
     """The rows and columns of ``collision_rows`` for CPU float32 tensors without autograd:
-    ``points`` (B, M, 3) the arm samples, ``seg`` (M,), ``torso`` (T,), ``hand`` (M,) bool,
-    ``rot``, ``origin`` the primitives' frames, ``consts`` (tolerance, hand tolerance,
-    sigma)."""
+    ``points`` (B, M, 3) the samples, ``seg`` (M,), ``targets`` (M, T) the capsules each is
+    kept out of, ``allowed`` (M,) their tolerances, ``rot``, ``origin`` the primitives'
+    frames, ``sigma`` the rows' noise scale."""
     from depthmocap.shared import skeleton as sk
 
     B = points.shape[0]
     dt = points.numpy().dtype
     out = _collision(
-        points.contiguous().numpy(), seg.numpy(), torso.numpy(), hand.numpy(),
+        points.contiguous().numpy(), seg.numpy(), targets.contiguous().numpy(), allowed.numpy(),
         rot.contiguous().numpy(), origin.contiguous().numpy(),
         geom.basis.contiguous().numpy(), geom.span.expand(B, -1, -1).contiguous().numpy(),
         geom.scale.expand(B, -1, -1).contiguous().numpy(),
-        np.asarray(sk.DOF_AFFECTS_SEGMENT, dt), np.array([*consts, 1.0, 1e-9, 1e-12], dt),
+        np.asarray(sk.DOF_AFFECTS_SEGMENT, dt), np.array([sigma, 0.0, 0.0, 1.0, 1e-9, 1e-12], dt),
     )  # fmt: skip
     return tuple(torch.from_numpy(x) for x in out)

@@ -1,4 +1,5 @@
-"""Collision term (not in Wei): an arm's axis must not pass through the torso.
+"""Collision term (not in Wei): an arm's axis must not pass through the torso, nor a leg's
+through the other leg.
 
 An arm the camera cannot see (the far arm in profile) is held only by the prior, and the
 track folds it into the torso, where every data term is blind to it: on the 39 dev takes the
@@ -8,20 +9,30 @@ the ground-truth poses, posed on the same capsules, never put the upper arm's ax
 1.1 cm inside. This term pushes sample points on each upper arm and forearm out of the
 pelvis, abdomen and chest capsules: a point deeper than
 ``COLLISION_TOLERANCE_M`` gives the row ``n^T dp/dq dq = depth - tolerance`` along the
-torso capsule's outward direction n at the point (the capsule's signed-distance gradient).
+target capsule's outward direction n at the point (the capsule's signed-distance gradient).
 The hand half of the forearm has its own, larger tolerance
 (``COLLISION_HAND_TOLERANCE_M``): hands rest on the hips and the belly (ground truth: up
 to 3-6 cm inside at the wrist).
 
+The far leg in profile fails the same way: the detector or the track lays it onto the near
+leg, where the depth cannot tell them apart (broad protocol, shipped system: the two legs'
+axes closer than 6 cm in 1.8% of the frames, every one of them a frame with a leg joint more
+than 20 cm off; the ground truth never brings them closer than 17 cm). With ``legs`` the
+samples on each thigh and shank are kept out of the other leg's thigh and shank capsules, up
+to ``COLLISION_LEG_TOLERANCE_M`` inside: legs that touch (knees or ankles together) keep
+their axes a capsule radius or more apart, deeper is interpenetration.
+
 The penetration depth is a relative quantity, so only the degrees of freedom between the
-torso capsule and the arm point move it; the ones they share (the root and, for the
+target capsule and the sample point move it; the ones they share (the root and, for the
 abdomen and chest, the lower back) turn both together, and their Jacobian columns are dropped
-(exact when the point lies on the torso's surface, where the row acts).
+(exact when the point lies on the capsule's surface, where the row acts). A leg's row moves
+only the leg the point rides on; the other leg gets its own rows from its own samples.
 """
 
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 
 import torch
 from depthmocap.runtime.raycast import SegmentGeometry
@@ -35,11 +46,17 @@ from .label_term import capsule_offsets
 __all__ = [
     "ARM_SAMPLES",
     "HAND_SAMPLES",
+    "LEG_SAMPLES",
     "TORSO_SEGMENTS",
     "SIGMA_COLLISION_M",
     "COLLISION_TOLERANCE_M",
     "COLLISION_HAND_TOLERANCE_M",
+    "COLLISION_LEG_TOLERANCE_M",
+    "CollisionSamples",
+    "collision_samples",
+    "sample_tolerances",
     "arm_sample_points",
+    "collision_sample_points",
     "collision_rows",
 ]
 
@@ -55,6 +72,11 @@ COLLISION_TOLERANCE_M = 0.02
 # truth: the wrist up to 3.4 cm inside in 1% of the 39 dev takes' frames).
 COLLISION_HAND_TOLERANCE_M = 0.04
 
+# Leg axis points may lie this deep inside the other leg's thigh and shank capsules (m): 0
+# keeps axes a capsule radius apart (shank 5.5 cm, thigh 8 cm on the average body), so legs
+# pressed together stay legal and only a leg laid into the other is pushed out.
+COLLISION_LEG_TOLERANCE_M = 0.0
+
 # (segment, fraction of its length from the joint) of the arm points kept out of the torso.
 ARM_SAMPLES: tuple[tuple[int, float], ...] = tuple(
     (sk.SEGMENT_NAMES.index(f"{side}_{part}"), frac)
@@ -69,53 +91,114 @@ HAND_SAMPLES: tuple[bool, ...] = tuple(
 TORSO_SEGMENTS: tuple[int, ...] = tuple(
     sk.SEGMENT_NAMES.index(n) for n in ("pelvis", "abdomen", "chest")
 )
+# (segment, fraction) of the leg points kept out of the other leg: the knee end of each thigh
+# (its hip end is a hip width from the other leg) and each shank down to the ankle.
+LEG_SAMPLES: tuple[tuple[int, float], ...] = tuple(
+    (sk.SEGMENT_NAMES.index(f"{side}_{part}"), frac)
+    for side in "lr"
+    for part, fracs in (("thigh", (0.5, 1.0)), ("shank", (0.5, 1.0)))
+    for frac in fracs
+)
+
+
+def _other_leg(segment: int) -> tuple[int, int, int]:
+    """The capsules a leg sample on ``segment`` stays out of: the other leg's thigh and shank
+    (the shank twice: every sample has as many targets as an arm's, 3)."""
+    other = "r" if sk.SEGMENT_NAMES[segment].startswith("l_") else "l"
+    thigh, shank = (sk.SEGMENT_NAMES.index(f"{other}_{p}") for p in ("thigh", "shank"))
+    return thigh, shank, shank
+
+
+@dataclass(frozen=True)
+class CollisionSamples:
+    """The term's M sample points and what each is kept out of (segments double as capsule
+    indices: the first 15 primitives are the segments' own).
+
+    Attributes:
+        segment: (M,) the segment each sample rides on.
+        fraction: (M,) its place along the segment's length from the joint.
+        targets: (M, 3) the capsules it is kept out of (the deepest one acts).
+        kind: (M,) 0 arm, 1 hand half of a forearm, 2 leg: which tolerance applies.
+    """
+
+    segment: tuple[int, ...]
+    fraction: tuple[float, ...]
+    targets: tuple[tuple[int, int, int], ...]
+    kind: tuple[int, ...]
 
 
 @functools.cache
-def _tables(dtype: torch.dtype, device: torch.device) -> dict[str, torch.Tensor]:
+def collision_samples(legs: bool = False) -> CollisionSamples:
+    """The arm samples (:data:`ARM_SAMPLES`, against the torso), then with ``legs`` the leg
+    samples (:data:`LEG_SAMPLES`, against the other leg)."""
+    arms = [(s, f, TORSO_SEGMENTS, 1 if h else 0) for (s, f), h in zip(ARM_SAMPLES, HAND_SAMPLES)]
+    leg = [(s, f, _other_leg(s), 2) for s, f in LEG_SAMPLES] if legs else []
+    return CollisionSamples(*(tuple(c) for c in zip(*(arms + leg))))
+
+
+def sample_tolerances(samples: CollisionSamples) -> tuple[float, ...]:
+    """Each sample's tolerance (m), from the module's constants as they are now (tests patch
+    them)."""
+    by_kind = (COLLISION_TOLERANCE_M, COLLISION_HAND_TOLERANCE_M, COLLISION_LEG_TOLERANCE_M)
+    return tuple(by_kind[k] for k in samples.kind)
+
+
+@functools.cache
+def _tables(dtype: torch.dtype, device: torch.device, legs: bool = False) -> dict[str, torch.Tensor]:
     """The term's constant tables on ``device``, made once: a copy from the host per call
     would make a GPU wait."""
+    samples = collision_samples(legs)
     return {
-        "segment": torch.as_tensor([s for s, _ in ARM_SAMPLES], device=device),
-        "fraction": torch.as_tensor([f for _, f in ARM_SAMPLES], dtype=dtype, device=device),
-        "hand": torch.as_tensor(HAND_SAMPLES, device=device),
-        "torso": torch.as_tensor(TORSO_SEGMENTS, device=device),
+        "segment": torch.as_tensor(samples.segment, device=device),
+        "fraction": torch.as_tensor(samples.fraction, dtype=dtype, device=device),
+        "targets": torch.as_tensor(samples.targets, device=device),
         "affects": torch.as_tensor(sk.DOF_AFFECTS_SEGMENT, dtype=dtype, device=device),
     }
+
+
+def collision_sample_points(kin: Kinematics, legs: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    """Camera-frame points on the sampled axes (:func:`collision_samples`): (B, M, 3), and
+    the segment each rides on, (M,) int64."""
+    tables = _tables(kin.origins.dtype, kin.origins.device, legs)
+    seg = tables["segment"]
+    return segment_axis_points(kin, seg, tables["fraction"]), seg
 
 
 def arm_sample_points(kin: Kinematics) -> tuple[torch.Tensor, torch.Tensor]:
     """Camera-frame points on the arms' axes (:data:`ARM_SAMPLES`): (B, M, 3), and the
     segment each rides on, (M,) int64."""
-    tables = _tables(kin.origins.dtype, kin.origins.device)
-    seg = tables["segment"]
-    return segment_axis_points(kin, seg, tables["fraction"]), seg
+    return collision_sample_points(kin, legs=False)
 
 
-def collision_rows(kin: Kinematics, geom: SegmentGeometry) -> tuple[Rows, torch.Tensor]:
+def collision_rows(
+    kin: Kinematics, geom: SegmentGeometry, legs: bool = False
+) -> tuple[Rows, torch.Tensor]:
     """Rows of the collision term for B poses, and the Jacobian columns each row keeps:
     (:class:`Rows` of B * M rows, (B * M, 34) 0/1 mask for
     :func:`runtime.tracker.gauss_newton.normal_equations`).
 
-    Points at most ``COLLISION_TOLERANCE_M`` (hand samples: ``COLLISION_HAND_TOLERANCE_M``)
-    inside every torso capsule get zero weight (fixed row count: no branching on the data).
+    Points at most their tolerance (:func:`sample_tolerances`) inside every target capsule
+    get zero weight (fixed row count: no branching on the data). ``legs``: the leg samples
+    too.
     """
-    points, seg = arm_sample_points(kin)  # (B, M, 3)
+    points, seg = collision_sample_points(kin, legs)  # (B, M, 3)
     B, M = points.shape[:2]
-    tables = _tables(points.dtype, points.device)
-    torso = tables["torso"]
+    tables = _tables(points.dtype, points.device, legs)
+    targets = tables["targets"]  # (M, T)
+    allowed = torch.as_tensor(
+        sample_tolerances(collision_samples(legs)), dtype=points.dtype, device=points.device
+    )
     kernel = compiled_float32("depthmocap.runtime.tracker.collision_kernel", points)
     if kernel is not None:  # one compiled call, the same rows and columns
         rot, origin = geom.frames(kin)
         *rows, columns = kernel.collision_rows_cpu(
-                points, seg, torso, torch.as_tensor(HAND_SAMPLES), rot, origin, geom,
-                (COLLISION_TOLERANCE_M, COLLISION_HAND_TOLERANCE_M, SIGMA_COLLISION_M),
-            )  # fmt: skip
+            points, seg, targets, allowed, rot, origin, geom, SIGMA_COLLISION_M
+        )
         return Rows(*rows), columns
-    T = torso.shape[0]
-    # Every (pose, point, torso capsule) triple, flattened: b and p index pose and capsule.
+    T = targets.shape[1]
+    # Every (pose, point, target capsule) triple, flattened: b and p index pose and capsule.
     b = torch.arange(B, device=points.device)[:, None, None].expand(B, M, T).reshape(-1)
-    p = torso.expand(B, M, T).reshape(-1)
+    p = targets.expand(B, M, T).reshape(-1)
     rot, origin = geom.frames(kin)  # (B, P, 3, 3), (B, P, 3)
     signed, direction = capsule_offsets(
         points[:, :, None].expand(B, M, T, 3).reshape(-1, 3),
@@ -126,18 +209,15 @@ def collision_rows(kin: Kinematics, geom: SegmentGeometry) -> tuple[Rows, torch.
         geom.scale.expand(B, -1, -1)[b, p],
     )
     signed, direction = signed.reshape(B, M, T), direction.reshape(B, M, T, 3)
-    deepest = signed.argmin(-1)  # (B, M): the torso capsule the point is deepest in
+    deepest = signed.argmin(-1)  # (B, M): the target capsule the point is deepest in
     signed = signed.gather(-1, deepest[..., None])[..., 0]
     direction = direction.gather(2, deepest[..., None, None].expand(B, M, 1, 3))[:, :, 0]
-    hand = tables["hand"]
-    tolerance = torch.where(hand, COLLISION_HAND_TOLERANCE_M, COLLISION_TOLERANCE_M).to(
-        points.dtype
-    )
-    excess = (-tolerance - signed).clamp_min(0.0)  # (B, M)
+    excess = (-allowed - signed).clamp_min(0.0)  # (B, M)
     weight = (excess > 0).to(points.dtype) / SIGMA_COLLISION_M
     batch = torch.arange(B, device=points.device).repeat_interleave(M)
     affects = tables["affects"]
-    columns = 1.0 - affects[torso[deepest].reshape(-1)]  # drop the DoFs the torso moves with
+    target = targets.gather(1, deepest.T).T  # (B, M)
+    columns = 1.0 - affects[target.reshape(-1)]  # drop the DoFs the target moves with
     rows = Rows(
         batch,
         points.reshape(-1, 3),

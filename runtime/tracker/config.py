@@ -30,7 +30,7 @@ it, with the value it had as a setting:
 - :mod:`runtime.tracker.silhouette_term`: ``MAX_SILHOUETTE_PIXELS``, ``SILHOUETTE_DEADZONE_PX``;
 - :mod:`runtime.tracker.label_term`: ``MAX_LABEL_PIXELS``, ``LABEL_GATE_M``;
 - :mod:`runtime.tracker.collision_term`: ``SIGMA_COLLISION_M``, ``COLLISION_TOLERANCE_M``,
-  ``COLLISION_HAND_TOLERANCE_M``;
+  ``COLLISION_HAND_TOLERANCE_M``, ``COLLISION_LEG_TOLERANCE_M``;
 - :mod:`runtime.tracker.signals`: ``MAX_SURFACE_POINTS``.
 
 The tracker always starts a frame from the previous pose (as Wei does), keeps the joint angles
@@ -112,6 +112,12 @@ class TrackerConfig:
         False,
         "collision term (not in Wei; runtime.tracker.collision_term): points on the arms' "
         "axes deeper than a tolerance inside the torso capsules are pushed out",
+    )
+    leg_collision: bool = field_doc(
+        False,
+        "with use_collision, points on each leg's axis (thigh and shank) are kept out of the "
+        "other leg's capsules too: the far leg in profile is otherwise laid onto the near one, "
+        "where the depth cannot tell them apart (runtime.tracker.collision_term)",
     )
     occlusion_handling: bool = field_doc(
         True,

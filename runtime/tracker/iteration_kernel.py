@@ -54,7 +54,7 @@ class FitArrays:
 
     body: tuple  # lengths (B, K), hip (B,), clavicle rest (B, 2), chest tilt (B,), float64
     capsules: tuple  # segment_of (P,), centre (B, P, 3), basis (P, 3, 3), span, scale
-    arms: tuple  # the collision term's samples, torso capsules, hand flags and constants
+    arms: tuple  # the collision term's samples, their target capsules, tolerances, constants
     observed: tuple  # valid, silhouette, depth (B or 1, H, W) for the classes, then the views
     candidates: tuple  # the extra depth term's observed candidates and their grid
     labelled: tuple  # the label term's sampled pixels (N, 3) and their ratios (N,)
@@ -71,7 +71,7 @@ def fit_arrays(obs, observed, body, geom, B: int, cfg, labels_on: bool, consts: 
     (float32, CPU) with the extra depth term's ``observed`` candidates (None: the term is
     off) under ``cfg``; ``labels_on``: the label term runs; ``consts``: the terms' constants
     by name (their modules hold them)."""
-    from .collision_term import ARM_SAMPLES, HAND_SAMPLES, TORSO_SEGMENTS
+    from .collision_term import collision_samples
 
     K, P = sk.NUM_SEGMENTS, geom.segment.shape[0]
     views = [obs.valid, obs.silhouette, obs.depth]
@@ -113,12 +113,12 @@ def fit_arrays(obs, observed, body, geom, B: int, cfg, labels_on: bool, consts: 
         np.ascontiguousarray(geom.span.expand(B, P, 2).numpy()),
         np.ascontiguousarray(geom.scale.expand(B, P, 3).numpy()),
     )  # fmt: skip
+    samples = collision_samples(cfg.leg_collision)
     arms = (
-        np.array([k for k, _ in ARM_SAMPLES], np.int64),
-        np.array([f for _, f in ARM_SAMPLES], np.float32),
-        np.asarray(sk.SEGMENT_AXIS, np.float32), np.array(TORSO_SEGMENTS, np.int64),
-        np.array(HAND_SAMPLES, np.bool_),
-        np.array([*c["collision"], 1.0, 1e-9, 1e-12], np.float32),
+        np.array(samples.segment, np.int64), np.array(samples.fraction, np.float32),
+        np.asarray(sk.SEGMENT_AXIS, np.float32), np.array(samples.targets, np.int64),
+        np.array(c["collision"][0], np.float32),
+        np.array([c["collision"][1], 0.0, 0.0, 1.0, 1e-9, 1e-12], np.float32),
     )  # fmt: skip
     observed_arrays = (
         *classes, obs.silhouette.numpy(), obs.points.numpy(), obs.distance.numpy(),
@@ -161,8 +161,8 @@ def axis_point_f32(rotation, origin, f, axis, out):  # pragma: no cover - compil
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def _pose_terms(
-    q, lengths, hip, clavicle, tilt, segment_of, centre, arm_seg, arm_frac, seg_axis, torso,
-    hand, basis, span, scale, coll_consts, use_collision, rotations, origins, dof_axes,
+    q, lengths, hip, clavicle, tilt, segment_of, centre, arm_seg, arm_frac, seg_axis, targets,
+    allowed, basis, span, scale, coll_consts, use_collision, rotations, origins, dof_axes,
     dof_origins, rot, origin, table, hess_c, grad_c,
 ):  # fmt: skip  # pragma: no cover - compiled
     """What an iteration needs of the poses alone, as the term-by-term path makes it: the
@@ -220,7 +220,7 @@ def _pose_terms(
             axis_point_f32(rotations[b, k], origins[b, k], f, seg_axis[k], points[b, m])
     affects = _AFFECTS.astype(np.float32)
     c_b, c_p, c_s, c_g, c_r, c_w, c_col = _collision(
-        points, arm_seg, torso, hand, rot, origin, basis, span, scale, affects, coll_consts
+        points, arm_seg, targets, allowed, rot, origin, basis, span, scale, affects, coll_consts
     )
     n = c_p.shape[0]
     lever = np.empty((n, 6))
@@ -263,7 +263,7 @@ def _extra_moments(points, seg, batch, offset, weight, K, stats):  # pragma: no 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def _iteration(
     q, q_pred, prior_w2, damping, max_angle, lengths, hip, clavicle, tilt, segment_of, centre,
-    basis, span, scale, arm_seg, arm_frac, seg_axis, torso, hand, coll_consts, valid,
+    basis, span, scale, arm_seg, arm_frac, seg_axis, targets, allowed, coll_consts, valid,
     silhouette1, depth1, silhouette, points, distance, distance_grad, labels, use,
     candidates, labelled, flags, ints, floats, centre_px, focal, intr64, rotations,
     origins, dof_axes, dof_origins, rot, origin, depth, prim, segment, good, b1, front,
@@ -278,8 +278,8 @@ def _iteration(
     hess_c = np.zeros((q.shape[0], D, D))
     grad_c = np.zeros((q.shape[0], D))
     _pose_terms(
-        q, lengths, hip, clavicle, tilt, segment_of, centre, arm_seg, arm_frac, seg_axis, torso,
-        hand, basis, span, scale, coll_consts, flags[6], rotations, origins, dof_axes,
+        q, lengths, hip, clavicle, tilt, segment_of, centre, arm_seg, arm_frac, seg_axis, targets,
+        allowed, basis, span, scale, coll_consts, flags[6], rotations, origins, dof_axes,
         dof_origins, rot, origin, table, hess_c, grad_c,
     )  # fmt: skip
     B = origin.shape[0]
