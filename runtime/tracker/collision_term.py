@@ -144,7 +144,9 @@ def sample_tolerances(samples: CollisionSamples) -> tuple[float, ...]:
 
 
 @functools.cache
-def _tables(dtype: torch.dtype, device: torch.device, legs: bool = False) -> dict[str, torch.Tensor]:
+def _tables(
+    dtype: torch.dtype, device: torch.device, legs: bool = False
+) -> dict[str, torch.Tensor]:
     """The term's constant tables on ``device``, made once: a copy from the host per call
     would make a GPU wait."""
     samples = collision_samples(legs)
@@ -156,7 +158,9 @@ def _tables(dtype: torch.dtype, device: torch.device, legs: bool = False) -> dic
     }
 
 
-def collision_sample_points(kin: Kinematics, legs: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+def collision_sample_points(
+    kin: Kinematics, legs: bool = False
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Camera-frame points on the sampled axes (:func:`collision_samples`): (B, M, 3), and
     the segment each rides on, (M,) int64."""
     tables = _tables(kin.origins.dtype, kin.origins.device, legs)

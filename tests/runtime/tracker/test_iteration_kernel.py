@@ -15,6 +15,7 @@ from depthmocap.runtime.tracker import tracker as tracker_module
 from depthmocap.runtime.tracker.tracker import expand_observation, fit_frames
 from depthmocap.shared import skeleton as sk
 from depthmocap.shared.body import BodyShape
+from depthmocap.shared.kinematics import forward_kinematics, named_joint_positions, rest_pose
 
 pytest.importorskip("numba")
 from depthmocap.runtime.tracker import iteration_kernel  # noqa: E402
@@ -135,6 +136,29 @@ def test_each_term_off(monkeypatch, make_pose, render_frame, flags):
     ref, fused, calls = _both(monkeypatch, obs, _start(q_true, 1.0), q_true, body, cfg)
     assert calls == ref.iterations
     _assert_same(ref, fused)
+
+
+def test_with_leg_collision(monkeypatch, render_frame):
+    """The collision term's leg samples (``leg_collision``), from a start with the right leg
+    swung in across the left: the same fit to the bit, and the shanks come apart."""
+    body = BodyShape.default(torch.float32)
+    q_true = rest_pose(1, root_position=(0.0, 0.1, 2.4))
+    q_true[0, D["r_femur_abd"]] = -0.07
+    start = q_true.clone()
+    start[0, D["r_femur_abd"]] = -0.26
+    obs = render_frame(q_true, body)
+    cfg = TrackerConfig(iterations=3, use_collision=True, leg_collision=True)
+    ref, fused, calls = _both(monkeypatch, obs, start, start, body, cfg)
+    assert calls == ref.iterations
+    _assert_same(ref, fused)
+    without = fit_frames(obs, start, start, body, dataclasses.replace(cfg, leg_collision=False))
+    ankles = [sk.JOINT_NAMES.index(n) for n in ("l_ankle", "r_ankle")]
+
+    def apart(q):
+        j = named_joint_positions(forward_kinematics(q, body))[0, ankles]
+        return float((j[0] - j[1]).norm())
+
+    assert apart(ref.q) > apart(without.q)
 
 
 def test_with_the_pose_prior(monkeypatch, make_pose, render_frame):
