@@ -158,6 +158,15 @@ def _tables(
     }
 
 
+@functools.cache
+def _tolerance_table(
+    tolerances: tuple[float, ...], dtype: torch.dtype, device: torch.device
+) -> torch.Tensor:
+    """(M,) tolerances on ``device``, made once per set of values (not a host copy per
+    iteration; tests patch the constants, which makes a new set)."""
+    return torch.as_tensor(tolerances, dtype=dtype, device=device)
+
+
 def collision_sample_points(
     kin: Kinematics, legs: bool = False
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -189,8 +198,8 @@ def collision_rows(
     B, M = points.shape[:2]
     tables = _tables(points.dtype, points.device, legs)
     targets = tables["targets"]  # (M, T)
-    allowed = torch.as_tensor(
-        sample_tolerances(collision_samples(legs)), dtype=points.dtype, device=points.device
+    allowed = _tolerance_table(
+        sample_tolerances(collision_samples(legs)), points.dtype, points.device
     )
     kernel = compiled_float32("depthmocap.runtime.tracker.collision_kernel", points)
     if kernel is not None:  # one compiled call, the same rows and columns
