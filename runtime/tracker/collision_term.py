@@ -136,10 +136,13 @@ def collision_samples(legs: bool = False) -> CollisionSamples:
     return CollisionSamples(*(tuple(c) for c in zip(*(arms + leg))))
 
 
-def sample_tolerances(samples: CollisionSamples) -> tuple[float, ...]:
+def sample_tolerances(
+    samples: CollisionSamples, leg_tolerance: float | None = None
+) -> tuple[float, ...]:
     """Each sample's tolerance (m), from the module's constants as they are now (tests patch
-    them)."""
-    by_kind = (COLLISION_TOLERANCE_M, COLLISION_HAND_TOLERANCE_M, COLLISION_LEG_TOLERANCE_M)
+    them); ``leg_tolerance`` replaces ``COLLISION_LEG_TOLERANCE_M`` for the leg samples."""
+    leg = COLLISION_LEG_TOLERANCE_M if leg_tolerance is None else leg_tolerance
+    by_kind = (COLLISION_TOLERANCE_M, COLLISION_HAND_TOLERANCE_M, leg)
     return tuple(by_kind[k] for k in samples.kind)
 
 
@@ -184,7 +187,10 @@ def arm_sample_points(kin: Kinematics) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def collision_rows(
-    kin: Kinematics, geom: SegmentGeometry, legs: bool = False
+    kin: Kinematics,
+    geom: SegmentGeometry,
+    legs: bool = False,
+    leg_tolerance: float | None = None,
 ) -> tuple[Rows, torch.Tensor]:
     """Rows of the collision term for B poses, and the Jacobian columns each row keeps:
     (:class:`Rows` of B * M rows, (B * M, 34) 0/1 mask for
@@ -192,14 +198,14 @@ def collision_rows(
 
     Points at most their tolerance (:func:`sample_tolerances`) inside every target capsule
     get zero weight (fixed row count: no branching on the data). ``legs``: the leg samples
-    too.
+    too, ``leg_tolerance`` deep (m; None: ``COLLISION_LEG_TOLERANCE_M``).
     """
     points, seg = collision_sample_points(kin, legs)  # (B, M, 3)
     B, M = points.shape[:2]
     tables = _tables(points.dtype, points.device, legs)
     targets = tables["targets"]  # (M, T)
     allowed = _tolerance_table(
-        sample_tolerances(collision_samples(legs)), points.dtype, points.device
+        sample_tolerances(collision_samples(legs), leg_tolerance), points.dtype, points.device
     )
     kernel = compiled_float32("depthmocap.runtime.tracker.collision_kernel", points)
     if kernel is not None:  # one compiled call, the same rows and columns

@@ -119,6 +119,12 @@ class TrackerConfig:
         "other leg's capsules too: the far leg in profile is otherwise laid onto the near one, "
         "where the depth cannot tell them apart (runtime.tracker.collision_term)",
     )
+    leg_collision_tolerance_m: float = field_doc(
+        0.0,
+        "with leg_collision, how deep (m) a leg's axis may lie inside the other leg's capsules "
+        "before the term acts: 0 keeps the axes a capsule radius apart (legs pressed together "
+        "stay legal), larger values touch only legs laid deep into each other",
+    )
     occlusion_handling: bool = field_doc(
         True,
         "Wei's pixel classification: exclude B2 (|depth difference| > gate) from the depth "
@@ -196,9 +202,12 @@ class TrackerConfig:
         area = self.observed_joint_area_cm2
         if not (area >= 0 and math.isfinite(area)):
             bad["observed_joint_area_cm2"] = area
+        leg = self.leg_collision_tolerance_m
+        if not (leg >= 0 and math.isfinite(leg)):
+            bad["leg_collision_tolerance_m"] = leg
         if bad:
             raise TrackerConfigError(
-                f"noise scales must be positive and finite (the observed-joint area and the pose "
-                f"prior's weight may be 0; the label posterior gate in [0, 1)), "
-                f"got {bad}"
+                f"noise scales must be positive and finite (the observed-joint area, the pose "
+                f"prior's weight and the leg collision tolerance may be 0; the label posterior "
+                f"gate in [0, 1)), got {bad}"
             )

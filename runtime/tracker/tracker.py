@@ -276,7 +276,9 @@ def _iteration_by_terms(
         hess = q_cast.new_zeros(B, sk.NUM_DOFS, sk.NUM_DOFS, dtype=torch.float64)
         grad = q_cast.new_zeros(B, sk.NUM_DOFS, dtype=torch.float64)
     if cfg.use_collision:
-        contact, columns = collision_rows(render.kin, geom, cfg.leg_collision)
+        contact, columns = collision_rows(
+            render.kin, geom, cfg.leg_collision, cfg.leg_collision_tolerance_m
+        )
         h, g = normal_equations(render.kin, contact, B, columns)
         hess, grad = hess + h, grad + g
     if cfg.pose_prior_weight > 0:
@@ -331,7 +333,10 @@ def _fit_arrays(fused, obs: Observation, observed, body, geom, B: int, cfg: Trac
         "label_gate": label_term.LABEL_GATE_M,
         "near": capsule_pixels.NEAR,
         "collision": (  # each sample's tolerance, then the rows' noise scale
-            collision_term.sample_tolerances(collision_term.collision_samples(cfg.leg_collision)),
+            collision_term.sample_tolerances(
+                collision_term.collision_samples(cfg.leg_collision),
+                cfg.leg_collision_tolerance_m,
+            ),
             collision_term.SIGMA_COLLISION_M,
         ),
     }

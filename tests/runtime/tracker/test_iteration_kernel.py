@@ -159,6 +159,13 @@ def test_with_leg_collision(monkeypatch, render_frame):
         return float((j[0] - j[1]).norm())
 
     assert apart(ref.q) > apart(without.q)
+    # The tolerance setting reaches both paths: the same fit to the bit, and a tolerance deeper
+    # than any overlap here leaves the legs as without the term.
+    for tolerance, same_as_without in ((0.02, False), (1.0, True)):
+        deep = dataclasses.replace(cfg, leg_collision_tolerance_m=tolerance)
+        ref, fused, _ = _both(monkeypatch, obs, start, start, body, deep)
+        _assert_same(ref, fused)
+        assert torch.equal(ref.q, without.q) == same_as_without
 
 
 def test_with_the_pose_prior(monkeypatch, make_pose, render_frame):

@@ -107,10 +107,29 @@ def test_leg_rows_act_only_deeper_than_the_tolerance(monkeypatch):
         assert bool(inside.any()) and bool((~inside).any())
         torch.testing.assert_close(rows.weight[M_ARMS:], inside.double() / 0.004)
         torch.testing.assert_close(rows.residual[M_ARMS:], (-tolerance - depth).clamp_min(0))
+        # The argument (TrackerConfig.leg_collision_tolerance_m) gives the same rows as the
+        # constant, whatever the constant holds.
+        monkeypatch.setattr(collision_term, "COLLISION_LEG_TOLERANCE_M", 0.05)
+        given, _ = collision_rows(kin, geom, legs=True, leg_tolerance=tolerance)
+        torch.testing.assert_close(given.weight, rows.weight)
+        torch.testing.assert_close(given.residual, rows.residual)
     # Both legs get rows: the left leg's samples lie in the right leg as much as the reverse.
     left = torch.tensor([sk.SEGMENT_NAMES[s].startswith("l_") for s, _ in LEG_SAMPLES])
     act = rows.weight[M_ARMS:] > 0
     assert bool(act[left].any()) and bool(act[~left].any())
+
+
+def test_the_leg_tolerance_setting_reaches_the_tolerance_table():
+    from depthmocap.runtime.tracker.config import TrackerConfig, TrackerConfigError
+
+    samples = collision_samples(legs=True)
+    tolerances = collision_term.sample_tolerances(samples, 0.02)
+    assert tolerances[M_ARMS:] == (0.02,) * len(LEG_SAMPLES)
+    assert tolerances[:M_ARMS] == collision_term.sample_tolerances(samples)[:M_ARMS]
+    assert TrackerConfig(leg_collision_tolerance_m=0.02).leg_collision_tolerance_m == 0.02
+    for bad in (-0.01, math.nan, math.inf):
+        with pytest.raises(TrackerConfigError, match="leg_collision_tolerance_m"):
+            TrackerConfig(leg_collision_tolerance_m=bad)
 
 
 def test_leg_collision_jacobian_matches_autograd(monkeypatch):
